@@ -1,0 +1,1 @@
+"""c3swarm: the pure core (model, barriers, safety filter, reference control)."""

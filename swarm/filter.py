@@ -1,0 +1,294 @@
+"""The C3BF-QP safety filter (DESIGN.md section 5)::
+
+    u* = argmin |u - u_ref|^2   s.t.   Lg_h u >= lower (one row per obstacle / neighbour),
+                                       u in the input set of the command level
+
+Inputs ``u``: rotor thrusts ``f`` (4,) [N] at the rotor level; thrust vector ``F`` (3,)
+[N, world] at the attitude level. When the rows cannot all hold, the least-violation QP
+with one slack per row (quadratic penalty) is solved instead and the tick is flagged.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+from numba import njit
+
+from swarm.barriers import BarrierKind
+from swarm.errors import InputError
+from swarm.model import (
+    CommandLevel,
+    LinearInputSet,
+    QuadModel,
+    QuadState,
+    check_finite,
+    rotor_input_set,
+    thrust_vector_input_set,
+)
+from swarm.obstacles import ObstacleArrays
+from swarm.qp import QPProblem, QPStatus, make_backend
+from swarm.rotation import BoolArray, FloatArray, IntArray
+from swarm.rows import OwnDynamics, Rows, assemble
+
+DEFAULT_BACKEND = "daqp"
+"""Chosen by ``tools/bench_filter.py``: daqp is exact and several times faster here."""
+
+
+@njit(cache=True)
+def _residuals(G, b, u, lb, ub, C, d):  # noqa: ANN001, ANN202
+    """``c = b - G u`` (>= 0 where a row holds) and the largest violation of a bound or
+    input row by ``u`` (0 when inside the input set)."""
+    n, m = G.shape
+    c = np.empty(n)
+    for i in range(n):
+        acc = b[i]
+        for j in range(m):
+            acc -= G[i, j] * u[j]
+        c[i] = acc
+    v = 0.0
+    for j in range(m):
+        v = max(v, lb[j] - u[j], u[j] - ub[j])
+    for i in range(C.shape[0]):
+        acc = -d[i]
+        for j in range(m):
+            acc += C[i, j] * u[j]
+        v = max(v, acc)
+    return c, v
+
+
+ACTIVE_TOL = 1e-8
+"""A row whose constraint value ``Lg_h u - lower`` is at most this is reported active."""
+
+
+class FilterStatus(StrEnum):
+    OK = "ok"
+    """Every row and bound holds (``u == u_ref`` when no row was active)."""
+    INFEASIBLE = "infeasible"
+    """The rows could not all hold: least-violation command, ``slack`` says by how much."""
+    COLLISION = "collision"
+    """At least one obstacle is already inside its safety radius: escape rows were used."""
+    FAILED = "failed"
+    """Both QPs failed numerically: ``u`` is ``u_ref`` clipped to the input bounds."""
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Settings of one agent's filter."""
+
+    level: CommandLevel = CommandLevel.ROTORS
+    barrier: BarrierKind = BarrierKind.C3BF
+    gamma: float = 1.0
+    """Class-K gain [1/s]: ``kappa(h) = gamma h`` (the paper's 1)."""
+    gamma_ho: float = 1.0
+    """HO-CBF gain [m/s] in ``h = <p,w> + gamma_ho s``."""
+    rho: float = 1.0
+    """Responsibility share of neighbour rows, in (0, 1]."""
+    sensing_radius_m: float = 3.0
+    """Neighbours farther than this (body centre to centre) get no row."""
+    margin_m: float = 0.02
+    """Extra clearance [m] added to every safety radius."""
+    eps_w_mps: float = 1e-3
+    """Smoothing of ``|w|`` [m/s] (DESIGN.md section 4)."""
+    escape_speed_mps: float = 0.3
+    """Separation speed asked of rows already inside their radius."""
+    slack_weight: float = 1e6
+    """Penalty on squared row violation in the infeasible fallback QP."""
+    backend: str = DEFAULT_BACKEND
+    max_rows: int = 64
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "level", CommandLevel(self.level))
+        object.__setattr__(self, "barrier", BarrierKind(self.barrier))
+        for name in ("gamma", "gamma_ho", "sensing_radius_m", "eps_w_mps", "slack_weight"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"FilterConfig.{name}: must be a finite number > 0, got {v!r}")
+        for name in ("margin_m", "escape_speed_mps"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
+        if not (0.0 < self.rho <= 1.0):
+            raise InputError(f"FilterConfig.rho: must be in (0, 1], got {self.rho!r}")
+        if not (isinstance(self.max_rows, int) and self.max_rows >= 1):
+            raise InputError(f"FilterConfig.max_rows: must be an integer >= 1, got {self.max_rows!r}")
+
+
+@dataclass(slots=True)
+class FilterResult:
+    """What one filter call decided. Row arrays follow ``row_index`` order."""
+
+    u: FloatArray  # (m,) the command: f [N] or F [N, world]; always finite
+    u_ref: FloatArray  # (m,)
+    status: FilterStatus
+    row_index: IntArray  # (n,): index into the obstacle arrays of each row
+    h: FloatArray  # (n,) barrier value of each row
+    constraint: FloatArray  # (n,) Lg_h u - lower = h' + kappa(h) (rho-weighted); >= 0 holds
+    active: BoolArray  # (n,): the row holds with equality (binding)
+    inside: BoolArray  # (n,): already inside the safety radius
+    slack: FloatArray  # (n,) violation allowed by the fallback QP (zeros when OK)
+    solve_time_s: float  # whole call: rows and QP
+    max_violation: float  # largest violation of a row or bound by u (0 when all hold)
+
+    @property
+    def min_h(self) -> float:
+        return float(self.h.min()) if self.h.size else math.inf
+
+    @property
+    def intervention(self) -> float:
+        """``|u - u_ref|`` in input units."""
+        return float(np.linalg.norm(self.u - self.u_ref))
+
+
+class SafetyFilter:
+    """One agent's C3BF-QP. Build once; call :meth:`filter` every control tick."""
+
+    def __init__(self, model: QuadModel, config: FilterConfig | None = None) -> None:
+        self.model = model
+        self.config = config or FilterConfig()
+        cfg = self.config
+        if cfg.level is CommandLevel.ROTORS:
+            self.input_set: LinearInputSet = rotor_input_set(model.params)
+        else:
+            self.input_set = thrust_vector_input_set(model.params)
+        self.m = self.input_set.lb.shape[0]
+        self.r_own_m = model.params.body_radius_m + cfg.margin_m
+        k_in = self.input_set.d.shape[0]
+        self._qp = make_backend(cfg.backend, self.m, cfg.max_rows + k_in)
+        self._qp_slack = make_backend(cfg.backend, self.m + cfg.max_rows, 2 * cfg.max_rows + k_in)
+        self._H = 2.0 * np.eye(self.m)
+        # a numerically failed solve is retried once with the exact active-set solver
+        self._fallback = None if cfg.backend == "daqp" else make_backend("daqp", self.m, 0)
+        self._own = OwnDynamics(cfg.level, model)
+
+    def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
+        """Indices of the obstacles that get a row: every non-neighbour, and neighbours
+        within the sensing radius (nearest first while rows remain). More obstacles than
+        ``max_rows`` raise :class:`InputError`: an obstacle is never silently dropped."""
+        n = len(obstacles)
+        if not obstacles.has_neighbours:
+            if n > self.config.max_rows:
+                raise InputError(f"obstacles: {n} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}")
+            return np.arange(n)
+        diff = obstacles.c_w - state.x_w
+        d2 = np.einsum("nj,nj->n", diff, diff)
+        keep = ~obstacles.is_neighbour | (d2 <= self.config.sensing_radius_m**2)
+        idx = np.flatnonzero(keep)
+        if idx.size > self.config.max_rows:
+            fixed = np.flatnonzero(~obstacles.is_neighbour)
+            room = self.config.max_rows - fixed.size
+            if room < 0:
+                raise InputError(
+                    f"obstacles: {fixed.size} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}"
+                )
+            near = np.flatnonzero(keep & obstacles.is_neighbour)
+            near = near[np.argsort(d2[near], kind="stable")[:room]]
+            idx = np.sort(np.concatenate([fixed, near]))
+        return idx
+
+    def rows(self, state: QuadState, obstacles: ObstacleArrays) -> Rows:
+        """The barrier rows for ``obstacles`` (all of them, no selection)."""
+        cfg = self.config
+        return assemble(
+            cfg.barrier, self._own(state), obstacles, obstacles.radius_m + self.r_own_m, gamma=cfg.gamma,
+            rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps,
+        )  # fmt: skip
+
+    def filter(
+        self, state: QuadState, u_ref: FloatArray, obstacles: ObstacleArrays, *, validate: bool = True
+    ) -> FilterResult:
+        """Filter ``u_ref`` against ``obstacles``. With ``validate`` the state and
+        reference are checked and a bad one raises :class:`InputError`."""
+        t0 = time.perf_counter()
+        if validate:
+            state = state.validated()
+            u_ref = check_finite("u_ref", u_ref, (self.m,))
+        idx = self.select(state, obstacles)
+        obs = obstacles if idx.size == len(obstacles) else obstacles.subset(idx)
+        rows = self.rows(state, obs)
+        G = -rows.Lg_h  # rows as G u <= b
+        b = -rows.lower
+        ins = self.input_set
+        n = b.shape[0]
+
+        # Fast path: the reference already satisfies everything.
+        c_ref, v_ref = _residuals(G, b, u_ref, ins.lb, ins.ub, ins.C, ins.d)
+        if v_ref == 0.0 and (n == 0 or c_ref.min() >= 0.0):
+            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, np.zeros(n), t0, G, b, (c_ref, v_ref))
+
+        A = np.vstack([ins.C, G]) if ins.d.size else G
+        bb = np.concatenate([ins.d, b]) if ins.d.size else b
+        problem = QPProblem(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb)
+        sol = self._qp.solve(problem)
+        if sol.status is QPStatus.FAILED and self._fallback is not None:
+            sol = self._fallback.solve(problem)
+        status = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.OK
+        if sol.status is QPStatus.OPTIMAL:
+            return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b)
+
+        # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
+        m, W = self.m, self.config.slack_weight
+        H = np.diag(np.concatenate([np.full(m, 2.0), np.full(n, 2.0 * W)]))
+        q = np.concatenate([-2.0 * u_ref, np.zeros(n)])
+        A_s = np.zeros((ins.d.size + n, m + n))
+        A_s[: ins.d.size, :m] = ins.C
+        A_s[ins.d.size :, :m] = G
+        A_s[ins.d.size :, m:] = -np.eye(n)
+        lb = np.concatenate([ins.lb, np.zeros(n)])
+        ub = np.concatenate([ins.ub, np.full(n, np.inf)])
+        sol_s = self._qp_slack_solve(QPProblem(H, q, lb, ub, A_s, bb))
+        if sol_s is not None:
+            u = sol_s[:m]
+            slack = np.maximum(G @ u - b, 0.0)
+            st = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.INFEASIBLE
+            return self._result(u, u_ref, st, idx, rows, slack, t0, G, b)
+        u = np.clip(u_ref, ins.lb, ins.ub)
+        return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b)
+
+    def _qp_slack_solve(self, problem: QPProblem) -> FloatArray | None:
+        padded = _pad_slack(problem, self.m, self.config.max_rows) if self._qp_slack.name == "osqp" else problem
+        sol = self._qp_slack.solve(padded)
+        if sol.status is not QPStatus.OPTIMAL and self._fallback is not None:
+            sol = self._fallback.solve(problem)
+        return sol.x[: problem.n] if sol.status is QPStatus.OPTIMAL else None
+
+    def _result(
+        self,
+        u: FloatArray,
+        u_ref: FloatArray,
+        status: FilterStatus,
+        idx: IntArray,
+        rows: Rows,
+        slack: FloatArray,
+        t0: float,
+        G: FloatArray,
+        b: FloatArray,
+        residuals: tuple[FloatArray, float] | None = None,
+    ) -> FilterResult:
+        ins = self.input_set
+        c, viol = residuals or _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
+        if c.size:
+            viol = max(viol, -float(c.min()))
+        return FilterResult(
+            u=u, u_ref=u_ref, status=status, row_index=idx, h=rows.h, constraint=c,
+            active=c <= ACTIVE_TOL, inside=rows.inside, slack=slack,
+            solve_time_s=time.perf_counter() - t0, max_violation=viol,
+        )  # fmt: skip
+
+
+def _pad_slack(problem: QPProblem, m: int, max_rows: int) -> QPProblem:
+    """Pad a slack QP with unused slack variables fixed at 0 (OSQP's fixed workspace)."""
+    n_pad = m + max_rows - problem.n
+    if n_pad == 0:
+        return problem
+    n = problem.n
+    H = np.eye(n + n_pad) * 2.0
+    H[:n, :n] = problem.H
+    A = np.hstack([problem.A, np.zeros((problem.A.shape[0], n_pad))])
+    return QPProblem(
+        H, np.concatenate([problem.q, np.zeros(n_pad)]), np.concatenate([problem.lb, np.zeros(n_pad)]),
+        np.concatenate([problem.ub, np.zeros(n_pad)]), A, problem.b,
+    )  # fmt: skip

@@ -1,0 +1,41 @@
+"""Dense active-set backend (daqp): exact on these small problems."""
+
+from __future__ import annotations
+
+import time
+
+import daqp
+import numpy as np
+
+from swarm.qp.problem import QPProblem, QPSolution, QPStatus
+
+
+class DaqpBackend:
+    name = "daqp"
+
+    def __init__(self, primal_tol: float = 1e-9) -> None:
+        self.primal_tol = primal_tol
+        # bound and sense buffers by problem size (n, rows)
+        self._bufs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def solve(self, problem: QPProblem) -> QPSolution:
+        t0 = time.perf_counter()
+        k = problem.b.shape[0]
+        n = problem.n
+        bufs = self._bufs.get((n, k))
+        if bufs is None:
+            lower = np.full(n + k, -np.inf)
+            bufs = self._bufs[(n, k)] = (np.empty(n + k), lower, np.zeros(n + k, dtype=np.int32))
+        upper, lower, sense = bufs
+        sense[:] = 0  # daqp leaves its active set in here: start each solve cold
+        upper[:n] = problem.ub
+        upper[n:] = problem.b
+        lower[:n] = problem.lb
+        x, _fval, flag, info = daqp.solve(
+            problem.H, problem.q, problem.A, upper, lower, sense, primal_tol=self.primal_tol
+        )
+        dt = time.perf_counter() - t0
+        if flag == 1 and np.isfinite(x).all():
+            return QPSolution(problem, x, QPStatus.OPTIMAL, dt, int(info["iterations"]))
+        status = QPStatus.INFEASIBLE if flag == -1 else QPStatus.FAILED
+        return QPSolution(problem, np.zeros(problem.n), status, dt, int(info.get("iterations", 0)))

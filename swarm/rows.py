@@ -1,0 +1,192 @@
+"""Barrier rows of the safety QP: Lie derivatives for both command levels.
+
+For an obstacle with centre ``c`` and an agent body centre ``x_b = x + l R e3``::
+
+    p = c - x_b,   w = c' - x_b',   w' = c'' + a0_own + A u
+
+``a0_own`` and ``A`` are the agent's own (negated) body-centre acceleration, shared by
+all rows; ``c''`` is the obstacle's. With ``h`` from :mod:`swarm.barriers`::
+
+    Lf_h = <dh_dp, w> + <dh_dw, c'' + a0_own>,   Lg_h = A^T dh_dw
+
+and each row asks ``Lg_h u >= -(<dh_dw, c'' + a0_own> + rho (<dh_dp, w> + gamma h))``,
+``rho = 1`` except for neighbours (DESIGN.md section 5).
+
+Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
+
+    A = R K,  K = [-l M_y; l M_x; -B[0] / m]           (since l R hat(e3) M = R [-l M_y; l M_x; 0])
+    a0_own = g e3 + R (-l Omega x (Omega x e3) + l hat(e3) Omega'_drift),
+    Omega'_drift = -J^-1 (Omega x J Omega)
+
+Attitude level (thrust-vector point mass at ``x``): ``A = -I / m``, ``a0_own = g e3``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from swarm.barriers import A_P, A_W, B_P, B_W, BarrierKind, BarrierRows, H, barrier_row
+from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.obstacles import ObstacleArrays
+from swarm.rotation import BoolArray, FloatArray
+
+
+@dataclass(slots=True)
+class OwnAffine:
+    """The agent's body-centre motion and ``-(body-centre acceleration) = a0_own + A u``."""
+
+    xv_b: FloatArray  # (2, 3): body-centre position [m, world] and velocity [m/s, world]
+    Aa: FloatArray  # (3, m + 1): [A | a0_own]; A in m/s^2 per N, a0_own in m/s^2, world
+
+    @property
+    def A(self) -> FloatArray:
+        return self.Aa[:, :-1]
+
+    @property
+    def a0_own(self) -> FloatArray:
+        return self.Aa[:, -1]
+
+
+@njit(cache=True)
+def _own_rotor(x, v, q, Om, K, l, g, Jx, Jy, Jz):  # noqa: ANN001, E741
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
+    R[0, 1] = 2 * (qx * qy - qz * qw)
+    R[0, 2] = 2 * (qx * qz + qy * qw)
+    R[1, 0] = 2 * (qx * qy + qz * qw)
+    R[1, 1] = 1 - 2 * (qx * qx + qz * qz)
+    R[1, 2] = 2 * (qy * qz - qx * qw)
+    R[2, 0] = 2 * (qx * qz - qy * qw)
+    R[2, 1] = 2 * (qy * qz + qx * qw)
+    R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
+    wx, wy, wz = Om[0], Om[1], Om[2]
+    dx = -(Jz - Jy) * wy * wz / Jx  # Omega'_drift
+    dy = -(Jx - Jz) * wz * wx / Jy
+    # body vectors: k0 (a0 part), l e3 (offset), l Omega x e3 (offset rate)
+    k0 = (-l * (wz * wx + dy), l * (dx - wz * wy), l * (wx * wx + wy * wy))
+    rate = (l * wy, -l * wx, 0.0)
+    m = K.shape[1]
+    xv_b = np.empty((2, 3))
+    Aa = np.empty((3, m + 1))
+    for i in range(3):
+        xv_b[0, i] = x[i] + l * R[i, 2]
+        xv_b[1, i] = v[i] + R[i, 0] * rate[0] + R[i, 1] * rate[1]
+        for j in range(m):
+            Aa[i, j] = R[i, 0] * K[0, j] + R[i, 1] * K[1, j] + R[i, 2] * K[2, j]
+        Aa[i, m] = R[i, 0] * k0[0] + R[i, 1] * k0[1] + R[i, 2] * k0[2]
+    Aa[2, m] += g
+    return xv_b, Aa
+
+
+class OwnDynamics:
+    """Builds :class:`OwnAffine` each tick from constants computed once per airframe."""
+
+    def __init__(self, level: CommandLevel, model: QuadModel) -> None:
+        p = model.params
+        self.level = level
+        M = model.J_inv @ model.B[1:]
+        self._K = np.ascontiguousarray(np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg]))
+        self._consts = (p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2)
+        self._Aa_att = np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]])
+
+    def __call__(self, state: QuadState) -> OwnAffine:
+        if self.level is CommandLevel.ATTITUDE:
+            return OwnAffine(np.stack([state.x_w, state.v_w]), self._Aa_att)
+        return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, *self._consts))
+
+
+def own_affine(level: CommandLevel, model: QuadModel, state: QuadState) -> OwnAffine:
+    """One-off :class:`OwnAffine` (the filter keeps an :class:`OwnDynamics` instead)."""
+    return OwnDynamics(level, model)(state)
+
+
+@njit(cache=True)
+def rows_kernel(kind, cv, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc):  # noqa: ANN001
+    """All rows at once: returns (Y_used (n,2,3), coef (n,7), inside, Lf_h, Lg_h (n,m), lower)."""
+    n = cv.shape[0]
+    m = Aa.shape[1] - 1
+    Y = np.empty((n, 2, 3))
+    coef = np.empty((n, 7))
+    inside = np.empty(n, dtype=np.bool_)
+    Lf = np.empty(n)
+    Lg = np.empty((n, m))
+    lower = np.empty(n)
+    p = np.empty(3)
+    w = np.empty(3)
+    dp = np.empty(3)
+    dw = np.empty(3)
+    for i in range(n):
+        for k in range(3):
+            p[k] = cv[i, 0, k] - xv_b[0, k]
+            w[k] = cv[i, 1, k] - xv_b[1, k]
+        inside[i] = barrier_row(kind, p, w, r[i], axis[i], eps, gamma_ho, v_esc, Y[i], coef[i])
+        c = coef[i]
+        rel = 0.0
+        own = 0.0
+        for k in range(3):
+            dp[k] = c[A_P] * Y[i, 0, k] + c[B_P] * Y[i, 1, k]
+            dw[k] = c[A_W] * Y[i, 0, k] + c[B_W] * Y[i, 1, k]
+            rel += dp[k] * Y[i, 1, k]
+            own += dw[k] * (cdd[i, k] + Aa[k, m])
+        for j in range(m):
+            Lg[i, j] = dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j]
+        Lf[i] = rel + own
+        lower[i] = -(own + share[i] * (rel + gamma * c[H]))
+    return Y, coef, inside, Lf, Lg, lower
+
+
+@dataclass(slots=True)
+class Rows:
+    """``n`` barrier rows ``Lg_h u >= lower``."""
+
+    barrier: BarrierRows
+    Lf_h: FloatArray  # (n,)
+    Lg_h: FloatArray  # (n, m)
+    lower: FloatArray  # (n,)
+
+    @property
+    def h(self) -> FloatArray:
+        return self.barrier.h
+
+    @property
+    def inside(self) -> BoolArray:
+        return self.barrier.inside
+
+
+def assemble(
+    kind: BarrierKind,
+    own: OwnAffine,
+    obstacles: ObstacleArrays,
+    r_total_m: FloatArray,
+    *,
+    gamma: float,
+    rho: float = 1.0,
+    eps: float = 1e-3,
+    gamma_ho: float = 1.0,
+    escape_speed: float = 0.3,
+) -> Rows:
+    """Build every row at once. ``r_total_m`` (n,) is the full safety radius per row."""
+    share = obstacles.share(rho)
+    Y, coef, inside, Lf, Lg, lower = rows_kernel(
+        kind.code, obstacles.cv_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w, share,
+        own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
+    )  # fmt: skip
+    return Rows(BarrierRows(Y, coef, inside), Lf, Lg, lower)
+
+
+__all__ = [
+    "A_P",
+    "A_W",
+    "B_P",
+    "B_W",
+    "OwnAffine",
+    "OwnDynamics",
+    "Rows",
+    "assemble",
+    "own_affine",
+    "rows_kernel",
+]

@@ -1,0 +1,179 @@
+"""The safety filter by residuals and the barrier condition (hypothesis properties)."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from swarm.barriers import BarrierKind
+from swarm.errors import InputError
+from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState
+from swarm.obstacles import ObstacleArrays
+
+from .helpers import random_state
+
+MODEL = QuadModel()
+FILTERS = {
+    (level, backend, kind): SafetyFilter(MODEL, FilterConfig(level=level, backend=backend, barrier=kind, rho=0.5))
+    for level in CommandLevel
+    for backend in ("daqp", "osqp")
+    for kind in BarrierKind
+}
+
+
+def scene(seed: int, n: int, level: CommandLevel):
+    rng = np.random.default_rng(seed)
+    state = random_state(rng, rates=1.0)
+    c = state.x_w + rng.uniform(-2.0, 2.0, (n, 3))
+    obs = ObstacleArrays.build(
+        c, rng.uniform(0.05, 0.4, n), rng.uniform(-1.5, 1.5, (n, 3)),
+        axis_w=np.where(rng.random((n, 1)) < 0.3, rng.normal(size=(n, 3)), 0.0),
+        is_neighbour=rng.random(n) < 0.4,
+    )  # fmt: skip
+    if level is CommandLevel.ROTORS:
+        u_ref = rng.uniform(0.0, MODEL.params.f_max_N, 4)
+    else:
+        u_ref = np.array([*rng.uniform(-0.15, 0.15, 2), rng.uniform(0.1, 0.5)])
+    return state, obs, u_ref
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31),
+    n=st.integers(0, 12),
+    level=st.sampled_from(list(CommandLevel)),
+    backend=st.sampled_from(["daqp", "osqp"]),
+    kind=st.sampled_from(list(BarrierKind)),
+)
+def test_filter_result_satisfies_rows_and_bounds(seed, n, level, backend, kind):
+    state, obs, u_ref = scene(seed, n, level)
+    filt = FILTERS[(level, backend, kind)]
+    res = filt.filter(state, u_ref, obs)
+    assert np.isfinite(res.u).all() and np.isfinite(res.h).all() and np.isfinite(res.slack).all()
+    rows = filt.rows(state, obs.subset(res.row_index))
+    residual = rows.Lg_h @ res.u - rows.lower  # >= 0 means the barrier condition holds
+    np.testing.assert_allclose(residual, res.constraint, atol=1e-12)
+    assert filt.input_set.violation(res.u) <= 1e-6
+    if res.status is FilterStatus.OK:
+        assert residual.min(initial=0.0) >= -1e-6
+        assert res.slack.max(initial=0.0) == 0.0
+        if not res.active.any() and filt.input_set.contains(u_ref):
+            np.testing.assert_array_equal(res.u, u_ref)
+    else:
+        assert res.status in (FilterStatus.INFEASIBLE, FilterStatus.COLLISION)
+        assert (res.slack >= 0).all()
+        # the slack says by how much each row is violated
+        np.testing.assert_allclose(np.maximum(-residual, 0.0), res.slack, atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 10), level=st.sampled_from(list(CommandLevel)))
+def test_backends_agree_on_the_optimum(seed, n, level):
+    state, obs, u_ref = scene(seed, n, level)
+    a = FILTERS[(level, "daqp", BarrierKind.C3BF)].filter(state, u_ref, obs)
+    b = FILTERS[(level, "osqp", BarrierKind.C3BF)].filter(state, u_ref, obs)
+    if a.status is FilterStatus.OK and b.status is FilterStatus.OK:
+        cost_a, cost_b = np.sum((a.u - u_ref) ** 2), np.sum((b.u - u_ref) ** 2)
+        assert abs(cost_a - cost_b) <= 1e-6 * max(1e-6, cost_a)
+
+
+def test_feasible_reference_passes_unchanged():
+    filt = SafetyFilter(MODEL)
+    state = QuadState.hover()
+    state.v_w = np.array([-0.5, -0.5, 0.0])  # moving away from both: h > 0
+    obs = ObstacleArrays.build([[5.0, 0.0, 1.0], [0.0, 4.0, 1.0]], [0.3, 0.3])
+    u_ref = np.full(4, MODEL.params.weight_N / 4)
+    res = filt.filter(state, u_ref, obs)
+    assert res.status is FilterStatus.OK and not res.active.any()
+    assert res.u is u_ref or np.array_equal(res.u, u_ref)
+    assert res.intervention == 0.0 and res.min_h >= 0.0
+
+
+def test_infeasible_rows_give_a_flagged_least_violation_command():
+    """Two obstacles closing in from opposite sides faster than the drone can react."""
+    filt = SafetyFilter(MODEL, FilterConfig(level=CommandLevel.ATTITUDE))
+    state = QuadState.hover()
+    obs = ObstacleArrays.build(
+        [[0.6, 0, 1.0], [-0.6, 0, 1.0], [0, 0.6, 1], [0, -0.6, 1]], [0.2] * 4,
+        [[-4.0, 0, 0], [4.0, 0, 0], [0, -4, 0], [0, 4, 0]],
+    )  # fmt: skip
+    res = filt.filter(state, np.array([0, 0, MODEL.params.weight_N]), obs)
+    assert res.status is FilterStatus.INFEASIBLE
+    assert np.isfinite(res.u).all() and res.slack.max() > 0
+    assert filt.input_set.contains(res.u, 1e-9)
+
+
+def test_inside_an_obstacle_commands_the_escape():
+    filt = SafetyFilter(MODEL, FilterConfig(level=CommandLevel.ATTITUDE))
+    state = QuadState.hover()
+    obs = ObstacleArrays.build([0.1, 0.0, 1.0], [0.2])  # 0.1 m away, radius 0.2: inside
+    res = filt.filter(state, np.array([0, 0, MODEL.params.weight_N]), obs)
+    assert res.status is FilterStatus.COLLISION and res.inside.all()
+    assert res.u[0] < 0  # pushes away from the obstacle at +x
+    assert np.isfinite(res.u).all()
+
+
+def test_sensing_radius_and_row_limit():
+    filt = SafetyFilter(MODEL, FilterConfig(sensing_radius_m=2.0, max_rows=3))
+    state = QuadState.hover()
+    c = np.array([[1.0, 0, 1], [3.0, 0, 1], [0, 1.5, 1], [0, -1.2, 1], [0, 0, 2.9]])
+    nb = ObstacleArrays.build(c, [0.1] * 5, is_neighbour=[True] * 5)
+    assert sorted(filt.select(state, nb).tolist()) == [0, 2, 3]  # within 2 m, nearest 3
+    static = ObstacleArrays.build(c, [0.1] * 5)
+    with pytest.raises(InputError, match="max_rows"):
+        filt.filter(state, np.full(4, 0.066), static)
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: SafetyFilter(MODEL).filter(
+            QuadState(np.array([0, 0, np.nan]), np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3)),
+            np.full(4, 0.06),
+            ObstacleArrays.empty(),
+        ),
+        lambda: SafetyFilter(MODEL).filter(
+            QuadState(np.zeros(3), np.array([np.inf, 0, 0]), np.array([0, 0, 0, 1.0]), np.zeros(3)),
+            np.full(4, 0.06),
+            ObstacleArrays.empty(),
+        ),
+        lambda: SafetyFilter(MODEL).filter(QuadState.hover(), np.array([0.1, np.nan, 0, 0]), ObstacleArrays.empty()),
+        lambda: ObstacleArrays.build([1.0, 0, 0], [-0.1]),
+        lambda: ObstacleArrays.build([1.0, np.nan, 0], [0.1]),
+        lambda: QuadModel(QuadParams(mass_kg=0.0)),
+        lambda: FilterConfig(max_rows=0),
+        lambda: FilterConfig(gamma=-1.0),
+        lambda: FilterConfig(rho=0.0),
+        lambda: FilterConfig(backend="nope") and SafetyFilter(MODEL, FilterConfig(backend="nope")),
+    ],
+)
+def test_bad_input_raises_a_specific_error(make):
+    with pytest.raises(InputError) as err:
+        make()
+    assert str(err.value)  # names the field and the reason
+
+
+def test_reciprocal_rows_add_up_to_the_pair_condition():
+    """rho = 0.5: the two agents' rows sum to h' + gamma h >= 0 of the pair (DESIGN 5)."""
+    cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5)
+    filt = SafetyFilter(MODEL, cfg)
+    a, b = QuadState.hover([0, 0, 1]), QuadState.hover([2.0, 0.3, 1.1])
+    a.v_w, b.v_w = np.array([1.0, 0, 0]), np.array([-1.0, 0.1, 0])
+    r_nb = MODEL.params.body_radius_m + cfg.margin_m
+    ra = filt.rows(a, ObstacleArrays.build(b.x_w, [r_nb], b.v_w, is_neighbour=[True]))
+    rb = filt.rows(b, ObstacleArrays.build(a.x_w, [r_nb], a.v_w, is_neighbour=[True]))
+    assert ra.h[0] == pytest.approx(rb.h[0], rel=1e-12)  # h symmetric in the pair
+    rng = np.random.default_rng(0)
+    Fa, Fb = rng.uniform(0.1, 0.4, 3), rng.uniform(0.1, 0.4, 3)
+    lhs = (ra.Lg_h[0] @ Fa - ra.lower[0]) + (rb.Lg_h[0] @ Fb - rb.lower[0])
+    # the pair's true h' with both accelerations: w' = a_b - a_a (gravity cancels)
+    p, w = b.x_w - a.x_w, b.v_w - a.v_w
+    acc = (Fb - Fa) / MODEL.params.mass_kg
+    s = math.sqrt(p @ p - (2 * r_nb) ** 2)
+    nw = math.sqrt(w @ w + cfg.eps_w_mps**2) - cfg.eps_w_mps
+    dh_dp = w + nw / s * p
+    dh_dw = p + s * w / math.sqrt(w @ w + cfg.eps_w_mps**2)
+    assert lhs == pytest.approx(dh_dp @ w + dh_dw @ acc + cfg.gamma * ra.h[0], rel=1e-9)

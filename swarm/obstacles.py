@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -28,21 +29,10 @@ class ObstacleArrays:
     radius_m: FloatArray  # (n,) m
     axis_w: FloatArray  # (n, 3) unit axis of a cylinder [world], zeros for a sphere
     is_neighbour: BoolArray  # (n,)
-    cv_w: FloatArray = field(init=False, repr=False)
-    """(n, 2, 3) centre and velocity stacked, as the rows use them."""
-    has_cylinders: bool = field(init=False, repr=False)
-    has_acceleration: bool = field(init=False, repr=False)
-    has_neighbours: bool = field(init=False, repr=False)
 
-    def __post_init__(self) -> None:
-        for f in ("c_w", "c_dot_w", "c_ddot_w", "radius_m", "axis_w"):
-            a = getattr(self, f)
-            if not (a.dtype == np.float64 and a.flags.c_contiguous):
-                object.__setattr__(self, f, np.ascontiguousarray(a, dtype=np.float64))
-        object.__setattr__(self, "cv_w", np.stack([self.c_w, self.c_dot_w], axis=1))
-        object.__setattr__(self, "has_cylinders", bool(np.any(self.axis_w)))
-        object.__setattr__(self, "has_acceleration", bool(np.any(self.c_ddot_w)))
-        object.__setattr__(self, "has_neighbours", bool(np.any(self.is_neighbour)))
+    @cached_property
+    def has_neighbours(self) -> bool:
+        return bool(self.is_neighbour.any())
 
     def share(self, rho: float) -> FloatArray:
         """(n,) responsibility share per row: ``rho`` for neighbours, 1 otherwise (cached)."""
@@ -57,8 +47,7 @@ class ObstacleArrays:
 
     @staticmethod
     def empty() -> ObstacleArrays:
-        z = np.zeros((0, 3))
-        return ObstacleArrays(z, z, z, np.zeros(0), z, np.zeros(0, dtype=bool))
+        return _EMPTY
 
     @staticmethod
     def build(
@@ -102,6 +91,11 @@ class ObstacleArrays:
 
     @staticmethod
     def concat(parts: list[ObstacleArrays]) -> ObstacleArrays:
-        if not parts:
-            return ObstacleArrays.empty()
+        parts = [p for p in parts if len(p)]
+        if len(parts) <= 1:
+            return parts[0] if parts else _EMPTY
         return ObstacleArrays(*(np.concatenate([getattr(o, f) for o in parts]) for f in _FIELDS))
+
+
+_Z = np.zeros((0, 3))
+_EMPTY = ObstacleArrays(_Z, _Z, _Z, np.zeros(0), _Z, np.zeros(0, dtype=bool))

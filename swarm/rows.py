@@ -105,9 +105,9 @@ def own_affine(level: CommandLevel, model: QuadModel, state: QuadState) -> OwnAf
 
 
 @njit(cache=True)
-def rows_kernel(kind, cv, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc):  # noqa: ANN001
+def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc):  # noqa: ANN001
     """All rows at once: returns (Y_used (n,2,3), coef (n,7), inside, Lf_h, Lg_h (n,m), lower)."""
-    n = cv.shape[0]
+    n = c.shape[0]
     m = Aa.shape[1] - 1
     Y = np.empty((n, 2, 3))
     coef = np.empty((n, 7))
@@ -121,21 +121,21 @@ def rows_kernel(kind, cv, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v
     dw = np.empty(3)
     for i in range(n):
         for k in range(3):
-            p[k] = cv[i, 0, k] - xv_b[0, k]
-            w[k] = cv[i, 1, k] - xv_b[1, k]
+            p[k] = c[i, k] - xv_b[0, k]
+            w[k] = cd[i, k] - xv_b[1, k]
         inside[i] = barrier_row(kind, p, w, r[i], axis[i], eps, gamma_ho, v_esc, Y[i], coef[i])
-        c = coef[i]
+        co = coef[i]
         rel = 0.0
         own = 0.0
         for k in range(3):
-            dp[k] = c[A_P] * Y[i, 0, k] + c[B_P] * Y[i, 1, k]
-            dw[k] = c[A_W] * Y[i, 0, k] + c[B_W] * Y[i, 1, k]
+            dp[k] = co[A_P] * Y[i, 0, k] + co[B_P] * Y[i, 1, k]
+            dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k]
             rel += dp[k] * Y[i, 1, k]
             own += dw[k] * (cdd[i, k] + Aa[k, m])
         for j in range(m):
             Lg[i, j] = dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j]
         Lf[i] = rel + own
-        lower[i] = -(own + share[i] * (rel + gamma * c[H]))
+        lower[i] = -(own + share[i] * (rel + gamma * co[H]))
     return Y, coef, inside, Lf, Lg, lower
 
 
@@ -172,7 +172,7 @@ def assemble(
     """Build every row at once. ``r_total_m`` (n,) is the full safety radius per row."""
     share = obstacles.share(rho)
     Y, coef, inside, Lf, Lg, lower = rows_kernel(
-        kind.code, obstacles.cv_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w, share,
+        kind.code, obstacles.c_w, obstacles.c_dot_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w, share,
         own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
     )  # fmt: skip
     return Rows(BarrierRows(Y, coef, inside), Lf, Lg, lower)

@@ -1,0 +1,274 @@
+"""Scenario files: a versioned YAML in the spirit of Crazyswarm2's ``crazyflies.yaml``.
+
+Layers: ``defaults`` <- ``agent_types[type]`` <- the agent's own keys (later wins, dicts
+merge key by key). Everything is validated before any process starts; an error names
+the file, the field path and the reason (:class:`ConfigError`). Validation uses pydantic.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from swarm.barriers import BarrierKind
+from swarm.filter import FilterConfig
+from swarm.model import CommandLevel, Layout, QuadParams
+
+SCHEMA_VERSION = 1
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class ConfigError(ValueError):
+    """A config that cannot run: ``file: field.path: reason``."""
+
+
+class TimeMode(StrEnum):
+    LOCKSTEP = "lockstep"
+    """The world steps only when every live agent has answered tick k (deterministic)."""
+    REALTIME = "realtime"
+    """The world runs on the wall clock; agents run on each new measurement."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _finite(v: Any) -> Any:
+    vals = v if isinstance(v, list) else [v]
+    for x in vals:
+        if isinstance(x, float) and not math.isfinite(x):
+            raise ValueError("must be finite")
+    return v
+
+
+class FilterSettings(_Strict):
+    kind: BarrierKind = BarrierKind.C3BF
+    gamma: float = Field(1.0, gt=0)  # 1/s, class-K gain
+    gamma_ho: float = Field(1.0, gt=0)  # m/s, HO-CBF gain
+    rho: float = Field(1.0, gt=0, le=1)  # responsibility share of neighbour rows
+    sensing_radius_m: float = Field(3.0, gt=0)
+    margin_m: float = Field(0.02, ge=0)
+    backend: Literal["daqp", "osqp"] = "daqp"
+    enabled: bool = True  # false: fly the reference controller unfiltered (baseline)
+
+    def filter_config(self, level: CommandLevel) -> FilterConfig:
+        return FilterConfig(
+            level=level, barrier=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
+            sensing_radius_m=self.sensing_radius_m, margin_m=self.margin_m, backend=self.backend,
+        )  # fmt: skip
+
+
+class AirframeSettings(_Strict):
+    """Overrides of :class:`swarm.model.QuadParams` (Crazyflie 2.1 defaults)."""
+
+    mass_kg: float | None = Field(None, gt=0)
+    Ixx_kgm2: float | None = Field(None, gt=0)
+    Iyy_kgm2: float | None = Field(None, gt=0)
+    Izz_kgm2: float | None = Field(None, gt=0)
+    l_m: float | None = Field(None, ge=0)
+    rotor_to_rotor_m: float | None = Field(None, gt=0)
+    thrust_to_weight: float | None = Field(None, gt=1)
+    layout: Layout | None = None
+    body_radius_m: float | None = Field(None, gt=0)
+
+    def params(self) -> QuadParams:
+        return QuadParams(**{k: v for k, v in self.model_dump().items() if v is not None})
+
+
+class AgentConfig(_Strict):
+    """One quadrotor after layering."""
+
+    id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
+    start: Vec3  # m, world: initial position, hovering
+    goal: Vec3 | None = None  # m, world
+    waypoints: list[Vec3] | None = None  # m, world; the path flown after the start
+    speed_mps: float = Field(1.0, gt=0)  # target speed along the path
+    yaw_rad: float = 0.0
+    command_level: CommandLevel = CommandLevel.ATTITUDE
+    filter: FilterSettings = FilterSettings()
+    airframe: AirframeSettings = AirframeSettings()
+    backend: Literal["sim"] = "sim"
+
+    _fin = field_validator("start", "goal", "speed_mps")(_finite)
+
+    @model_validator(mode="after")
+    def _path(self) -> AgentConfig:
+        if self.goal is not None and self.waypoints is not None:
+            raise ValueError("give either goal or waypoints, not both")
+        return self
+
+    def path(self) -> list[list[float]]:
+        """Waypoints from the start: [start, ...waypoints] or [start, goal] or [start]."""
+        if self.waypoints:
+            return [list(self.start), *self.waypoints]
+        return [list(self.start), list(self.goal)] if self.goal is not None else [list(self.start)]
+
+    @property
+    def final_goal(self) -> list[float]:
+        return self.path()[-1]
+
+
+class ObstacleConfig(_Strict):
+    id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
+    shape: Literal["sphere", "cylinder"]
+    center: Vec3  # m, world, at t = 0 (a point on the axis for a cylinder)
+    radius_m: float = Field(gt=0)
+    velocity: Vec3 = [0.0, 0.0, 0.0]  # m/s, world, constant
+    axis: Vec3 | None = None  # cylinder axis [world], any direction
+    length_m: float = Field(20.0, gt=0)  # cylinder length in the physics world; the barrier treats it as infinite
+
+    _fin = field_validator("center", "velocity", "axis")(_finite)
+
+    @model_validator(mode="after")
+    def _axis(self) -> ObstacleConfig:
+        if self.shape == "cylinder":
+            if self.axis is None or math.hypot(*self.axis) < 1e-9:
+                raise ValueError("a cylinder needs a non-zero axis")
+        elif self.axis is not None:
+            raise ValueError("a sphere has no axis")
+        return self
+
+
+class TimeSettings(_Strict):
+    mode: TimeMode = TimeMode.LOCKSTEP
+    physics_hz: float = Field(240.0, gt=0)
+    control_hz: float = Field(120.0, gt=0)  # must divide physics_hz
+    lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
+    start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
+
+    @model_validator(mode="after")
+    def _ratio(self) -> TimeSettings:
+        ratio = self.physics_hz / self.control_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"physics_hz ({self.physics_hz}) must be a whole multiple of control_hz ({self.control_hz})"
+            )
+        return self
+
+    @property
+    def substeps(self) -> int:
+        return round(self.physics_hz / self.control_hz)
+
+
+class NetworkSettings(_Strict):
+    """Zenoh. Default: peers on loopback, multicast scouting off, every process
+    connecting to the world's listener (``port`` 0 lets ``swarm run`` pick a free one)."""
+
+    mode: Literal["peer", "client"] = "peer"
+    host: str = "127.0.0.1"
+    port: int = Field(0, ge=0, le=65535)
+    connect: list[str] = []  # extra endpoints (a router, other machines)
+
+
+class FailureSettings(_Strict):
+    neighbour_timeout_s: float = Field(0.1, gt=0)  # older: extrapolated, radius grows
+    neighbour_growth_mps: float = Field(0.5, ge=0)  # radius growth per second of age
+    neighbour_hard_limit_s: float = Field(1.0, gt=0)  # older, or liveliness gone: on_lost
+    on_lost: Literal["keep_stopped", "drop"] = "keep_stopped"
+    on_agent_death: Literal["land", "motors_off"] = "land"  # what the world does with its drone
+
+
+class ScenarioConfig(_Strict):
+    version: Literal[1]
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    seed: int = 0
+    duration_s: float = Field(gt=0)
+    goal_tolerance_m: float = Field(0.15, gt=0)
+    stop_when_all_reached: bool = True
+    time: TimeSettings = TimeSettings()
+    network: NetworkSettings = NetworkSettings()
+    failure: FailureSettings = FailureSettings()
+    agents: list[AgentConfig] = Field(min_length=1)
+    obstacles: list[ObstacleConfig] = []
+    gui: bool = False
+
+    @model_validator(mode="after")
+    def _unique(self) -> ScenarioConfig:
+        for what, items in (("agents", self.agents), ("obstacles", self.obstacles)):
+            seen: set[str] = set()
+            for it in items:
+                if it.id in seen:
+                    raise ValueError(f"duplicate {what} id {it.id!r}")
+                seen.add(it.id)
+        return self
+
+    def agent(self, agent_id: str) -> AgentConfig:
+        for a in self.agents:
+            if a.id == agent_id:
+                return a
+        raise ConfigError(f"no agent with id {agent_id!r} (have {[a.id for a in self.agents]})")
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
+    """Layer defaults and agent types into each agent and validate everything."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{source}: the top level must be a mapping")
+    raw = dict(raw)
+    defaults = raw.pop("defaults", {}) or {}
+    types = raw.pop("agent_types", {}) or {}
+    if not isinstance(defaults, dict):
+        raise ConfigError(f"{source}: defaults: must be a mapping")
+    if not isinstance(types, dict):
+        raise ConfigError(f"{source}: agent_types: must be a mapping")
+    agents = raw.get("agents")
+    if isinstance(agents, list):
+        layered = []
+        for i, a in enumerate(agents):
+            if not isinstance(a, dict):
+                raise ConfigError(f"{source}: agents.{i}: must be a mapping")
+            a = dict(a)
+            tname = a.pop("type", None)
+            if tname is not None and tname not in types:
+                raise ConfigError(f"{source}: agents.{i}.type: unknown agent type {tname!r} (have {sorted(types)})")
+            layered.append(_merge(_merge(defaults, types.get(tname, {}) if tname else {}), a))
+        raw["agents"] = layered
+    try:
+        return ScenarioConfig.model_validate(raw)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        path = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+        raise ConfigError(f"{source}: {path}: {first['msg']}{more}") from None
+    except ValueError as exc:  # raised by our own models (e.g. QuadParams)
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def load(path: str | Path, overrides: dict[str, Any] | None = None) -> ScenarioConfig:
+    """Read, layer and validate a scenario file. ``overrides`` are merged on top
+    (e.g. ``{"time": {"mode": "realtime"}}`` from the command line)."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read ({exc.strerror})") from None
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p}: not valid YAML ({exc})") from None
+    if overrides:
+        raw = _merge(raw if isinstance(raw, dict) else {}, overrides)
+    cfg = resolve(raw, str(p))
+    for a in cfg.agents:  # build the physical parameters now, so their errors surface here
+        try:
+            a.airframe.params()
+        except ValueError as exc:
+            raise ConfigError(f"{p}: agents.{a.id}.airframe: {exc}") from None
+    return cfg
+
+
+def dump(cfg: ScenarioConfig) -> str:
+    """The resolved config as YAML (what a run folder stores)."""
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,175 @@
+"""Wire messages: msgpack maps with a common header and checked bodies.
+
+Every message carries ``ver`` (schema version), ``kind``, ``run`` (run id), ``src``
+(sender id), ``seq`` (per-sender sequence number), ``t`` (sim time [s]) and ``k``
+(control tick). Vectors travel as lists of floats: positions [m, world], velocities
+[m/s, world], quaternions scalar-last (see :mod:`swarm.rotation`), body rates [rad/s,
+body], forces [N]. :func:`decode` checks types, shapes and finiteness and raises
+:class:`DecodeError`; receivers drop and count such messages, never crash.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import msgpack
+import numpy as np
+
+VERSION = 1
+
+# kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
+# "vf" variable-length float list, "ls" list of str, "obs" obstacle list
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "measurement": {"x": 3, "v": 3, "q": 4, "w": 3},
+    "state": {
+        "x": 3, "v": 3, "r": "f", "goal_reached": "b", "min_h": "f", "status": "s",
+        "infeasible": "i", "solve_us": "f", "dropped": "i",
+    },
+    "command": {"level": "s", "u": "vf", "intervention": "f", "status": "s"},
+    "obstacles": {"items": "obs"},
+    "clock": {"live": "ls", "done": "b"},
+    "status": {
+        "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
+        "dropped": "i", "live": "ls", "done": "b",
+    },
+    "collision": {"a": "s", "b": "s"},
+}  # fmt: skip
+HEADER = ("ver", "kind", "run", "src", "seq", "t", "k")
+
+
+class DecodeError(ValueError):
+    """A message that is malformed, of another version or run, or of an unexpected kind."""
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded message: the header and the body fields (vectors as numpy arrays)."""
+
+    kind: str
+    run: str
+    src: str
+    seq: int
+    t: float
+    k: int
+    body: dict[str, Any] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> Any:
+        return self.body[name]
+
+
+def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
+    """msgpack bytes of a message; numpy arrays become lists of floats."""
+    if kind not in SCHEMAS:
+        raise ValueError(f"unknown message kind {kind!r}")
+    out: dict[str, Any] = {"ver": VERSION, "kind": kind, "run": run, "src": src, "seq": seq, "t": float(t), "k": k}
+    for name, value in body.items():
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        out[name] = value
+    return msgpack.packb(out, use_bin_type=True)
+
+
+def _float(name: str, x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+        raise DecodeError(f"{name}: expected a finite number, got {type(x).__name__}")
+    return float(x)
+
+
+def _vector(name: str, x: Any, n: int | None) -> np.ndarray:
+    if not isinstance(x, list) or (n is not None and len(x) != n):
+        raise DecodeError(f"{name}: expected a list of {n if n is not None else 'some'} numbers")
+    try:
+        arr = np.array(x, dtype=float)
+    except (TypeError, ValueError):
+        raise DecodeError(f"{name}: expected numbers") from None
+    if arr.ndim != 1 or not np.isfinite(arr).all() or any(isinstance(e, (bool, str)) for e in x):
+        raise DecodeError(f"{name}: expected finite numbers")
+    return arr
+
+
+def _obstacles(x: Any) -> list[dict[str, Any]]:
+    if not isinstance(x, list):
+        raise DecodeError("items: expected a list")
+    out = []
+    for i, o in enumerate(x):
+        if not isinstance(o, dict) or not isinstance(o.get("id"), str) or o.get("shape") not in ("sphere", "cylinder"):
+            raise DecodeError(f"items[{i}]: expected an obstacle with id and shape")
+        r = _float(f"items[{i}].r", o.get("r"))
+        if r < 0:
+            raise DecodeError(f"items[{i}].r: negative radius")
+        out.append({
+            "id": o["id"], "shape": o["shape"], "r": r,
+            "c": _vector(f"items[{i}].c", o.get("c"), 3), "cd": _vector(f"items[{i}].cd", o.get("cd"), 3),
+            "a": _vector(f"items[{i}].a", o.get("a"), 3),
+        })  # fmt: skip
+    return out
+
+
+def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Message:
+    """Decode and check a message of this ``run`` (and one of ``kinds`` if given)."""
+    try:
+        m = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several types on garbage
+        raise DecodeError(f"not msgpack ({type(exc).__name__})") from None
+    if not isinstance(m, dict):
+        raise DecodeError("not a map")
+    for h in HEADER:
+        if h not in m:
+            raise DecodeError(f"missing header field {h!r}")
+    if m["ver"] != VERSION:
+        raise DecodeError(f"schema version {m['ver']!r}, expected {VERSION}")
+    if m["run"] != run:
+        raise DecodeError(f"run {m['run']!r}, expected {run!r}")
+    kind = m["kind"]
+    if kind not in SCHEMAS or (kinds is not None and kind not in kinds):
+        raise DecodeError(f"unexpected kind {kind!r}")
+    if not isinstance(m["src"], str) or not isinstance(m["seq"], int) or not isinstance(m["k"], int):
+        raise DecodeError("header: src must be str, seq and k int")
+    t = _float("t", m["t"])
+    body: dict[str, Any] = {}
+    for name, spec in SCHEMAS[kind].items():
+        if name not in m:
+            raise DecodeError(f"{kind}: missing field {name!r}")
+        x = m[name]
+        if isinstance(spec, int):
+            body[name] = _vector(name, x, spec)
+        elif spec == "f":
+            body[name] = _float(name, x)
+        elif spec == "i":
+            if isinstance(x, bool) or not isinstance(x, int):
+                raise DecodeError(f"{name}: expected an integer")
+            body[name] = x
+        elif spec == "s":
+            if not isinstance(x, str):
+                raise DecodeError(f"{name}: expected a string")
+            body[name] = x
+        elif spec == "b":
+            if not isinstance(x, bool):
+                raise DecodeError(f"{name}: expected a boolean")
+            body[name] = x
+        elif spec == "vf":
+            body[name] = _vector(name, x, None)
+        elif spec == "ls":
+            if not isinstance(x, list) or not all(isinstance(e, str) for e in x):
+                raise DecodeError(f"{name}: expected a list of strings")
+            body[name] = list(x)
+        else:
+            body[name] = _obstacles(x)
+    return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
+
+
+def to_json(msg: Message) -> dict[str, Any]:
+    """A JSON-ready dict of a decoded message (for the recorder)."""
+
+    def conv(v: Any) -> Any:
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, list):
+            return [conv(e) for e in v]
+        if isinstance(v, dict):
+            return {k: conv(e) for k, e in v.items()}
+        return v
+
+    return {"kind": msg.kind, "src": msg.src, "seq": msg.seq, "t": msg.t, "k": msg.k, **conv(msg.body)}

@@ -1,0 +1,99 @@
+"""Run metrics from recorded messages (pure: lists of message dicts in, a dict out).
+
+Distances are between body centres (``x + l R e3``), as the barriers use them;
+obstacle clearance is to the obstacle surface (cylinders as infinite)."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+
+from swarm.config import ScenarioConfig
+from swarm.rotation import quat_to_R
+from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
+
+
+def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
+    """Metrics of one run. ``records`` are decoded messages (``swarm.messages.to_json``)."""
+    l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
+    meas: dict[str, list[tuple[float, int, np.ndarray]]] = defaultdict(list)
+    by_tick: dict[int, dict[str, np.ndarray]] = defaultdict(dict)
+    obstacles_at: dict[int, Any] = {}
+    last_state: dict[str, dict[str, Any]] = {}
+    min_h: dict[str, float] = defaultdict(lambda: math.inf)
+    statuses: list[dict[str, Any]] = []
+    collisions: list[dict[str, Any]] = []
+    for r in records:
+        kind = r["kind"]
+        if kind == "measurement":
+            aid = _agent_of(r)
+            x, q = np.asarray(r["x"]), np.asarray(r["q"])
+            meas[aid].append((r["t"], r["k"], x))
+            by_tick[r["k"]][aid] = x + l_m.get(aid, 0.0) * quat_to_R(q)[:, 2]
+        elif kind == "obstacles":
+            obstacles_at[r["k"]] = r["items"]
+        elif kind == "state":
+            last_state[r["src"]] = r
+            min_h[r["src"]] = min(min_h[r["src"]], r["min_h"])
+        elif kind == "status":
+            statuses.append(r)
+        elif kind == "collision":
+            collisions.append(r)
+
+    min_sep, min_clear = math.inf, math.inf
+    for k, bodies in by_tick.items():
+        pts = np.array(list(bodies.values()))
+        min_sep = min(min_sep, min_pair_distance(pts))
+        if obstacles_at.get(k):
+            min_clear = min(min_clear, float(surface_clearance(pts, items_to_arrays(obstacles_at[k])).min()))
+
+    agents: dict[str, Any] = {}
+    for a in cfg.agents:
+        m = sorted(meas.get(a.id, []), key=lambda e: e[1])
+        xs = np.array([e[2] for e in m]) if m else np.zeros((0, 3))
+        goal = np.asarray(a.final_goal)
+        d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
+        hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
+        st = last_state.get(a.id, {})
+        agents[a.id] = {
+            "reached_goal": bool(hit.size),
+            "time_to_goal_s": float(m[hit[0]][0]) if hit.size else None,
+            "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))) if len(xs) > 1 else 0.0,
+            "straight_line_m": float(np.linalg.norm(goal - np.asarray(a.start))),
+            "min_h": _finite_or_none(min_h[a.id]),
+            "infeasible_ticks": int(st.get("infeasible", 0)),
+            "dropped_messages": int(st.get("dropped", 0)),
+            "last_tick": int(m[-1][1]) if m else None,
+        }
+    final = statuses[-1] if statuses else {}
+    live_ever = {x for s in statuses for x in s["live"]}
+    lost = sorted(live_ever - set(final.get("live", [])))
+    return {
+        "scenario": cfg.name,
+        "mode": cfg.time.mode.value,
+        "collisions": len(collisions),
+        "collision_pairs": sorted({f"{c['a']}|{c['b']}" for c in collisions}),
+        "min_separation_m": _finite_or_none(min_sep),
+        "min_obstacle_clearance_m": _finite_or_none(min_clear),
+        "all_reached_goal": all(v["reached_goal"] for v in agents.values()),
+        "duration_s": float(final.get("t", 0.0)),
+        "real_time_factor": float(final.get("rtf", 0.0)),
+        "late_ticks": int(final.get("late", 0)),
+        "dropped_messages": int(final.get("dropped", 0))
+        + sum(v["dropped_messages"] for v in agents.values())
+        + recorder_dropped,
+        "lost_agents": lost,
+        "agents": agents,
+    }
+
+
+def _agent_of(record: dict[str, Any]) -> str:
+    """Agent id of a measurement record (its key is .../world/<id>/measurement)."""
+    return str(record.get("agent") or record["topic"].split("/")[-2])

@@ -1,0 +1,52 @@
+"""Pure helpers shared by the processes: obstacle geometry at time t, separations."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from swarm.config import ObstacleConfig
+from swarm.obstacles import ObstacleArrays
+from swarm.rotation import FloatArray
+
+
+def obstacle_items(obstacles: list[ObstacleConfig], t_s: float) -> list[dict]:
+    """The obstacle message items at sim time ``t_s`` [s] (constant velocity)."""
+    out = []
+    for o in obstacles:
+        c = np.asarray(o.center) + np.asarray(o.velocity) * t_s
+        a = np.zeros(3) if o.axis is None else np.asarray(o.axis) / np.linalg.norm(o.axis)
+        out.append(
+            {"id": o.id, "shape": o.shape, "c": c.tolist(), "cd": list(o.velocity), "r": o.radius_m, "a": a.tolist()}
+        )
+    return out
+
+
+def items_to_arrays(items: list[dict]) -> ObstacleArrays:
+    """Obstacle arrays of message items (already checked by :func:`swarm.messages.decode`:
+    finite, radius >= 0; axes are unit or zero as the world sends them)."""
+    if not items:
+        return ObstacleArrays.empty()
+    n = len(items)
+    return ObstacleArrays(
+        np.array([i["c"] for i in items], dtype=float), np.array([i["cd"] for i in items], dtype=float),
+        np.zeros((n, 3)), np.array([i["r"] for i in items], dtype=float),
+        np.array([i["a"] for i in items], dtype=float), np.zeros(n, dtype=bool),
+    )  # fmt: skip
+
+
+def surface_clearance(points_w: FloatArray, obs: ObstacleArrays) -> FloatArray:
+    """(n_points, n_obstacles) distance [m] from each point to each obstacle surface."""
+    d = obs.c_w[None, :, :] - points_w[:, None, :]
+    along = np.sum(d * obs.axis_w[None], axis=2, keepdims=True)
+    d = d - along * obs.axis_w[None]
+    return np.linalg.norm(d, axis=2) - obs.radius_m[None, :]
+
+
+def min_pair_distance(points_w: FloatArray) -> float:
+    """Smallest distance [m] between any two points, inf with fewer than two."""
+    best = float("inf")
+    for i, j in itertools.combinations(range(len(points_w)), 2):
+        best = min(best, float(np.linalg.norm(points_w[i] - points_w[j])))
+    return best

@@ -1,0 +1,204 @@
+"""Zenoh wiring: session configs, key expressions, and draining channels once per tick.
+
+The only module of ``swarm/`` that imports zenoh. Subscribers use FIFO channel handlers,
+never Python callbacks (a process with a callback subscriber can hang in
+``session.close()`` or at exit); processes drain what arrived once per tick with
+:func:`drain`, and every blocking wait has a deadline.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from swarm.messages import DecodeError, Message, decode
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one run, all under ``swarm/<run>/``."""
+
+    run: str
+
+    @property
+    def root(self) -> str:
+        return f"swarm/{self.run}"
+
+    def measurement(self, agent_id: str) -> str:
+        return f"{self.root}/world/{agent_id}/measurement"
+
+    @property
+    def obstacles(self) -> str:
+        return f"{self.root}/world/obstacles"
+
+    @property
+    def clock(self) -> str:
+        return f"{self.root}/world/clock"
+
+    @property
+    def status(self) -> str:
+        return f"{self.root}/world/status"
+
+    @property
+    def collision(self) -> str:
+        return f"{self.root}/world/collision"
+
+    def state(self, agent_id: str) -> str:
+        return f"{self.root}/agent/{agent_id}/state"
+
+    @property
+    def all_states(self) -> str:
+        return f"{self.root}/agent/*/state"
+
+    def command(self, agent_id: str) -> str:
+        return f"{self.root}/agent/{agent_id}/command"
+
+    @property
+    def all_commands(self) -> str:
+        return f"{self.root}/agent/*/command"
+
+    def alive(self, name: str) -> str:
+        return f"{self.root}/alive/{name}"
+
+    @property
+    def all_alive(self) -> str:
+        return f"{self.root}/alive/*"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.root}/**"
+
+    @staticmethod
+    def last(key: str) -> str:
+        return key.rsplit("/", 1)[-1]
+
+
+def session_config(
+    *, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None
+) -> zenoh.Config:
+    """A Zenoh config with multicast scouting off and explicit endpoints. Peers find each
+    other through the endpoints they connect to (gossip), never by multicast."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if mode == "peer":
+        conf.insert_json5("listen/endpoints", json.dumps(listen if listen is not None else ["tcp/127.0.0.1:0"]))
+    conf.insert_json5("connect/endpoints", json.dumps(connect or []))
+    return conf
+
+
+def world_endpoint(host: str, port: int) -> str:
+    return f"tcp/{host}:{port}"
+
+
+def process_config(network: Any, *, is_world: bool) -> zenoh.Config:
+    """Config of one process from the scenario's network settings: the world listens on
+    ``host:port``; every other process connects to it (and to ``network.connect``)."""
+    endpoint = world_endpoint(network.host, network.port)
+    if is_world:
+        return session_config(mode="peer", listen=[endpoint], connect=list(network.connect))
+    return session_config(mode=network.mode, listen=[f"tcp/{network.host}:0"], connect=[endpoint, *network.connect])
+
+
+@dataclass
+class Counter:
+    """Messages dropped per reason."""
+
+    dropped: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+    def drop(self, reason: str) -> None:
+        self.dropped += 1
+        key = reason.split(":")[0][:40]
+        self.reasons[key] = self.reasons.get(key, 0) + 1
+
+
+def open_channel(session: zenoh.Session, key: str, capacity: int = 4096) -> Any:
+    """A subscriber whose samples queue in a FIFO channel (no callback)."""
+    return session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
+
+
+def drain(sub: Any) -> Iterator[Any]:
+    """Every sample queued on ``sub`` right now, without blocking."""
+    while True:
+        s = sub.try_recv()
+        if s is None:
+            return
+        yield s
+
+
+def payload(sample: Any) -> bytes:
+    return bytes(sample.payload.to_bytes())
+
+
+def decode_sample(sample: Any, run: str, counter: Counter, kinds: tuple[str, ...] | None = None) -> Message | None:
+    """Decode a sample or drop and count it."""
+    try:
+        return decode(payload(sample), run, kinds)
+    except DecodeError as exc:
+        counter.drop(str(exc))
+        return None
+
+
+class Inbox:
+    """Samples of one subscriber, waited on with a deadline and without polling.
+
+    A daemon thread blocks in the channel's ``recv()`` (which releases the GIL) and
+    hands each sample to a :class:`queue.Queue`; :meth:`get` wakes as soon as one
+    arrives. A blocking ``recv()`` can wait forever once its publisher is gone, so it
+    only ever runs in this thread, which the process never joins (processes end with
+    ``os._exit``)."""
+
+    def __init__(self, session: zenoh.Session, key: str, capacity: int = 4096) -> None:
+        self.sub = open_channel(session, key, capacity)
+        self._q: queue.Queue[Any] = queue.Queue()
+        self._thread = threading.Thread(target=self._pump, name=f"inbox {key}", daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        try:
+            while True:
+                self._q.put(self.sub.recv())
+        except Exception:  # the subscriber or the session was closed
+            return
+
+    def get(self, deadline: float) -> Any | None:
+        """Next sample, or None at the wall-clock ``deadline`` (``time.monotonic``)."""
+        try:
+            return self._q.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            return None
+
+    def drain(self) -> Iterator[Any]:
+        """Every sample queued right now, without blocking."""
+        while True:
+            try:
+                yield self._q.get_nowait()
+            except queue.Empty:
+                return
+
+
+def liveliness_events(sub: Any) -> Iterator[tuple[str, bool]]:
+    """(name, alive) for every queued liveliness change."""
+    for s in drain(sub):
+        yield Keys.last(str(s.key_expr)), s.kind == zenoh.SampleKind.PUT
+
+
+def declare_liveliness(session: zenoh.Session, key: str) -> Any:
+    return session.liveliness().declare_token(key)
+
+
+def liveliness_subscriber(session: zenoh.Session, key: str) -> Any:
+    """Liveliness changes under ``key``, including tokens alive now (history)."""
+    return session.liveliness().declare_subscriber(key, zenoh.handlers.FifoChannel(1024), history=True)
+
+
+def open_session(conf: zenoh.Config) -> zenoh.Session:
+    return zenoh.open(conf)

@@ -1,0 +1,112 @@
+"""The recorder process: every message under ``swarm/<run>/**`` into ``run.mcap``.
+
+    python -m tools.record CONFIG --run RUN --out DIR [--port P]   (or: swarm record ...)
+
+Messages are decoded and written as JSON (one MCAP channel per key expression, JSON
+schema encoding), so Foxglove can open and plot the file. Undecodable messages are
+counted and written raw to ``/dropped``. The file is flushed every ``FLUSH_S`` seconds:
+a crash loses at most that much. Stops when the world reports done or disappears.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+from mcap.writer import CompressionType, Writer
+
+from swarm import transport as tp
+from swarm.config import load
+from swarm.messages import DecodeError, decode, to_json
+
+FLUSH_S = 0.5
+TAIL_S = 0.3  # keep listening this long after the world says done
+
+
+def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
+    keys = tp.Keys(run)
+    stop = {"now": False}
+
+    def on_signal(signum, frame):  # noqa: ANN001, ARG001
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    f = open(out_dir / "run.mcap", "wb")  # noqa: SIM115 - closed in finally
+    writer = Writer(f, compression=CompressionType.NONE, use_chunking=False)
+    writer.start(profile="", library="c3swarm")
+    schema = writer.register_schema("c3swarm.message", "jsonschema", json.dumps({"type": "object"}).encode())
+    raw_schema = writer.register_schema("c3swarm.raw", "jsonschema", json.dumps({"type": "object"}).encode())
+    channels: dict[str, int] = {}
+    dropped_channel = writer.register_channel("/dropped", "json", raw_schema)
+
+    session = tp.open_session(conf)
+    inbox = tp.Inbox(session, keys.everything, 1 << 18)
+    live_sub = tp.liveliness_subscriber(session, keys.all_alive)
+    token = tp.declare_liveliness(session, keys.alive("recorder"))
+    counter = tp.Counter()
+    world_seen = False
+    done_at: float | None = None
+    last_flush = time.monotonic()
+    count = 0
+    try:
+        while not stop["now"]:
+            first = inbox.get(time.monotonic() + 0.05)
+            for s in ([first] if first is not None else []) + list(inbox.drain()):
+                key = str(s.key_expr)
+                data = tp.payload(s)
+                now_ns = time.time_ns()
+                try:
+                    m = decode(data, run)
+                except DecodeError as exc:
+                    counter.drop(str(exc))
+                    rec = {"key": key, "reason": str(exc), "hex": data[:256].hex()}
+                    writer.add_message(dropped_channel, now_ns, json.dumps(rec).encode(), now_ns)
+                    continue
+                ch = channels.get(key)
+                if ch is None:
+                    ch = channels[key] = writer.register_channel("/" + key, "json", schema)
+                log_ns = int(m.t * 1e9)
+                writer.add_message(ch, log_ns, json.dumps(to_json(m)).encode(), now_ns, sequence=m.seq & 0xFFFFFFFF)
+                count += 1
+                if m.kind == "status" and m["done"] and done_at is None:
+                    done_at = time.monotonic()
+            for name, up in tp.liveliness_events(live_sub):
+                if name == "world":
+                    world_seen |= up
+                    if not up and done_at is None:
+                        done_at = time.monotonic()
+            if time.monotonic() - last_flush > FLUSH_S:
+                f.flush()
+                last_flush = time.monotonic()
+            if done_at is not None and time.monotonic() - done_at > TAIL_S:
+                break
+    finally:
+        writer.finish()
+        f.close()
+        token.undeclare()
+    (out_dir / "recorder.json").write_text(
+        json.dumps({"messages": count, "dropped": counter.dropped, "reasons": counter.reasons})
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description="c3swarm recorder process")
+    ap.add_argument("config")
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--port", type=int)
+    args = ap.parse_args()
+    over = {"network": {"port": args.port}} if args.port is not None else None
+    cfg = load(args.config, over)
+    code = main(args.run, args.out, tp.process_config(cfg.network, is_world=False))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -1,0 +1,297 @@
+"""The world process: PyBullet physics, measurements out, commands in.
+
+    python -m world.main CONFIG --run RUN [--port P] [--gui]   (or: swarm world CONFIG)
+
+Lockstep: publish tick k (obstacles, one measurement per agent, the clock), wait until
+every live agent answered k or the timeout passed (those are late and keep their last
+command), then step physics. Realtime: physics follows the wall clock; commands are
+applied when they arrive and held until replaced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from swarm import transport as tp
+from swarm.config import ScenarioConfig, TimeMode, load
+from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController
+from swarm.messages import encode
+from swarm.model import CommandLevel, QuadModel
+from swarm.rotation import quat_to_R
+from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from world.physics import PhysicsWorld
+
+
+@dataclass
+class DroneSlot:
+    """What the world holds for one agent's drone."""
+
+    model: QuadModel
+    level: CommandLevel
+    onboard: OnboardController
+    att: AttitudeController
+    goal: np.ndarray
+    alive: bool = False
+    dead: bool = False
+    command: np.ndarray | None = None  # rotors: f (4,) N; attitude: roll, pitch, yaw rate, thrust
+    command_k: int = -1
+    sent_at: dict[int, float] = field(default_factory=dict)  # tick -> wall time published
+    latencies_s: list[float] = field(default_factory=list)
+    on_time: int = 0
+    answered: int = 0
+    reached_at_s: float | None = None
+
+
+def _landing_thrusts(slot: DroneSlot, state, motors_off: bool) -> np.ndarray:  # noqa: ANN001
+    if motors_off or state.x_w[2] < 0.05:
+        return np.zeros(4)
+    p = slot.model.params
+    v_des = np.array([0.0, 0.0, -0.3])
+    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) + 2.0 * (v_des - state.v_w))
+    return slot.att.from_thrust_vector(state, F)
+
+
+def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[str, ...] = ()) -> int:  # noqa: ANN001, C901
+    keys = tp.Keys(run)
+    sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
+    slots: dict[str, DroneSlot] = {}
+    for a in cfg.agents:
+        model = QuadModel(a.airframe.params())
+        sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad)
+        slots[a.id] = DroneSlot(
+            model,
+            a.command_level,
+            OnboardController(model, a.yaw_rad),
+            AttitudeController(model),
+            np.asarray(a.final_goal),
+        )
+    for o in cfg.obstacles:
+        if o.shape == "sphere":
+            sim.add_sphere(o.id, np.asarray(o.center), o.radius_m, np.asarray(o.velocity))
+        else:
+            sim.add_cylinder(
+                o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m, np.asarray(o.velocity)
+            )
+
+    stop = {"now": False}
+
+    def on_signal(signum, frame):  # noqa: ANN001, ARG001
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    session = tp.open_session(conf)
+    counter = tp.Counter()
+    seq = 0
+    token = tp.declare_liveliness(session, keys.alive("world"))
+    cmd_in = tp.Inbox(session, keys.all_commands, 1 << 16)
+    live_sub = tp.liveliness_subscriber(session, keys.all_alive)
+    pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in slots}
+    pub_obs = session.declare_publisher(keys.obstacles)
+    pub_clock = session.declare_publisher(keys.clock)
+    pub_status = session.declare_publisher(keys.status)
+    pub_coll = session.declare_publisher(keys.collision)
+    others_alive: set[str] = set()
+
+    def poll_liveliness() -> None:
+        for name, up in tp.liveliness_events(live_sub):
+            if name in slots:
+                if up:
+                    slots[name].alive = True
+                elif slots[name].alive:
+                    slots[name].alive = False
+                    slots[name].dead = True
+            elif up:
+                others_alive.add(name)
+            else:
+                others_alive.discard(name)
+
+    def poll_commands(k_now: int, wait_until: float | None = None) -> None:
+        first = cmd_in.get(wait_until) if wait_until is not None else None
+        for s in ([first] if first is not None else []) + list(cmd_in.drain()):
+            m = tp.decode_sample(s, run, counter, ("command",))
+            if m is None:
+                continue
+            slot = slots.get(m.src)
+            if slot is None or slot.dead:
+                counter.drop("command from unknown or dead agent")
+                continue
+            u = m["u"]
+            want = 4
+            if u.shape != (want,) or m["level"] != slot.level.value:
+                counter.drop("command of wrong level or size")
+                continue
+            if m.k < slot.command_k:
+                continue  # older than what we hold
+            slot.command, slot.command_k = u, m.k
+            sent = slot.sent_at.pop(m.k, None)
+            if sent is not None:
+                slot.answered += 1
+                slot.latencies_s.append(time.monotonic() - sent)
+                if m.k >= k_now:
+                    slot.on_time += 1
+
+    # --- wait for everyone ----------------------------------------------------------
+    deadline = time.monotonic() + cfg.time.start_timeout_s
+    while not all(s.alive for s in slots.values()) or not set(expect) <= others_alive:
+        poll_liveliness()
+        if stop["now"] or time.monotonic() > deadline:
+            missing = [a for a, s in slots.items() if not s.alive] + sorted(set(expect) - others_alive)
+            print(f"world: gave up waiting for {missing}", file=sys.stderr)
+            token.undeclare()
+            return 2
+        time.sleep(0.005)
+
+    K = round(cfg.duration_s * cfg.time.control_hz)
+    sub = cfg.time.substeps
+    dt_ctrl = 1.0 / cfg.time.control_hz
+    lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+    collisions = 0
+    touching: set[tuple[str, str]] = set()
+    min_sep, min_clear, late = math.inf, math.inf, 0
+    wall0 = time.monotonic()
+    k = 0
+    done = False
+    names = list(slots)
+    phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
+    try:
+        for k in range(K + 1):
+            t_phase = time.perf_counter()
+            t = k * dt_ctrl
+            poll_liveliness()
+            # ground truth for metrics and measurements
+            states = {a: sim.state(a) for a in names}
+            items = obstacle_items(cfg.obstacles, t)
+            obs = items_to_arrays(items)
+            live = [a for a in names if slots[a].alive]
+            body = {a: s.x_w + slots[a].model.params.l_m * quat_to_R(s.q)[:, 2] for a, s in states.items()}
+            flying = np.array([body[a] for a in names if not slots[a].dead])
+            if len(flying) >= 2:
+                min_sep = min(min_sep, min_pair_distance(flying))
+            if len(obs) and len(flying):
+                min_clear = min(min_clear, float(surface_clearance(flying, obs).min()))
+            for a in names:
+                sl = slots[a]
+                if sl.reached_at_s is None and np.linalg.norm(states[a].x_w - sl.goal) <= cfg.goal_tolerance_m:
+                    sl.reached_at_s = t
+            all_reached = all(slots[a].reached_at_s is not None for a in names if not slots[a].dead)
+            done = k == K or (cfg.stop_when_all_reached and all_reached) or stop["now"] or not live
+            wall = time.monotonic() - wall0
+            status = dict(
+                rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
+                collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
+            )  # fmt: skip
+            seq += 1
+            pub_obs.put(encode("obstacles", run, "world", seq, t, k, items=items))
+            now = time.monotonic()
+            for a in live:
+                s = states[a]
+                seq += 1
+                if not done:
+                    slots[a].sent_at[k] = now
+                pubs[a].put(encode("measurement", run, "world", seq, t, k, x=s.x_w, v=s.v_w, q=s.q, w=s.Omega_b))
+            seq += 1
+            pub_status.put(encode("status", run, "world", seq, t, k, **status))
+            seq += 1
+            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done))
+            if done:
+                break
+
+            t_pub_end = time.perf_counter()
+            phase["publish"] += t_pub_end - t_phase
+            if lockstep:
+                wait_until = time.monotonic() + cfg.time.lockstep_timeout_s
+                while True:
+                    poll_liveliness()
+                    waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
+                    if not waiting or stop["now"]:
+                        break
+                    if time.monotonic() > wait_until:
+                        late += len(waiting)
+                        for a in waiting:
+                            slots[a].sent_at.pop(k, None)
+                        break
+                    # wake on the next command, at the latest after 20 ms to look at liveliness
+                    poll_commands(k, min(wait_until, time.monotonic() + 0.02))
+            t_wait_end = time.perf_counter()
+            phase["wait"] += t_wait_end - t_pub_end
+            for j in range(sub):
+                if not lockstep:
+                    # follow the wall clock, applying commands as they come
+                    target = wall0 + (k + j / sub) * dt_ctrl
+                    while time.monotonic() < target:
+                        time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
+                    poll_commands(k)
+                for a in names:
+                    sl = slots[a]
+                    st = sim.state(a) if (j > 0 or sl.level is CommandLevel.ATTITUDE or sl.dead) else states[a]
+                    if sl.dead:
+                        f = _landing_thrusts(sl, st, cfg.failure.on_agent_death == "motors_off")
+                    elif sl.command is None:
+                        f = sl.onboard.rotor_thrusts(
+                            st, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), sim.dt_s
+                        )
+                    elif sl.level is CommandLevel.ROTORS:
+                        f = sl.command
+                    else:
+                        r, p, yr, T = (float(x) for x in sl.command)
+                        f = sl.onboard.rotor_thrusts(st, AttitudeSetpoint(r, p, yr, T), sim.dt_s)
+                    sim.apply_rotors(a, np.clip(f, 0.0, sl.model.params.f_max_N))
+                pairs = set(sim.step())
+                for pair in pairs - touching:
+                    collisions += 1
+                    seq += 1
+                    pub_coll.put(encode("collision", run, "world", seq, sim.t_s, k, a=pair[0], b=pair[1]))
+                touching = pairs
+            phase["physics"] += time.perf_counter() - t_wait_end
+            if not lockstep:
+                for a in live:
+                    sl = slots[a]
+                    stale = [kk for kk in sl.sent_at if kk < k]
+                    late += len(stale)
+                    for kk in stale:
+                        sl.sent_at.pop(kk)
+    finally:
+        token.undeclare()
+        sim.close()
+    lat = [x for s in slots.values() for x in s.latencies_s]
+    sent = sum(s.answered for s in slots.values()) + late
+    print(
+        f"world: done at tick {k}, t={k * dt_ctrl:.2f}s, collisions={collisions}, late={late}, "
+        f"p99_latency_ms={np.percentile(lat, 99) * 1e3 if lat else float('nan'):.2f}, "
+        f"on_time={(sum(s.on_time for s in slots.values()) / sent) if sent else float('nan'):.4f}",
+        file=sys.stderr,
+    )
+    print(f"world: wall time per phase [s] { ({n: round(v, 3) for n, v in phase.items()}) }", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description="c3swarm world process")
+    ap.add_argument("config")
+    ap.add_argument("--run", required=True)
+    ap.add_argument("--port", type=int)
+    ap.add_argument("--mode", choices=["lockstep", "realtime"])
+    ap.add_argument("--gui", action="store_true")
+    ap.add_argument("--expect", action="append", default=[], help="other processes to wait for (e.g. recorder)")
+    args = ap.parse_args()
+    over: dict = {}
+    if args.port is not None:
+        over["network"] = {"port": args.port}
+    if args.mode:
+        over["time"] = {"mode": args.mode}
+    cfg = load(args.config, over)
+    code = main(cfg, args.run, tp.process_config(cfg.network, is_world=True), gui=args.gui, expect=tuple(args.expect))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    import os
+
+    os._exit(code)  # no interpreter teardown: zenoh sessions can hang there

@@ -1,0 +1,163 @@
+"""PyBullet backend: drones as rigid bodies driven by rotor thrusts, kinematic obstacles,
+a ground plane, and contacts. DIRECT mode by default (no display), GUI on request.
+
+Each drone's base frame is its centre of mass (PyBullet's quaternions are scalar-last,
+the project's order, see :mod:`swarm.rotation`). Rotor thrusts act at the rotor
+positions along body z, plus the yaw reaction torque; mass and the inertia diagonal
+are the model's. The collision shape is a flat cylinder of the airframe's bounding
+radius centred ``l`` above the centre of mass (the body centre of DESIGN.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from swarm.model import QuadModel, QuadState, rotor_geometry
+from swarm.rotation import E3, FloatArray, quat_to_R
+
+
+@dataclass
+class Body:
+    name: str
+    uid: int
+    kind: str  # "drone" | "obstacle" | "ground"
+
+
+def _quat_z_to(axis: FloatArray) -> list[float]:
+    """Scalar-last quaternion rotating +z onto ``axis``."""
+    a = axis / np.linalg.norm(axis)
+    c = float(a[2])
+    if c > 1 - 1e-12:
+        return [0.0, 0.0, 0.0, 1.0]
+    if c < -1 + 1e-12:
+        return [1.0, 0.0, 0.0, 0.0]
+    v = np.cross(E3, a)
+    s = math.sqrt((1 + c) * 2)
+    return [v[0] / s, v[1] / s, v[2] / s, s / 2]
+
+
+class PhysicsWorld:
+    """One PyBullet client. Not thread-safe; owned by the world process."""
+
+    def __init__(self, physics_hz: float, g_mps2: float = 9.81, gui: bool = False) -> None:
+        self.client = pb.connect(pb.GUI if gui else pb.DIRECT)
+        self.dt_s = 1.0 / physics_hz
+        pb.setGravity(0, 0, -g_mps2, physicsClientId=self.client)
+        pb.setTimeStep(self.dt_s, physicsClientId=self.client)
+        pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=self.client)
+        plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=self.client)
+        ground = pb.createMultiBody(0, plane, physicsClientId=self.client)
+        self.bodies: dict[int, Body] = {ground: Body("ground", ground, "ground")}
+        self.drones: dict[str, int] = {}
+        self._rotors: dict[str, tuple[FloatArray, FloatArray, float]] = {}
+        self.obstacles: dict[str, tuple[int, FloatArray, FloatArray]] = {}  # id -> uid, c0, velocity
+        self.t_s = 0.0
+
+    # --- building -------------------------------------------------------------------
+    def add_drone(self, name: str, model: QuadModel, start_w: FloatArray, yaw_rad: float = 0.0) -> None:
+        p = model.params
+        shape = pb.createCollisionShape(
+            pb.GEOM_CYLINDER, radius=p.body_radius_m, height=0.03, collisionFramePosition=[0, 0, p.l_m],
+            physicsClientId=self.client,
+        )  # fmt: skip
+        visual = pb.createVisualShape(
+            pb.GEOM_CYLINDER, radius=p.body_radius_m, length=0.03, visualFramePosition=[0, 0, p.l_m],
+            rgbaColor=[0.2, 0.4, 0.9, 1], physicsClientId=self.client,
+        )  # fmt: skip
+        q = pb.getQuaternionFromEuler([0, 0, yaw_rad])
+        uid = pb.createMultiBody(p.mass_kg, shape, visual, list(start_w), q, physicsClientId=self.client)
+        pb.changeDynamics(
+            uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
+            angularDamping=0.0, physicsClientId=self.client,
+        )  # fmt: skip
+        pos, spin = rotor_geometry(p)
+        self._rotors[name] = (pos, spin, p.c_tau_m)
+        self.drones[name] = uid
+        self.bodies[uid] = Body(name, uid, "drone")
+
+    def add_sphere(self, name: str, center_w: FloatArray, radius_m: float, velocity_w: FloatArray) -> None:
+        col = pb.createCollisionShape(pb.GEOM_SPHERE, radius=radius_m, physicsClientId=self.client)
+        vis = pb.createVisualShape(
+            pb.GEOM_SPHERE, radius=radius_m, rgbaColor=[0.9, 0.3, 0.2, 1], physicsClientId=self.client
+        )
+        uid = pb.createMultiBody(0, col, vis, list(center_w), physicsClientId=self.client)
+        self._add_obstacle(name, uid, center_w, velocity_w)
+
+    def add_cylinder(
+        self,
+        name: str,
+        center_w: FloatArray,
+        axis_w: FloatArray,
+        radius_m: float,
+        length_m: float,
+        velocity_w: FloatArray,
+    ) -> None:
+        col = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=radius_m, height=length_m, physicsClientId=self.client)
+        vis = pb.createVisualShape(
+            pb.GEOM_CYLINDER,
+            radius=radius_m,
+            length=length_m,
+            rgbaColor=[0.9, 0.6, 0.2, 1],
+            physicsClientId=self.client,
+        )
+        uid = pb.createMultiBody(
+            0, col, vis, list(center_w), _quat_z_to(np.asarray(axis_w, float)), physicsClientId=self.client
+        )
+        self._add_obstacle(name, uid, center_w, velocity_w)
+
+    def _add_obstacle(self, name: str, uid: int, c0: FloatArray, vel: FloatArray) -> None:
+        self.obstacles[name] = (uid, np.asarray(c0, float), np.asarray(vel, float))
+        self.bodies[uid] = Body(name, uid, "obstacle")
+
+    # --- stepping -------------------------------------------------------------------
+    def obstacle_center(self, name: str) -> FloatArray:
+        _uid, c0, vel = self.obstacles[name]
+        return c0 + vel * self.t_s
+
+    def apply_rotors(self, name: str, f_N: FloatArray) -> None:
+        """Rotor thrusts (4,) [N] for the next step (PyBullet clears forces every step)."""
+        uid = self.drones[name]
+        pos, spin, c_tau = self._rotors[name]
+        for i in range(4):
+            pb.applyExternalForce(
+                uid, -1, [0, 0, float(f_N[i])], [float(pos[i, 0]), float(pos[i, 1]), 0.0], pb.LINK_FRAME,
+                physicsClientId=self.client,
+            )  # fmt: skip
+        # yaw reaction torque, applied in world frame along body z
+        _, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
+        z_b = quat_to_R(np.array(q))[:, 2]
+        tau = float(c_tau * (spin @ f_N))
+        pb.applyExternalTorque(uid, -1, list(tau * z_b), pb.WORLD_FRAME, physicsClientId=self.client)
+
+    def step(self) -> list[tuple[str, str]]:
+        """Advance one physics step; returns the pairs of bodies in contact (ground
+        excluded for drones resting on it is the caller's choice: all pairs are given)."""
+        self.t_s += self.dt_s
+        for _name, (uid, c0, vel) in self.obstacles.items():
+            if vel.any():
+                _pos, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
+                pb.resetBasePositionAndOrientation(uid, list(c0 + vel * self.t_s), q, physicsClientId=self.client)
+        pb.stepSimulation(physicsClientId=self.client)
+        pairs = set()
+        for c in pb.getContactPoints(physicsClientId=self.client):
+            a, b = self.bodies.get(c[1]), self.bodies.get(c[2])
+            if a is None or b is None or (a.kind != "drone" and b.kind != "drone"):
+                continue
+            pairs.add(tuple(sorted((a.name, b.name))))
+        return sorted(pairs)  # type: ignore[arg-type]
+
+    def state(self, name: str) -> QuadState:
+        uid = self.drones[name]
+        pos, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
+        lin, ang = pb.getBaseVelocity(uid, physicsClientId=self.client)
+        qa = np.array(q)
+        Omega_b = quat_to_R(qa).T @ np.array(ang)
+        return QuadState(np.array(pos), np.array(lin), qa, Omega_b)
+
+    def close(self) -> None:
+        if pb.isConnected(self.client):
+            pb.disconnect(self.client)

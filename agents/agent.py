@@ -1,17 +1,20 @@
 """The agent process: one quadrotor's reference controller and C3BF-QP safety filter.
 
-    python -m agents.agent CONFIG --run RUN --id ID [--port P]   (or: swarm agent CONFIG --id ID)
+    python -m agents.agent CONFIG --run RUN --id ID   (or: swarm agent CONFIG --id ID)
 
-Every tick (each new measurement): drain what arrived (neighbour states, obstacles,
-liveliness), build one row per obstacle and per neighbour in range, filter the
-reference command, publish this agent's state and then its command. In lockstep the
-agent first waits (with a deadline) for every live neighbour's state of the previous
-tick, so two runs of one config compute the same commands.
+An event loop over one inbox (the agent's measurement, each neighbour's state, the
+obstacles, the clock): nothing polls. On each measurement it builds one row per
+obstacle and per neighbour in range, filters the reference command, and publishes this
+agent's state and then its command. In lockstep it first waits (with a deadline) for
+the world's clock and obstacles of tick k and every live neighbour's state of tick k-1,
+and uses exactly those, so two runs of one config compute the same commands; in
+realtime it uses the newest of everything.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import signal
@@ -24,7 +27,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode, load
 from swarm.control import AttitudeController, PathTracker, setpoint_from_thrust_vector, yaw_of
 from swarm.filter import FilterStatus, SafetyFilter
-from swarm.messages import encode
+from swarm.messages import Message, encode
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
@@ -32,20 +35,89 @@ from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays
 
 
-def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: ANN001, C901
-    me = cfg.agent(agent_id)
-    keys = tp.Keys(run)
-    model = QuadModel(me.airframe.params())
-    level = me.command_level
-    filt = SafetyFilter(model, me.filter.filter_config(level))
-    tracker = PathTracker(me.path(), me.speed_mps)
-    att = AttitudeController(model)
-    f = cfg.failure
-    table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
-    goal = np.asarray(me.final_goal)
-    lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-    others = {a.id for a in cfg.agents} - {agent_id}
+class Agent:
+    """One agent's state between ticks; :meth:`tick` is the control step."""
 
+    def __init__(self, cfg: ScenarioConfig, agent_id: str) -> None:
+        self.cfg, self.id = cfg, agent_id
+        me = self.me = cfg.agent(agent_id)
+        self.model = QuadModel(me.airframe.params())
+        self.level = me.command_level
+        self.filt = SafetyFilter(self.model, me.filter.filter_config(self.level))
+        self.tracker = PathTracker(me.path(), me.speed_mps)
+        self.att = AttitudeController(self.model)
+        f = cfg.failure
+        self.table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
+        self.goal = np.asarray(me.final_goal)
+        self.others = {a.id for a in cfg.agents} - {agent_id}
+        self.obstacles = ObstacleArrays.empty()
+        self.obstacles_k = -1
+        self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
+        self.infeasible = 0
+        self.min_h = math.inf
+        self.reached = False
+        # first filter call loads numba's compiled code (about a second): do it now, before
+        # the world can see this agent, so that no tick pays for it
+        self.filt.filter(QuadState.hover(me.start), self.filt.input_set.lb.copy(), ObstacleArrays.empty())
+
+    def on_obstacles(self, m: Message) -> None:
+        if m.k >= self.obstacles_k:
+            self.obstacles, self.obstacles_k = items_to_arrays(m["items"]), m.k
+
+    def on_clock(self, m: Message) -> None:
+        self.clock_live[m.k] = m["live"]
+        for old in [kk for kk in self.clock_live if kk < m.k - 4]:
+            del self.clock_live[old]
+
+    def ready(self, k: int) -> bool:
+        """Lockstep: has everything of tick k arrived (clock, obstacles, neighbours k-1)?"""
+        live = self.clock_live.get(k)
+        if live is None or (self.cfg.obstacles and self.obstacles_k < k):
+            return False
+        return k == 0 or all(
+            n not in self.others or n in self.table.gone or self.table.latest_k(n) >= k - 1 for n in live
+        )
+
+    def tick(self, msg: Message, lockstep: bool) -> tuple[dict, dict]:
+        """One control step on a measurement: (state message body, command message body)."""
+        me, model, level = self.me, self.model, self.level
+        k, t = msg.k, msg.t
+        state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
+        R = quat_to_R(state.q)
+        wx, wy, _wz = state.Omega_b
+        x_b = state.x_w + model.params.l_m * R[:, 2]
+        v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
+        F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w)
+        u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
+        rows = ObstacleArrays.concat([self.obstacles, self.table.arrays(t, k - 1 if lockstep else None)])
+        if me.filter.enabled:
+            res = self.filt.filter(state, u_ref, rows)
+            u, status = res.u, res.status
+            if status is not FilterStatus.OK:
+                self.infeasible += 1
+            if res.h.size:
+                self.min_h = min(self.min_h, res.min_h)
+            intervention, solve_us = res.intervention, res.solve_time_s * 1e6
+        else:
+            u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
+        self.reached = self.reached or bool(np.linalg.norm(state.x_w - self.goal) <= self.cfg.goal_tolerance_m)
+        state_body = dict(
+            x=x_b, v=v_b, r=model.params.body_radius_m, goal_reached=self.reached,
+            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status=status.value,
+            infeasible=self.infeasible, solve_us=solve_us,
+        )  # fmt: skip
+        if level is CommandLevel.ATTITUDE:
+            sp = setpoint_from_thrust_vector(u, yaw_of(state), me.yaw_rad)
+            cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
+        else:
+            cmd = u
+        return state_body, dict(level=level.value, u=cmd, intervention=intervention, status=status.value)
+
+
+def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: ANN001, C901
+    agent = Agent(cfg, agent_id)
+    keys = tp.Keys(run)
+    lockstep = cfg.time.mode is TimeMode.LOCKSTEP
     stop = {"now": False}
 
     def on_signal(signum, frame):  # noqa: ANN001, ARG001
@@ -56,159 +128,95 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
 
     session = tp.open_session(conf)
     counter = tp.Counter()
-    meas_in = tp.Inbox(session, keys.measurement(agent_id), 256)
-    state_sub = tp.open_channel(session, keys.all_states, 1 << 14)
-    obs_sub = tp.open_channel(session, keys.obstacles, 256)
-    clock_sub = tp.open_channel(session, keys.clock, 256)
+    meas_key = keys.measurement(agent_id)
+    inbox = tp.Inbox(
+        session, [meas_key, keys.obstacles, keys.clock, *(keys.state(n) for n in sorted(agent.others))], 1 << 14
+    )
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-    # first filter call loads numba's compiled code (about a second): do it before the
-    # world can see us, so no tick pays for it
-    filt.filter(QuadState.hover(me.start), filt.input_set.lb.copy(), ObstacleArrays.empty())
     pub_state = session.declare_publisher(keys.state(agent_id))
     pub_cmd = session.declare_publisher(keys.command(agent_id))
     token = tp.declare_liveliness(session, keys.alive(agent_id))
+    startup_cpu_s = time.process_time()
 
-    own_state_key = keys.state(agent_id)
     alive: set[str] = set()
     world_seen = False
-    obstacles = ObstacleArrays.empty()
-    obstacles_k = -1
+    pending: list[Message] = []  # measurements not yet acted on
     seq = 0
-    infeasible = 0
-    min_h = math.inf
-    reached = False
-    exit_code = 0
-    tick_s: list[float] = []
-    tick_s: list[float] = []  # wall time from measurement received to command sent
+    tick_s: list[float] = []  # wall time from measurement taken up to command sent
+    waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
+    msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
 
-    def drain_background() -> None:
-        nonlocal obstacles, obstacles_k, world_seen
-        for name, up in tp.liveliness_events(live_sub):
-            if up:
-                alive.add(name)
-                world_seen |= name == "world"
-            else:
-                alive.discard(name)
-                table.mark_gone(name)
-        for s in tp.drain(state_sub):
-            if str(s.key_expr) == own_state_key:
-                continue  # our own state comes back to us: skip it before decoding
-            m = tp.decode_sample(s, run, counter, ("state",))
-            if m is not None:
-                table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
-        for s in tp.drain(obs_sub):
-            m = tp.decode_sample(s, run, counter, ("obstacles",))
-            if m is not None and m.k >= obstacles_k:
-                obstacles, obstacles_k = items_to_arrays(m["items"]), m.k
+    def handle(sample) -> None:  # noqa: ANN001
+        key = str(sample.key_expr)
+        m = tp.decode_sample(sample, run, counter)
+        if m is None:
+            return
+        if key == meas_key and m.kind == "measurement":
+            pending.append(m)
+            msg_seen.setdefault(m.k, time.monotonic())
+        elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
+            agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
+        elif m.kind == "obstacles" and key == keys.obstacles:
+            agent.on_obstacles(m)
+        elif m.kind == "clock" and key == keys.clock:
+            agent.on_clock(m)
+            if m["done"]:
+                stop["now"] = True
+        else:
+            counter.drop(f"unexpected {m.kind} on {key}")
 
     try:
         while not stop["now"]:
-            sample = meas_in.get(time.monotonic() + 0.05)
-            drain_background()
-            for s in tp.drain(clock_sub):
-                m = tp.decode_sample(s, run, counter, ("clock",))
-                if m is not None and m["done"]:
-                    stop["now"] = True
+            s = inbox.get(time.monotonic() + 0.1)
+            if s is not None:
+                handle(s)
+            for s in inbox.drain():
+                handle(s)
+            for name, up in tp.liveliness_events(live_sub):
+                if up:
+                    alive.add(name)
+                    world_seen |= name == "world"
+                else:
+                    alive.discard(name)
+                    if name in agent.others:
+                        agent.table.mark_gone(name)
+                        print(f"agent {agent_id}: neighbour {name} gone (liveliness) at wall {time.time():.4f}",
+                              file=sys.stderr)  # fmt: skip
             if world_seen and "world" not in alive:
                 print(f"agent {agent_id}: the world is gone, stopping", file=sys.stderr)
                 break
-            if sample is None:
+            if not pending:
                 continue
-            msg = tp.decode_sample(sample, run, counter, ("measurement",))
-            if not lockstep:  # realtime: only the newest measurement matters
-                for s in meas_in.drain():
-                    newer = tp.decode_sample(s, run, counter, ("measurement",))
-                    if newer is not None and (msg is None or newer.k > msg.k):
-                        msg = newer
-            if msg is None:
-                continue
-            t_recv = time.perf_counter()
-            k, t = msg.k, msg.t
             if lockstep:
-                # this tick's obstacles and every live neighbour's state of tick k-1
-                deadline = time.monotonic() + cfg.time.lockstep_timeout_s
-                while time.monotonic() < deadline and not stop["now"]:
-                    need_obs = bool(cfg.obstacles) and obstacles_k < k
-                    waiting = [
-                        n for n in alive if n in others and table.latest_k(n) < k - 1
-                    ]  # fmt: skip
-                    if not need_obs and not waiting:
-                        break
-                    time.sleep(0.0001)
-                    drain_background()
-            state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
-            R = quat_to_R(state.q)
-            x_b = state.x_w + model.params.l_m * R[:, 2]
-            wx, wy, _wz = state.Omega_b
-            v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
-            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w)
-            u_ref = att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
-            rows = ObstacleArrays.concat([obstacles, table.arrays(t)])
-            if me.filter.enabled:
-                res = filt.filter(state, u_ref, rows)
-                u, status = res.u, res.status
-                if status is not FilterStatus.OK:
-                    infeasible += 1
-                if res.h.size:
-                    min_h = min(min_h, res.min_h)
-                intervention, solve_us = res.intervention, res.solve_time_s * 1e6
+                msg = min(pending, key=lambda m: m.k)
+                if not agent.ready(msg.k):
+                    if time.monotonic() - msg_seen[msg.k] < cfg.time.lockstep_timeout_s:
+                        continue  # wait for the rest of tick k (the inbox wakes us)
+                    counter.drop("lockstep: tick incomplete at the deadline")
+                pending.remove(msg)
+                waited_s += time.monotonic() - msg_seen.pop(msg.k, time.monotonic())
             else:
-                u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
-            reached = reached or bool(np.linalg.norm(state.x_w - goal) <= cfg.goal_tolerance_m)
+                msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters
+                pending.clear()
+            t0 = time.perf_counter()
+            state_body, cmd_body = agent.tick(msg, lockstep)
             seq += 1
-            pub_state.put(
-                encode(
-                    "state",
-                    run,
-                    agent_id,
-                    seq,
-                    t,
-                    k,
-                    x=x_b,
-                    v=v_b,
-                    r=model.params.body_radius_m,
-                    goal_reached=reached,
-                    min_h=min_h if math.isfinite(min_h) else 1e9,
-                    status=status.value,
-                    infeasible=infeasible,
-                    solve_us=solve_us,
-                    dropped=counter.dropped,
-                )  # fmt: skip
-            )
-            if level is CommandLevel.ATTITUDE:
-                sp = setpoint_from_thrust_vector(u, yaw_of(state), me.yaw_rad)
-                cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
-            else:
-                cmd = u
+            pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **state_body))
             seq += 1
-            pub_cmd.put(
-                encode(
-                    "command",
-                    run,
-                    agent_id,
-                    seq,
-                    t,
-                    k,
-                    level=level.value,
-                    u=cmd,
-                    intervention=intervention,
-                    status=status.value,
-                )  # fmt: skip
-            )
-            tick_s.append(time.perf_counter() - t_recv)
+            pub_cmd.put(encode("command", run, agent_id, seq, msg.t, msg.k, **cmd_body))
+            tick_s.append(time.perf_counter() - t0)
     finally:
         token.undeclare()
-    if tick_s:
-        ts = np.array(tick_s) * 1e3
-        print(
-            f"agent {agent_id}: {len(ts)} ticks, compute median {np.median(ts):.3f} ms,"
-            f" p99 {np.percentile(ts, 99):.3f} ms,"
-            f" cpu {time.process_time():.2f} s",
-            file=sys.stderr,
-        )
+    ts = np.array(tick_s or [0.0]) * 1e3
+    summary = {
+        "id": agent_id, "ticks": len(tick_s), "compute_median_ms": float(np.median(ts)),
+        "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": waited_s, "cpu_s": time.process_time(),
+        "startup_cpu_s": startup_cpu_s, "dropped": counter.dropped,
+    }  # fmt: skip
+    print("AGENT_SUMMARY " + json.dumps(summary), file=sys.stderr)
     if counter.dropped:
         print(f"agent {agent_id}: dropped {counter.dropped} messages {counter.reasons}", file=sys.stderr)
-    return exit_code
+    return 0
 
 
 def run_from_args(argv: list[str] | None = None) -> int:

@@ -72,21 +72,21 @@ def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: An
 
 
 def _float(name: str, x: Any) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+    if type(x) not in _NUMBER or not math.isfinite(x):
         raise DecodeError(f"{name}: expected a finite number, got {type(x).__name__}")
     return float(x)
 
 
+_NUMBER = (float, int)
+
+
 def _vector(name: str, x: Any, n: int | None) -> np.ndarray:
-    if not isinstance(x, list) or (n is not None and len(x) != n):
+    if type(x) is not list or (n is not None and len(x) != n):
         raise DecodeError(f"{name}: expected a list of {n if n is not None else 'some'} numbers")
-    try:
-        arr = np.array(x, dtype=float)
-    except (TypeError, ValueError):
-        raise DecodeError(f"{name}: expected numbers") from None
-    if arr.ndim != 1 or not np.isfinite(arr).all() or any(isinstance(e, (bool, str)) for e in x):
-        raise DecodeError(f"{name}: expected finite numbers")
-    return arr
+    for e in x:  # exact types: a bool is not a number here
+        if type(e) not in _NUMBER or not math.isfinite(e):
+            raise DecodeError(f"{name}: expected finite numbers")
+    return np.array(x, dtype=float)
 
 
 def _obstacles(x: Any) -> list[dict[str, Any]]:

@@ -20,10 +20,14 @@ class Neighbour:
     x_w: FloatArray  # (3,) m, world: body centre
     v_w: FloatArray  # (3,) m/s, world
     radius_m: float  # its own bounding radius
-    gone: bool = False
 
 
 class NeighbourTable:
+    """Latest states per neighbour, with a short history by tick so that lockstep runs
+    can use exactly the state of tick k-1 whatever else has arrived meanwhile."""
+
+    HISTORY = 8  # ticks of history kept per neighbour
+
     def __init__(
         self,
         timeout_s: float,
@@ -32,34 +36,43 @@ class NeighbourTable:
         on_lost: str = "keep_stopped",
     ) -> None:
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
-        self.table: dict[str, Neighbour] = {}
+        self.history: dict[str, dict[int, Neighbour]] = {}
+        self.gone: set[str] = set()
 
     def update(self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float) -> None:
-        old = self.table.get(name)
-        if old is not None and (k < old.k or old.gone):
-            return  # out of order, or already declared gone
-        self.table[name] = Neighbour(t_s, k, x_w, v_w, radius_m)
+        if name in self.gone:
+            return
+        h = self.history.setdefault(name, {})
+        h[k] = Neighbour(t_s, k, x_w, v_w, radius_m)
+        if len(h) > self.HISTORY:
+            del h[min(h)]
 
     def mark_gone(self, name: str) -> None:
-        if name in self.table:
-            self.table[name].gone = True
+        self.gone.add(name)
 
     def latest_k(self, name: str) -> int:
-        n = self.table.get(name)
-        return -1 if n is None else n.k
+        h = self.history.get(name)
+        return max(h) if h else -1
 
-    def lost(self, name: str, t_now_s: float) -> bool:
-        n = self.table[name]
-        return n.gone or t_now_s - n.t_s > self.hard_limit_s
+    def state(self, name: str, k_max: int | None = None) -> Neighbour | None:
+        """Newest state of ``name`` with tick <= ``k_max`` (any tick when None)."""
+        h = self.history.get(name)
+        if not h:
+            return None
+        ks = [k for k in h if k_max is None or k <= k_max]
+        return h[max(ks)] if ks else None
 
-    def arrays(self, t_now_s: float) -> ObstacleArrays:
-        """Neighbour rows at ``t_now_s`` [s]."""
-        if not self.table:
+    def arrays(self, t_now_s: float, k_max: int | None = None) -> ObstacleArrays:
+        """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``."""
+        if not self.history:
             return ObstacleArrays.empty()
         c, cd, r = [], [], []
-        for name, n in self.table.items():
+        for name in self.history:
+            n = self.state(name, k_max)
+            if n is None:
+                continue
             age = max(0.0, t_now_s - n.t_s)
-            if self.lost(name, t_now_s):
+            if name in self.gone or age > self.hard_limit_s:
                 if self.on_lost == "drop":
                     continue
                 c.append(n.x_w)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -50,3 +51,32 @@ def min_pair_distance(points_w: FloatArray) -> float:
     for i, j in itertools.combinations(range(len(points_w)), 2):
         best = min(best, float(np.linalg.norm(points_w[i] - points_w[j])))
     return best
+
+
+def circle_swap(
+    n: int,
+    radius_m: float = 2.0,
+    *,
+    altitude_m: float = 1.0,
+    speed_mps: float = 0.8,
+    rotation_rad: float = 0.05,
+    control_hz: float = 120.0,
+    physics_hz: float = 240.0,
+    duration_s: float = 20.0,
+    mode: str = "lockstep",
+    name: str | None = None,
+) -> dict:
+    """A raw scenario (as :func:`swarm.config.resolve` takes it): ``n`` agents swapping
+    antipodal points of a circle. ``rotation_rad`` turns the whole pattern slightly off
+    the axes; it does not break the swap's symmetry."""
+    agents = []
+    for i in range(n):
+        th = 2 * math.pi * i / n + rotation_rad
+        start = [round(radius_m * math.cos(th), 6), round(radius_m * math.sin(th), 6), altitude_m]
+        agents.append({"id": f"cf{i + 1}", "start": start, "goal": [-start[0], -start[1], altitude_m]})
+    return {
+        "version": 1, "name": name or f"circle_{n}", "duration_s": duration_s, "goal_tolerance_m": 0.15,
+        "time": {"mode": mode, "physics_hz": physics_hz, "control_hz": control_hz},
+        "defaults": {"speed_mps": speed_mps, "command_level": "attitude", "filter": {"kind": "c3bf", "gamma": 1.0}},
+        "agents": agents,
+    }  # fmt: skip

@@ -148,24 +148,27 @@ def decode_sample(sample: Any, run: str, counter: Counter, kinds: tuple[str, ...
 
 
 class Inbox:
-    """Samples of one subscriber, waited on with a deadline and without polling.
+    """Samples of one or more subscribers in one queue, waited on with a deadline and
+    without polling.
 
-    A daemon thread blocks in the channel's ``recv()`` (which releases the GIL) and
-    hands each sample to a :class:`queue.Queue`; :meth:`get` wakes as soon as one
-    arrives. A blocking ``recv()`` can wait forever once its publisher is gone, so it
-    only ever runs in this thread, which the process never joins (processes end with
+    For each key a daemon thread blocks in the channel's ``recv()`` (which releases the
+    GIL) and hands each sample to one :class:`queue.Queue`; :meth:`get` wakes as soon as
+    any arrives. A blocking ``recv()`` can wait forever once its publisher is gone, so it
+    only ever runs in these threads, which the process never joins (processes end with
     ``os._exit``)."""
 
-    def __init__(self, session: zenoh.Session, key: str, capacity: int = 4096) -> None:
-        self.sub = open_channel(session, key, capacity)
+    def __init__(self, session: zenoh.Session, keys: str | list[str], capacity: int = 4096) -> None:
         self._q: queue.Queue[Any] = queue.Queue()
-        self._thread = threading.Thread(target=self._pump, name=f"inbox {key}", daemon=True)
-        self._thread.start()
+        self.subs = []
+        for key in [keys] if isinstance(keys, str) else keys:
+            sub = open_channel(session, key, capacity)
+            self.subs.append(sub)
+            threading.Thread(target=self._pump, args=(sub,), name=f"inbox {key}", daemon=True).start()
 
-    def _pump(self) -> None:
+    def _pump(self, sub: Any) -> None:
         try:
             while True:
-                self._q.put(self.sub.recv())
+                self._q.put(sub.recv())
         except Exception:  # the subscriber or the session was closed
             return
 

@@ -12,10 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import signal
-import socket
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -43,160 +40,45 @@ def _load_or_exit(path: str, over: dict[str, Any]) -> ScenarioConfig:
         sys.exit(2)
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
-
-
-class Supervisor:
-    """Child processes, each in its own session (process group), logs to files."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        log_dir.mkdir(parents=True, exist_ok=True)
-
-    def start(self, name: str, args: list[str]) -> None:
-        log = open(self.log_dir / f"{name}.log", "wb")  # noqa: SIM115 - owned by the child
-        self.procs[name] = subprocess.Popen(
-            [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True
-        )
-
-    def exited(self) -> dict[str, int]:
-        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
-
-    def wait(self, names: list[str], timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if all(self.procs[n].poll() is not None for n in names if n in self.procs):
-                return True
-            time.sleep(0.05)
-        return False
-
-    def stop_all(self, grace_s: float = 5.0) -> None:
-        for p in self.procs.values():
-            if p.poll() is None:
-                _signal_group(p, signal.SIGTERM)
-        if not self.wait(list(self.procs), grace_s):
-            for p in self.procs.values():
-                if p.poll() is None:
-                    _signal_group(p, signal.SIGKILL)
-            self.wait(list(self.procs), 2.0)
-        for p in self.procs.values():  # reap the groups' leftovers too
-            _signal_group(p, signal.SIGKILL)
-
-
-def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
-    try:
-        os.killpg(p.pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
 def run_scenario(
-    cfg: ScenarioConfig,
-    out: Path,
-    *,
-    gui: bool = False,
-    progress: bool = True,
-    stop_on_agent_death: bool = False,
-    run_id: str | None = None,
-    wall_limit_s: float | None = None,
+    cfg: ScenarioConfig, out: Path, *, gui: bool = False, progress: bool = True, stop_on_agent_death: bool = False
 ) -> tuple[int, dict[str, Any]]:
-    """Run a whole scenario as separate processes; returns (exit code, metrics)."""
-    from swarm import transport as tp
-    from swarm.messages import DecodeError, decode
-    from tools.runfiles import write_metrics
-
-    port = cfg.network.port or free_port(cfg.network.host)
-    cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
-    run = run_id or f"{cfg.name}-{secrets.token_hex(3)}"
-    out.mkdir(parents=True, exist_ok=True)
-    cfg_path = out / "config.yaml"
-    cfg_path.write_text(dump(cfg))
-    sup = Supervisor(out / "logs")
-    common = [str(cfg_path), "--run", run]
-    sup.start("recorder", ["-m", "tools.record", *common, "--out", str(out)])
-    for a in cfg.agents:
-        sup.start(f"agent-{a.id}", ["-m", "agents.agent", *common, "--id", a.id])
-    sup.start("world", ["-m", "world.main", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
-
-    interrupted = {"now": False}
-    old = signal.signal(signal.SIGINT, lambda s, f: interrupted.__setitem__("now", True))
-    session = tp.open_session(tp.process_config(cfg.network, is_world=False))
-    status_sub = tp.open_channel(session, tp.Keys(run).status, 4096)
-    state_sub = tp.open_channel(session, tp.Keys(run).all_states, 1 << 15)
-    infeasible: dict[str, int] = {}
-    last: dict[str, Any] = {}
-    reason = "completed"
+    """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from tools.launch import RunHandle
+
+    handle = RunHandle.start(cfg, out, gui=gui)
+    interrupted = {"now": False}
+    old = signal.signal(signal.SIGINT, lambda s, f: interrupted.__setitem__("now", True))
     bar = Progress(
         TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
-        TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress, transient=False,
+        TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,
     )  # fmt: skip
-    limit = wall_limit_s or (cfg.time.start_timeout_s + 20.0 * cfg.duration_s + 60.0)
-    t0 = time.monotonic()
+    limit = time.monotonic() + cfg.time.start_timeout_s + 20.0 * cfg.duration_s + 60.0
+    reason: str | None = None
     try:
         with bar:
             task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
-            while True:
-                for s in tp.drain(status_sub):
-                    try:
-                        m = decode(tp.payload(s), run, ("status",))
-                    except DecodeError:
-                        continue
-                    last = {"t": m.t, **m.body}
-                for s in tp.drain(state_sub):
-                    try:
-                        m = decode(tp.payload(s), run, ("state",))
-                    except DecodeError:
-                        continue
-                    infeasible[m.src] = m["infeasible"]
-                if last:
+            while reason is None:
+                reason = handle.poll(stop_on_agent_death)
+                st = handle.progress.status
+                if st:
+                    sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
+                    infeasible = sum(handle.progress.infeasible.values())
                     bar.update(
-                        task, completed=min(last["t"], cfg.duration_s),
-                        info=f"rtf {last['rtf']:.2f}  min sep {last['min_sep']:.3f} m  "
-                        f"infeasible {sum(infeasible.values())}  collisions {last['collisions']}",
+                        task, completed=min(handle.progress.t_s, cfg.duration_s),
+                        info=f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {infeasible}  coll {st['collisions']}",
                     )  # fmt: skip
-                ex = sup.exited()
-                if "world" in ex:
-                    reason = "completed" if ex["world"] == 0 else f"world exited with {ex['world']}"
-                    break
-                if "recorder" in ex:
-                    reason = f"recorder exited with {ex['recorder']}"
-                    break
-                dead = [n for n in ex if n.startswith("agent-")]
-                if dead and stop_on_agent_death:
-                    reason = f"{dead[0]} died"
-                    break
                 if interrupted["now"]:
                     reason = "interrupted"
-                    break
-                if time.monotonic() - t0 > limit:
+                elif reason is None and time.monotonic() > limit:
                     reason = "wall-clock limit"
-                    break
                 time.sleep(0.05)
-        if reason == "completed":
-            sup.wait(["recorder"], 15.0)
-            sup.wait([n for n in sup.procs if n.startswith("agent-")], 5.0)
     finally:
-        sup.stop_all()
+        handle.finish(reason or "interrupted")
         signal.signal(signal.SIGINT, old)
-    metrics: dict[str, Any] = {}
-    if (out / "run.mcap").exists():
-        try:
-            metrics = write_metrics(out)
-        except Exception as exc:  # a run cut short may leave a partial file
-            click.echo(f"could not compute metrics: {exc}", err=True)
-    metrics_file = out / "metrics.json"
-    if metrics:
-        metrics["stop_reason"] = reason
-        metrics["exit_codes"] = {n: p.returncode for n, p in sup.procs.items()}
-        metrics_file.write_text(json.dumps(metrics, indent=2))
-    code = 0 if reason == "completed" else 1
-    return code, metrics
+    return (0 if handle.reason == "completed" else 1), handle.metrics()
 
 
 @click.group()

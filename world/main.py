@@ -11,6 +11,7 @@ applied when they arrive and held until replaced.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import signal
 import sys
@@ -109,6 +110,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 elif slots[name].alive:
                     slots[name].alive = False
                     slots[name].dead = True
+                    print(
+                        f"world: agent {name} gone at wall {time.time():.4f}: {cfg.failure.on_agent_death}",
+                        file=sys.stderr,
+                    )
             elif up:
                 others_alive.add(name)
             else:
@@ -263,14 +268,16 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         token.undeclare()
         sim.close()
     lat = [x for s in slots.values() for x in s.latencies_s]
-    sent = sum(s.answered for s in slots.values()) + late
-    print(
-        f"world: done at tick {k}, t={k * dt_ctrl:.2f}s, collisions={collisions}, late={late}, "
-        f"p99_latency_ms={np.percentile(lat, 99) * 1e3 if lat else float('nan'):.2f}, "
-        f"on_time={(sum(s.on_time for s in slots.values()) / sent) if sent else float('nan'):.4f}",
-        file=sys.stderr,
-    )
-    print(f"world: wall time per phase [s] { ({n: round(v, 3) for n, v in phase.items()}) }", file=sys.stderr)
+    answered = sum(s.answered for s in slots.values())
+    summary = {
+        "ticks": k, "t_s": k * dt_ctrl, "collisions": collisions, "late": late,
+        "on_time_fraction": sum(s.on_time for s in slots.values()) / (answered + late) if answered + late else None,
+        "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
+        "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
+        "real_time_factor": k * dt_ctrl / (time.monotonic() - wall0), "cpu_s": time.process_time(),
+        "phase_wall_s": {n: round(v, 3) for n, v in phase.items()}, "dropped": counter.dropped,
+    }  # fmt: skip
+    print("WORLD_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0
 
 

@@ -1,0 +1,148 @@
+"""The distributed runtime end to end: real processes on 2 cores."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections import defaultdict
+
+import msgpack
+import numpy as np
+
+from swarm.messages import encode
+from tools.runfiles import read_records
+
+from .conftest import CONFIGS, scenario
+
+BODY = 0.07  # Crazyflie bounding radius [m] (QuadParams default)
+MARGIN = 0.02  # filter margin [m] (FilterSettings default)
+
+
+def trajectories(run_dir) -> dict[str, dict[int, np.ndarray]]:
+    out: dict[str, dict[int, np.ndarray]] = defaultdict(dict)
+    for r in read_records(run_dir / "run.mcap"):
+        if r["kind"] == "measurement":
+            out[r["topic"].split("/")[-2]][r["k"]] = np.array(r["x"] + r["q"] + r["v"])
+    return out
+
+
+def test_swap_2_lockstep_reaches_goals_safely_and_repeats_exactly(start_run):
+    cfg = scenario("swap_2.yaml")
+    runs = []
+    for name in ("first", "second"):
+        h = start_run(cfg, name)
+        assert h.wait() == "completed"
+        m = json.loads((h.out / "metrics.json").read_text())
+        assert m["collisions"] == 0
+        assert m["all_reached_goal"] is True
+        # the barrier keeps body centres 2 * body radius + margin apart; sampled control
+        # at 120 Hz may eat a fraction of a millimetre of the margin, never the bodies
+        assert m["min_separation_m"] >= 2 * BODY + MARGIN - 1e-3
+        assert m["late_ticks"] == 0 and m["dropped_messages"] == 0
+        assert set(m["exit_codes"].values()) == {0}
+        runs.append(trajectories(h.out))
+    a, b = runs
+    assert a.keys() == b.keys() == {"cf1", "cf2"}
+    for agent in a:
+        assert a[agent].keys() == b[agent].keys()
+        for k in a[agent]:
+            np.testing.assert_array_equal(a[agent][k], b[agent][k])
+
+
+def test_circle_8_realtime_completes_without_collision(start_run):
+    h = start_run(scenario("circle_8.yaml", time={"mode": "realtime"}))
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["mode"] == "realtime"
+    assert m["collisions"] == 0
+    assert m["min_separation_m"] > 2 * BODY
+
+
+def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run):
+    cfg = scenario(
+        "swap_2.yaml",
+        name="kill_3",
+        duration_s=10.0,
+        agents=[
+            {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+            {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
+            {"id": "cf3", "start": [2.0, 1.5, 1.0], "goal": [2.0, -1.5, 1.0], "speed_mps": 0.3},
+        ],
+    )
+    h = start_run(cfg)
+    deadline = time.monotonic() + 120
+    while h.progress.t_s < 1.0:  # wait for the swarm to be flying
+        assert h.poll() is None and time.monotonic() < deadline
+        time.sleep(0.02)
+    killed_at = time.time()
+    h.kill("agent-cf3", signal.SIGKILL)
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["lost_agents"] == ["cf3"]
+    assert m["collisions"] == 0
+    assert m["agents"]["cf1"]["reached_goal"] and m["agents"]["cf2"]["reached_goal"]
+    for survivor in ("cf1", "cf2"):
+        log = (h.out / "logs" / f"agent-{survivor}.log").read_text()
+        seen = re.search(r"neighbour cf3 gone \(liveliness\) at wall ([0-9.]+)", log)
+        assert seen, log
+        assert float(seen.group(1)) - killed_at < 0.5
+    assert "agent cf3 gone" in (h.out / "logs" / "world.log").read_text()
+    assert m["exit_codes"]["agent-cf3"] == -signal.SIGKILL
+
+
+def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
+    cfg = scenario("swap_2.yaml", name="garbage")
+    h = start_run(cfg)
+    keys = [
+        *(f"swarm/{h.run}/world/{a}/measurement" for a in ("cf1", "cf2")),
+        *(f"swarm/{h.run}/agent/{a}/{t}" for a in ("cf1", "cf2") for t in ("state", "command")),
+        *(f"swarm/{h.run}/world/{t}" for t in ("obstacles", "clock", "status", "collision")),
+    ]
+    bad = [
+        b"\x00\xffgarbage",
+        msgpack.packb({"hello": 1}),
+        msgpack.packb([1, 2, 3]),
+        encode("state", "another-run", "cf9", 1, 0.0, 0, x=[0, 0, 0], v=[0, 0, 0], r=0.1, goal_reached=False,
+               min_h=0.0, status="ok", infeasible=0, solve_us=0.0, dropped=0),  # fmt: skip
+        msgpack.packb({"ver": 99, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 0}),
+        msgpack.packb({"ver": 1, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 5,
+                       "level": "attitude", "u": [0.0, float("nan"), 0.0, 0.3], "intervention": 0.0, "status": "ok"}),
+    ]  # fmt: skip
+    pubs = [h.session.declare_publisher(k) for k in keys]
+    deadline = time.monotonic() + 120
+    sent = 0
+    while h.progress.t_s < 2.0 and time.monotonic() < deadline:
+        assert h.poll() is None
+        for p in pubs:
+            for payload in bad:
+                p.put(payload)
+                sent += 1
+        time.sleep(0.05)
+    assert sent > 0
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert set(m["exit_codes"].values()) == {0}
+    assert m["all_reached_goal"] is True and m["collisions"] == 0
+    assert m["dropped_messages"] > 0
+    recorder = json.loads((h.out / "recorder.json").read_text())
+    assert recorder["dropped"] > 0
+
+
+def test_a_malformed_config_fails_before_anything_starts(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    text = (CONFIGS / "swap_2.yaml").read_text().replace("start: [4.0, 0.05, 1.0]", "start: [4.0, 0.05]")
+    bad.write_text(text)
+    out = tmp_path / "out"
+    t0 = time.monotonic()
+    proc = subprocess.run(
+        [sys.executable, "-m", "tools.cli", "run", str(bad), "--out", str(out), "--no-progress"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert str(bad) in proc.stderr and "agents.1.start" in proc.stderr
+    assert not out.exists()  # nothing was started or written
+    assert time.monotonic() - t0 < 30

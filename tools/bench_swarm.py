@@ -1,0 +1,78 @@
+"""Benchmark of whole swarms as real processes, printed as JSON lines.
+
+    python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 5]
+
+One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
+(physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
+(commands for tick k that reached the world before it published tick k+1),
+``cpu_percent_per_agent`` (steady-state CPU of one agent process, start-up excluded,
+averaged over agents, as a percentage of one core), ``p99_tick_latency_ms`` (world
+sends a measurement -> receives that tick's command), plus collisions, late ticks and
+the minimum separation. Each run's folder is kept under ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from swarm.config import resolve
+from swarm.scenario import circle_swap
+from tools.launch import RunHandle
+
+
+def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
+    world, agents = {}, []
+    for log in (run_dir / "logs").glob("*.log"):
+        for line in log.read_text().splitlines():
+            m = re.match(r"(WORLD|AGENT)_SUMMARY (.*)", line)
+            if m and m.group(1) == "WORLD":
+                world = json.loads(m.group(2))
+            elif m:
+                agents.append(json.loads(m.group(2)))
+    return world, agents
+
+
+def bench_one(n: int, mode: str, rate_hz: float, seconds: float, out: Path) -> dict:
+    raw = circle_swap(n, radius_m=max(2.0, 0.35 * n), control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
+                      mode=mode, name=f"bench_{n}_{mode}")  # fmt: skip
+    raw["stop_when_all_reached"] = False
+    cfg = resolve(raw, f"circle_{n}")
+    h = RunHandle.start(cfg, out / f"circle_{n}_{mode}")
+    reason = h.wait()
+    world, agents = summaries(h.out)
+    metrics = json.loads((h.out / "metrics.json").read_text()) if (h.out / "metrics.json").exists() else {}
+    wall = world["t_s"] / world["real_time_factor"] if world.get("real_time_factor") else float("nan")
+    cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
+    return {
+        "agents": n, "mode": mode, "rate_hz": rate_hz,
+        "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
+        "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
+        "cpu_percent_per_agent": round(float(np.mean(cpu)), 1),
+        "p99_tick_latency_ms": round(world["p99_tick_latency_ms"], 2) if world.get("p99_tick_latency_ms") else None,
+        "late_ticks": world.get("late"), "collisions": metrics.get("collisions"),
+        "min_separation_m": metrics.get("min_separation_m"),
+        "world_cpu_percent": round(world.get("cpu_s", 0) / wall * 100, 1),
+        "stop_reason": reason,
+    }  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--agents", default="2,4,8,16")
+    ap.add_argument("--modes", default="lockstep,realtime")
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
+    args = ap.parse_args()
+    for n in (int(x) for x in args.agents.split(",")):
+        for mode in args.modes.split(","):
+            print(json.dumps(bench_one(n, mode, args.rate, args.seconds, args.out)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

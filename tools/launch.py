@@ -1,0 +1,178 @@
+"""Starting and supervising a whole run: recorder, one process per agent, world.
+
+Each child runs in its own session (process group) with its output in
+``<run folder>/logs/<name>.log``. :class:`RunHandle` watches the world's status over
+Zenoh (for the progress display) and the children's exit codes, and always leaves no
+process behind (SIGTERM to each group, then SIGKILL after a grace period).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from swarm import transport as tp
+from swarm.config import ScenarioConfig, dump
+from swarm.messages import DecodeError, decode
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
+    try:
+        os.killpg(p.pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+@dataclass
+class Progress:
+    t_s: float = 0.0
+    status: dict[str, Any] = field(default_factory=dict)
+    infeasible: dict[str, int] = field(default_factory=dict)
+
+
+class RunHandle:
+    """A started run. Use :meth:`start`, then :meth:`wait` (or :meth:`poll` in a loop)."""
+
+    def __init__(self, cfg: ScenarioConfig, out: Path, run: str) -> None:
+        self.cfg, self.out, self.run = cfg, out, run
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.progress = Progress()
+        self.reason: str | None = None
+        self._session: Any = None
+
+    @classmethod
+    def start(cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None) -> RunHandle:
+        port = cfg.network.port or free_port(cfg.network.host)
+        cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
+        h = cls(cfg, out, run_id or f"{cfg.name}-{secrets.token_hex(3)}")
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "logs").mkdir(exist_ok=True)
+        cfg_path = out / "config.yaml"
+        cfg_path.write_text(dump(cfg))
+        common = [str(cfg_path), "--run", h.run]
+        h._spawn("recorder", ["-m", "tools.record", *common, "--out", str(out)])
+        for a in cfg.agents:
+            h._spawn(f"agent-{a.id}", ["-m", "agents.agent", *common, "--id", a.id])
+        h._spawn("world", ["-m", "world.main", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
+        h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
+        h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
+        h._states = tp.open_channel(h._session, tp.Keys(h.run).all_states, 1 << 15)
+        return h
+
+    def _spawn(self, name: str, args: list[str]) -> None:
+        log = open(self.out / "logs" / f"{name}.log", "wb")  # noqa: SIM115 - owned by the child
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.procs[name] = subprocess.Popen(
+            [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
+        )
+
+    @property
+    def session(self) -> Any:
+        """This process's own Zenoh session in the run (tests use it to listen or inject)."""
+        return self._session
+
+    def exited(self) -> dict[str, int]:
+        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
+
+    def poll(self, stop_on_agent_death: bool = False) -> str | None:
+        """Read progress and exit codes once; returns why the run is over, or None."""
+        for s in tp.drain(self._status):
+            try:
+                m = decode(tp.payload(s), self.run, ("status",))
+            except DecodeError:
+                continue
+            self.progress.t_s, self.progress.status = m.t, m.body
+        for s in tp.drain(self._states):
+            try:
+                m = decode(tp.payload(s), self.run, ("state",))
+            except DecodeError:
+                continue
+            self.progress.infeasible[m.src] = m["infeasible"]
+        ex = self.exited()
+        if "world" in ex:
+            return "completed" if ex["world"] == 0 else f"world exited with {ex['world']}"
+        if "recorder" in ex:
+            return f"recorder exited with {ex['recorder']}"
+        dead = [n for n in ex if n.startswith("agent-")]
+        if dead and stop_on_agent_death:
+            return f"{dead[0]} died"
+        return None
+
+    def wait(self, timeout_s: float | None = None, stop_on_agent_death: bool = False) -> str:
+        """Block until the run is over (or ``timeout_s``), then :meth:`finish`."""
+        limit = timeout_s or (self.cfg.time.start_timeout_s + 20.0 * self.cfg.duration_s + 60.0)
+        deadline = time.monotonic() + limit
+        reason = None
+        while reason is None:
+            reason = self.poll(stop_on_agent_death)
+            if reason is None and time.monotonic() > deadline:
+                reason = "wall-clock limit"
+            if reason is None:
+                time.sleep(0.05)
+        return self.finish(reason)
+
+    def _wait_procs(self, names: list[str], timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(self.procs[n].poll() is not None for n in names if n in self.procs):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def finish(self, reason: str) -> str:
+        """Let a completed run's processes end by themselves, stop the rest, and write
+        ``metrics.json`` from the recording."""
+        if reason == "completed":
+            self._wait_procs(["recorder"], 15.0)
+            self._wait_procs([n for n in self.procs if n.startswith("agent-")], 5.0)
+        for p in self.procs.values():
+            if p.poll() is None:
+                _signal_group(p, signal.SIGTERM)
+        if not self._wait_procs(list(self.procs), 5.0):
+            for p in self.procs.values():
+                if p.poll() is None:
+                    _signal_group(p, signal.SIGKILL)
+            self._wait_procs(list(self.procs), 2.0)
+        for p in self.procs.values():  # reap anything left in the groups
+            _signal_group(p, signal.SIGKILL)
+        self.reason = reason
+        self.metrics()
+        return reason
+
+    def metrics(self) -> dict[str, Any]:
+        from tools.runfiles import write_metrics
+
+        if not (self.out / "run.mcap").exists():
+            return {}
+        try:
+            m = write_metrics(self.out)
+        except Exception as exc:  # a run cut short may leave a partial file
+            print(f"could not compute metrics: {exc}", file=sys.stderr)
+            return {}
+        m["stop_reason"] = self.reason
+        m["exit_codes"] = {n: p.returncode for n, p in self.procs.items()}
+        (self.out / "metrics.json").write_text(json.dumps(m, indent=2))
+        return m
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+        """Send ``sig`` to one child's process group (fault injection)."""
+        _signal_group(self.procs[name], sig)
+
+    def stop(self) -> None:
+        """Stop everything now (Ctrl-C)."""
+        self.finish("interrupted")

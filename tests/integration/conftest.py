@@ -16,8 +16,9 @@ from tools.launch import RunHandle
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
-def scenario(name: str, **over: object) -> ScenarioConfig:
-    return load(CONFIGS / name, dict(over))
+def scenario(file: str, **over: object) -> ScenarioConfig:
+    """A shipped config with top-level fields replaced (dicts merge)."""
+    return load(CONFIGS / file, dict(over))
 
 
 @pytest.fixture

@@ -1,0 +1,169 @@
+"""Pure pieces of the runtime: config, messages, neighbour table, metrics."""
+
+import math
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm.config import ConfigError, dump, load, resolve
+from swarm.messages import DecodeError, decode, encode
+from swarm.metrics import compute
+from swarm.neighbours import NeighbourTable
+from swarm.scenario import circle_swap
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.mark.parametrize("name", ["single_static_sphere.yaml", "swap_2.yaml", "circle_8.yaml"])
+def test_shipped_configs_validate_and_round_trip(name, tmp_path):
+    cfg = load(CONFIGS / name)
+    (tmp_path / "c.yaml").write_text(dump(cfg))
+    assert load(tmp_path / "c.yaml") == cfg
+
+
+def test_layers_defaults_then_type_then_agent():
+    cfg = resolve({
+        "version": 1, "name": "t", "duration_s": 1.0,
+        "defaults": {"speed_mps": 0.5, "filter": {"gamma": 2.0, "rho": 0.5}},
+        "agent_types": {"fast": {"speed_mps": 2.0, "filter": {"gamma": 3.0}}},
+        "agents": [{"id": "a", "start": [0, 0, 1], "type": "fast", "filter": {"rho": 1.0}},
+                   {"id": "b", "start": [1, 0, 1]}],
+    })  # fmt: skip
+    a, b = cfg.agents
+    assert (a.speed_mps, a.filter.gamma, a.filter.rho) == (2.0, 3.0, 1.0)
+    assert (b.speed_mps, b.filter.gamma, b.filter.rho) == (0.5, 2.0, 0.5)
+
+
+@pytest.mark.parametrize(
+    "patch, field",
+    [
+        ({"agents": [{"id": "a", "start": [0, 0]}]}, "agents.0.start"),
+        ({"agents": [{"id": "a", "start": [0, 0, 1], "speed_mps": -1}]}, "agents.0.speed_mps"),
+        ({"agents": [{"id": "a", "start": [0, 0, 1], "filter": {"rho": 2}}]}, "agents.0.filter.rho"),
+        ({"agents": [{"id": "a", "start": [0, 0, 1]}, {"id": "a", "start": [1, 0, 1]}]}, "duplicate agents id"),
+        ({"agents": [{"id": "a", "start": [0, 0, 1], "type": "nope"}]}, "agents.0.type"),
+        ({"time": {"physics_hz": 240, "control_hz": 100}}, "time"),
+        ({"obstacles": [{"id": "o", "shape": "cylinder", "center": [0, 0, 0], "radius_m": 0.1}]}, "obstacles.0"),
+        ({"obstacles": [{"id": "o", "shape": "sphere", "center": [0, 0, 0], "radius_m": -0.1}]}, "obstacles.0.radius_m"),
+        ({"version": 2}, "version"),
+        ({"surprise": 1}, "surprise"),
+    ],
+)
+def test_config_errors_name_file_field_and_reason(patch, field):
+    raw = {"version": 1, "name": "t", "duration_s": 1.0, "agents": [{"id": "a", "start": [0, 0, 1]}]}
+    raw.update(patch)
+    with pytest.raises(ConfigError) as err:
+        resolve(raw, "my.yaml")
+    assert str(err.value).startswith("my.yaml: ") and field in str(err.value)
+
+
+def test_unreadable_and_invalid_yaml_files(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read"):
+        load(tmp_path / "missing.yaml")
+    (tmp_path / "bad.yaml").write_text("agents: [\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load(tmp_path / "bad.yaml")
+
+
+def test_generated_circle_is_antipodal_and_valid():
+    cfg = resolve(circle_swap(6, 2.0))
+    for a in cfg.agents:
+        np.testing.assert_allclose(np.add(a.start[:2], a.goal[:2]), 0.0, atol=1e-9)
+        assert math.hypot(*a.start[:2]) == pytest.approx(2.0)
+
+
+def test_messages_round_trip():
+    b = encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, goal_reached=True,
+               min_h=-0.1, status="ok", infeasible=2, solve_us=40.0, dropped=0)  # fmt: skip
+    m = decode(b, "r", ("state",))
+    assert (m.kind, m.src, m.seq, m.t, m.k) == ("state", "cf1", 7, 1.5, 3)
+    np.testing.assert_array_equal(m["x"], [1, 2, 3])
+    assert m["goal_reached"] is True and m["infeasible"] == 2
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=200))
+def test_arbitrary_bytes_never_raise_anything_but_decode_error(data):
+    try:
+        decode(data, "r")
+    except DecodeError:
+        pass
+
+
+@pytest.mark.parametrize(
+    "mutate",
+    [
+        lambda m: m.update(ver=2),
+        lambda m: m.update(run="other"),
+        lambda m: m.update(kind="nope"),
+        lambda m: m.pop("seq"),
+        lambda m: m.update(x=[1.0, 2.0]),
+        lambda m: m.update(x=[1.0, float("nan"), 0.0]),
+        lambda m: m.update(x=[1.0, True, 0.0]),
+        lambda m: m.update(q=["a", 0, 0, 1]),
+        lambda m: m.update(t=float("inf")),
+    ],
+)
+def test_bad_messages_are_rejected(mutate):
+    m = msgpack.unpackb(encode("measurement", "r", "world", 1, 0.0, 0, x=[0, 0, 1.0], v=[0, 0, 0], q=[0, 0, 0, 1.0],
+                               w=[0, 0, 0]))  # fmt: skip
+    mutate(m)
+    with pytest.raises(DecodeError):
+        decode(msgpack.packb(m), "r")
+
+
+def test_neighbours_extrapolate_grow_and_stop_when_lost():
+    t = NeighbourTable(timeout_s=0.1, growth_mps=0.5, hard_limit_s=1.0, on_lost="keep_stopped")
+    t.update("b", 0.0, 0, np.array([1.0, 0, 1]), np.array([-1.0, 0, 0]), 0.07)
+    fresh = t.arrays(0.05)
+    np.testing.assert_allclose(fresh.c_w[0], [0.95, 0, 1])  # constant-velocity extrapolation
+    assert fresh.radius_m[0] == 0.07 and fresh.is_neighbour.all()
+    stale = t.arrays(0.5)
+    assert stale.radius_m[0] == pytest.approx(0.07 + 0.5 * 0.4)  # grows past the timeout
+    lost = t.arrays(2.0)
+    np.testing.assert_allclose(lost.c_w[0], [1.0, 0, 1])  # past the hard limit: stopped at last position
+    np.testing.assert_array_equal(lost.c_dot_w[0], 0.0)
+    t.mark_gone("b")
+    np.testing.assert_array_equal(t.arrays(0.05).c_dot_w[0], 0.0)
+    dropper = NeighbourTable(0.1, 0.5, 1.0, on_lost="drop")
+    dropper.update("b", 0.0, 0, np.zeros(3), np.zeros(3), 0.07)
+    dropper.mark_gone("b")
+    assert len(dropper.arrays(0.0)) == 0
+
+
+def test_neighbour_state_at_a_given_tick():
+    t = NeighbourTable(0.1, 0.5, 1.0)
+    for k in range(12):
+        t.update("b", k * 0.01, k, np.array([k * 1.0, 0, 0]), np.zeros(3), 0.07)
+    assert t.state("b", 5).k == 5 and t.state("b").k == 11
+    assert t.state("b", 2) is None  # older than the kept history
+
+
+def test_metrics_from_synthetic_records():
+    cfg = resolve({
+        "version": 1, "name": "m", "duration_s": 1.0, "goal_tolerance_m": 0.1,
+        "agents": [{"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1], "airframe": {"l_m": 0.0}},
+                   {"id": "b", "start": [3, 0, 1], "goal": [5, 0, 1], "airframe": {"l_m": 0.0}}],
+        "obstacles": [{"id": "s", "shape": "sphere", "center": [0.5, 1.0, 1.0], "radius_m": 0.5}],
+    })  # fmt: skip
+    recs = []
+    for k in range(11):
+        for aid, x in (("a", [0.1 * k, 0, 1]), ("b", [3.0 - 0.1 * k, 0, 1])):
+            recs.append({"kind": "measurement", "topic": f"/swarm/r/world/{aid}/measurement", "k": k, "t": 0.1 * k,
+                         "x": x, "q": [0, 0, 0, 1], "v": [0, 0, 0], "w": [0, 0, 0], "src": "world", "seq": 0})  # fmt: skip
+        recs.append({"kind": "obstacles", "k": k, "t": 0.1 * k, "items": [
+            {"id": "s", "shape": "sphere", "c": [0.5, 1.0, 1.0], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}]})  # fmt: skip
+    recs.append({"kind": "collision", "a": "a", "b": "s", "k": 3, "t": 0.3})
+    recs.append({"kind": "status", "t": 1.0, "k": 10, "rtf": 2.0, "late": 1, "dropped": 3, "live": ["a", "b"],
+                 "min_sep": 1.0, "min_clear": 0.5, "collisions": 1, "done": True})  # fmt: skip
+    m = compute(cfg, recs, recorder_dropped=2)
+    assert m["collisions"] == 1 and m["late_ticks"] == 1 and m["dropped_messages"] == 5
+    assert m["min_separation_m"] == pytest.approx(1.0)  # at k = 10: 1.0 vs 2.0
+    assert m["min_obstacle_clearance_m"] == pytest.approx(0.5)  # (0.5, 0, 1) is 1.0 from the centre
+    assert m["agents"]["a"]["reached_goal"] and m["agents"]["a"]["time_to_goal_s"] == pytest.approx(0.9)
+    assert not m["agents"]["b"]["reached_goal"] and not m["all_reached_goal"]
+    assert m["agents"]["a"]["path_length_m"] == pytest.approx(1.0)

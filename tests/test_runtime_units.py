@@ -48,7 +48,10 @@ def test_layers_defaults_then_type_then_agent():
         ({"agents": [{"id": "a", "start": [0, 0, 1], "type": "nope"}]}, "agents.0.type"),
         ({"time": {"physics_hz": 240, "control_hz": 100}}, "time"),
         ({"obstacles": [{"id": "o", "shape": "cylinder", "center": [0, 0, 0], "radius_m": 0.1}]}, "obstacles.0"),
-        ({"obstacles": [{"id": "o", "shape": "sphere", "center": [0, 0, 0], "radius_m": -0.1}]}, "obstacles.0.radius_m"),
+        (
+            {"obstacles": [{"id": "o", "shape": "sphere", "center": [0, 0, 0], "radius_m": -0.1}]},
+            "obstacles.0.radius_m",
+        ),
         ({"version": 2}, "version"),
         ({"surprise": 1}, "surprise"),
     ],
@@ -153,10 +156,12 @@ def test_metrics_from_synthetic_records():
     recs = []
     for k in range(11):
         for aid, x in (("a", [0.1 * k, 0, 1]), ("b", [3.0 - 0.1 * k, 0, 1])):
-            recs.append({"kind": "measurement", "topic": f"/swarm/r/world/{aid}/measurement", "k": k, "t": 0.1 * k,
-                         "x": x, "q": [0, 0, 0, 1], "v": [0, 0, 0], "w": [0, 0, 0], "src": "world", "seq": 0})  # fmt: skip
-        recs.append({"kind": "obstacles", "k": k, "t": 0.1 * k, "items": [
-            {"id": "s", "shape": "sphere", "c": [0.5, 1.0, 1.0], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}]})  # fmt: skip
+            topic = f"/swarm/r/world/{aid}/measurement"
+            recs.append(
+                {"kind": "measurement", "topic": topic, "k": k, "t": 0.1 * k, "x": x, "q": [0, 0, 0, 1], "v": [0, 0, 0]}
+            )
+        sphere = {"id": "s", "shape": "sphere", "c": [0.5, 1.0, 1.0], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}
+        recs.append({"kind": "obstacles", "k": k, "t": 0.1 * k, "items": [sphere]})
     recs.append({"kind": "collision", "a": "a", "b": "s", "k": 3, "t": 0.3})
     recs.append({"kind": "status", "t": 1.0, "k": 10, "rtf": 2.0, "late": 1, "dropped": 3, "live": ["a", "b"],
                  "min_sep": 1.0, "min_clear": 0.5, "collisions": 1, "done": True})  # fmt: skip

@@ -52,6 +52,7 @@ class Agent:
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.obstacles = ObstacleArrays.empty()
         self.obstacles_k = -1
+        self.from_world = cfg.neighbours.source == "world"
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self.infeasible = 0
         self.min_h = math.inf
@@ -66,6 +67,11 @@ class Agent:
 
     def on_clock(self, m: Message) -> None:
         self.clock_live[m.k] = m["live"]
+        if self.from_world:
+            xvr = m["xvr"].reshape(-1, 7) if m["xvr"].size == 7 * len(m["ids"]) else np.zeros((0, 7))
+            for name, row in zip(m["ids"], xvr, strict=False):
+                if name in self.others:
+                    self.table.update(name, m.t, m.k, row[0:3], row[3:6], float(row[6]))
         for old in [kk for kk in self.clock_live if kk < m.k - 4]:
             del self.clock_live[old]
 
@@ -74,6 +80,8 @@ class Agent:
         live = self.clock_live.get(k)
         if live is None or (self.cfg.obstacles and self.obstacles_k < k):
             return False
+        if self.from_world:
+            return True  # the clock of tick k carried every neighbour's tick-k state
         return k == 0 or all(
             n not in self.others or n in self.table.gone or self.table.latest_k(n) >= k - 1 for n in live
         )
@@ -89,7 +97,8 @@ class Agent:
         v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
         F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
-        rows = ObstacleArrays.concat([self.obstacles, self.table.arrays(t, k - 1 if lockstep else None)])
+        k_max = None if not lockstep else (k if self.from_world else k - 1)
+        rows = ObstacleArrays.concat([self.obstacles, self.table.arrays(t, k_max)])
         if me.filter.enabled:
             res = self.filt.filter(state, u_ref, rows)
             u, status = res.u, res.status
@@ -129,9 +138,8 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     session = tp.open_session(conf)
     counter = tp.Counter()
     meas_key = keys.measurement(agent_id)
-    inbox = tp.Inbox(
-        session, [meas_key, keys.obstacles, keys.clock, *(keys.state(n) for n in sorted(agent.others))], 1 << 14
-    )
+    neighbour_keys = [] if agent.from_world else [keys.state(n) for n in sorted(agent.others)]
+    inbox = tp.Inbox(session, [meas_key, keys.obstacles, keys.clock, *neighbour_keys], 1 << 14)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     pub_state = session.declare_publisher(keys.state(agent_id))
     pub_cmd = session.declare_publisher(keys.command(agent_id))
@@ -179,7 +187,8 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                 else:
                     alive.discard(name)
                     if name in agent.others:
-                        agent.table.mark_gone(name)
+                        if not agent.from_world:  # the world keeps measuring a dead agent's body
+                            agent.table.mark_gone(name)
                         print(f"agent {agent_id}: neighbour {name} gone (liveliness) at wall {time.time():.4f}",
                               file=sys.stderr)  # fmt: skip
             if world_seen and "world" not in alive:

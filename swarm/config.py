@@ -174,6 +174,16 @@ class FailureSettings(_Strict):
     on_agent_death: Literal["land", "motors_off"] = "land"  # what the world does with its drone
 
 
+class NeighbourSettings(_Strict):
+    """Where an agent learns the other agents' motion."""
+
+    source: Literal["agents", "world"] = "agents"
+    """``agents``: each agent subscribes to every other agent's published state (the
+    decentralised mesh of DESIGN.md; O(N^2) deliveries per tick). ``world``: agents use
+    the roster of measured body centres the world sends with every clock tick, as a
+    motion-capture system would broadcast them (O(N) deliveries; DESIGN.md section 7b)."""
+
+
 class ScenarioConfig(_Strict):
     version: Literal[1]
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -184,6 +194,7 @@ class ScenarioConfig(_Strict):
     time: TimeSettings = TimeSettings()
     network: NetworkSettings = NetworkSettings()
     failure: FailureSettings = FailureSettings()
+    neighbours: NeighbourSettings = NeighbourSettings()
     agents: list[AgentConfig] = Field(min_length=1)
     obstacles: list[ObstacleConfig] = []
     gui: bool = False

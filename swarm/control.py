@@ -13,10 +13,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarm.errors import InputError
 from swarm.model import QuadModel, QuadState, check_finite, thrust_vector_to_setpoint
-from swarm.rotation import E3, FloatArray, R_to_euler, euler_to_quat, quat_to_R, vee
+from swarm.rotation import E3, FloatArray, R_to_euler, quat_to_R, vee
 
 
 @dataclass(frozen=True)
@@ -164,19 +165,64 @@ def setpoint_from_thrust_vector(
     return AttitudeSetpoint(roll, pitch, k_yaw_per_s * err, thrust)
 
 
+@njit(cache=True)
+def onboard_rotor_thrusts(q, Omega_b, roll, pitch, yaw, thrust, kR, kOm, J, B_inv, f_max):  # noqa: ANN001, ANN201
+    """The geometric attitude law of :class:`AttitudeController` for ``n`` drones at once,
+    tracking ``R_des = Rz(yaw) Ry(pitch) Rx(roll)`` with collective ``thrust`` [N].
+
+    ``q`` (n, 4) scalar-last, ``Omega_b`` (n, 3) rad/s body; per-drone gains ``kR``,
+    ``kOm``, inertia diagonal ``J`` (n, 3), inverse mixers ``B_inv`` (n, 4, 4), limits
+    ``f_max`` (n,). Returns rotor thrusts (n, 4) [N] clipped to ``[0, f_max]``."""
+    n = q.shape[0]
+    out = np.empty((n, 4))
+    R = np.empty((3, 3))
+    Rd = np.empty((3, 3))
+    w = np.empty(4)
+    for i in range(n):
+        x, y, z, s = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)
+        R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)
+        R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * s), 2 * (y * z + x * s), 1 - 2 * (x * x + y * y)
+        cr, sr = math.cos(roll[i]), math.sin(roll[i])
+        cp, sp = math.cos(pitch[i]), math.sin(pitch[i])
+        cy, sy = math.cos(yaw[i]), math.sin(yaw[i])
+        Rd[0, 0], Rd[0, 1], Rd[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+        Rd[1, 0], Rd[1, 1], Rd[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+        Rd[2, 0], Rd[2, 1], Rd[2, 2] = -sp, cp * sr, cp * cr
+        E = Rd.T @ R - R.T @ Rd  # eR = vee(E) / 2
+        eR = (0.5 * (E[2, 1] - E[1, 2]) / 2.0, 0.5 * (E[0, 2] - E[2, 0]) / 2.0, 0.5 * (E[1, 0] - E[0, 1]) / 2.0)
+        ox, oy, oz = Omega_b[i, 0], Omega_b[i, 1], Omega_b[i, 2]
+        jx, jy, jz = J[i, 0] * ox, J[i, 1] * oy, J[i, 2] * oz
+        w[0] = thrust[i]
+        w[1] = -kR[i, 0] * eR[0] - kOm[i, 0] * ox + (oy * jz - oz * jy)
+        w[2] = -kR[i, 1] * eR[1] - kOm[i, 1] * oy + (oz * jx - ox * jz)
+        w[3] = -kR[i, 2] * eR[2] - kOm[i, 2] * oz + (ox * jy - oy * jx)
+        for r in range(4):
+            f = B_inv[i, r, 0] * w[0] + B_inv[i, r, 1] * w[1] + B_inv[i, r, 2] * w[2] + B_inv[i, r, 3] * w[3]
+            out[i, r] = min(max(f, 0.0), f_max[i])
+    return out
+
+
 class OnboardController:
     """Emulates the Crazyflie firmware's attitude loop at physics rate: it integrates
     the yaw-rate setpoint into a yaw target and tracks ``Rz(yaw) Ry(pitch) Rx(roll)``
-    with the geometric controller."""
+    with the geometric controller (:func:`onboard_rotor_thrusts`)."""
 
     def __init__(self, model: QuadModel, yaw0_rad: float = 0.0, gains: AttitudeGains | None = None) -> None:
         self.ctrl = AttitudeController(model, gains)
         self.yaw_sp_rad = yaw0_rad
+        c = self.ctrl
+        self.consts = (
+            c.kR[None, :].copy(), c.kOm[None, :].copy(), np.diag(model.J)[None, :].copy(),
+            model.B_inv[None, :, :].copy(), np.array([c.f_max]),
+        )  # fmt: skip
 
     def rotor_thrusts(self, state: QuadState, sp: AttitudeSetpoint, dt_s: float) -> FloatArray:
         self.yaw_sp_rad += sp.yaw_rate_radps * dt_s
-        R_des = quat_to_R(euler_to_quat(sp.roll_rad, sp.pitch_rad, self.yaw_sp_rad))
-        return self.ctrl.rotor_thrusts(state, R_des, sp.thrust_N)
+        return onboard_rotor_thrusts(
+            state.q[None, :], state.Omega_b[None, :], np.array([sp.roll_rad]), np.array([sp.pitch_rad]),
+            np.array([self.yaw_sp_rad]), np.array([sp.thrust_N]), *self.consts,
+        )[0]  # fmt: skip
 
 
 def yaw_of(state: QuadState) -> float:

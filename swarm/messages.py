@@ -29,7 +29,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
     "command": {"level": "s", "u": "vf", "intervention": "f", "status": "s"},
     "obstacles": {"items": "obs"},
-    "clock": {"live": "ls", "done": "b"},
+    "clock": {"live": "ls", "done": "b", "ids": "ls", "xvr": "vf"},
     "status": {
         "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
         "dropped": "i", "live": "ls", "done": "b",

@@ -37,19 +37,20 @@ def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
     return world, agents
 
 
-def bench_one(n: int, mode: str, rate_hz: float, seconds: float, out: Path) -> dict:
+def bench_one(n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents") -> dict:
     raw = circle_swap(n, radius_m=max(2.0, 0.35 * n), control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
                       mode=mode, name=f"bench_{n}_{mode}")  # fmt: skip
     raw["stop_when_all_reached"] = False
+    raw["neighbours"] = {"source": source}
     cfg = resolve(raw, f"circle_{n}")
-    h = RunHandle.start(cfg, out / f"circle_{n}_{mode}")
+    h = RunHandle.start(cfg, out / f"circle_{n}_{mode}_{source}")
     reason = h.wait()
     world, agents = summaries(h.out)
     metrics = json.loads((h.out / "metrics.json").read_text()) if (h.out / "metrics.json").exists() else {}
     wall = world["t_s"] / world["real_time_factor"] if world.get("real_time_factor") else float("nan")
     cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
     return {
-        "agents": n, "mode": mode, "rate_hz": rate_hz,
+        "agents": n, "mode": mode, "rate_hz": rate_hz, "neighbour_source": source,
         "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
         "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
         "cpu_percent_per_agent": round(float(np.mean(cpu)), 1),
@@ -67,11 +68,13 @@ def main() -> None:
     ap.add_argument("--modes", default="lockstep,realtime")
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--sources", default="agents,world", help="neighbour sources (see NeighbourSettings)")
     ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
     args = ap.parse_args()
     for n in (int(x) for x in args.agents.split(",")):
         for mode in args.modes.split(","):
-            print(json.dumps(bench_one(n, mode, args.rate, args.seconds, args.out)), flush=True)
+            for source in args.sources.split(","):
+                print(json.dumps(bench_one(n, mode, args.rate, args.seconds, args.out, source)), flush=True)
 
 
 if __name__ == "__main__":

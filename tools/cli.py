@@ -41,14 +41,20 @@ def _load_or_exit(path: str, over: dict[str, Any]) -> ScenarioConfig:
 
 
 def run_scenario(
-    cfg: ScenarioConfig, out: Path, *, gui: bool = False, progress: bool = True, stop_on_agent_death: bool = False
+    cfg: ScenarioConfig,
+    out: Path,
+    *,
+    gui: bool = False,
+    progress: bool = True,
+    stop_on_agent_death: bool = False,
+    run_id: str | None = None,
 ) -> tuple[int, dict[str, Any]]:
     """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from tools.launch import RunHandle
 
-    handle = RunHandle.start(cfg, out, gui=gui)
+    handle = RunHandle.start(cfg, out, gui=gui, run_id=run_id)
     interrupted = {"now": False}
     old = signal.signal(signal.SIGINT, lambda s, f: interrupted.__setitem__("now", True))
     bar = Progress(
@@ -93,13 +99,22 @@ def cli() -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="run folder (default runs/<name>-<time>)")
 @click.option("--stop-on-agent-death", is_flag=True, help="stop the run when any agent process dies")
 @click.option("--no-progress", is_flag=True)
+@click.option("--run-id", help="Zenoh run id (default: <name>-<random>); keys live under swarm/<run-id>/")
 def run(
-    config: str, mode: str | None, gui: bool, out: Path | None, stop_on_agent_death: bool, no_progress: bool
+    config: str,
+    mode: str | None,
+    gui: bool,
+    out: Path | None,
+    stop_on_agent_death: bool,
+    no_progress: bool,
+    run_id: str | None,
 ) -> None:
     """Run a scenario: world, one process per agent, recorder."""
     cfg = _load_or_exit(config, _overrides(mode))
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    code, metrics = run_scenario(cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death)
+    code, metrics = run_scenario(
+        cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death, run_id=run_id
+    )
     if metrics:
         keys = ("collisions", "min_separation_m", "min_obstacle_clearance_m", "all_reached_goal", "duration_s",
                 "real_time_factor", "late_ticks", "dropped_messages", "lost_agents", "stop_reason")  # fmt: skip

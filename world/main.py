@@ -22,7 +22,7 @@ import numpy as np
 
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode, load
-from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController
+from swarm.control import AttitudeController, OnboardController, onboard_rotor_thrusts
 from swarm.messages import encode
 from swarm.model import CommandLevel, QuadModel
 from swarm.rotation import quat_to_R
@@ -48,6 +48,15 @@ class DroneSlot:
     on_time: int = 0
     answered: int = 0
     reached_at_s: float | None = None
+    yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
+
+
+def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
+    """Roll, pitch [rad], yaw rate [rad/s], thrust [N]: the agent's, or level hover
+    before its first command."""
+    if slot.command is None:
+        return (0.0, 0.0, 0.0, slot.model.params.weight_N)
+    return slot.command
 
 
 def _landing_thrusts(slot: DroneSlot, state, motors_off: bool) -> np.ndarray:  # noqa: ANN001
@@ -178,6 +187,13 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
             body = {a: s.x_w + slots[a].model.params.l_m * quat_to_R(s.q)[:, 2] for a, s in states.items()}
+            # roster: every drone's body centre [m], its velocity [m/s] and radius [m], in `names` order
+            roster = []
+            for a in names:
+                st, prm = states[a], slots[a].model.params
+                R = quat_to_R(st.q)
+                v_b = st.v_w + prm.l_m * (R[:, 0] * st.Omega_b[1] - R[:, 1] * st.Omega_b[0])
+                roster.extend([*body[a], *v_b, prm.body_radius_m])
             flying = np.array([body[a] for a in names if not slots[a].dead])
             if len(flying) >= 2:
                 min_sep = min(min_sep, min_pair_distance(flying))
@@ -206,7 +222,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             seq += 1
             pub_status.put(encode("status", run, "world", seq, t, k, **status))
             seq += 1
-            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done))
+            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster))
             if done:
                 break
 
@@ -235,21 +251,30 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     while time.monotonic() < target:
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
+                st_now = {a: sim.state(a) for a in names}
+                att = [a for a in names if not slots[a].dead and slots[a].level is CommandLevel.ATTITUDE]
+                att += [a for a in names if not slots[a].dead and slots[a].command is None and a not in att]
+                if att:
+                    for a in att:
+                        slots[a].yaw_sp_rad += (slots[a].command[2] if slots[a].command is not None else 0.0) * sim.dt_s
+                    sp = np.array([_setpoint(slots[a]) for a in att])
+                    f_att = onboard_rotor_thrusts(
+                        np.array([st_now[a].q for a in att]), np.array([st_now[a].Omega_b for a in att]),
+                        sp[:, 0], sp[:, 1], np.array([slots[a].yaw_sp_rad for a in att]), sp[:, 3],
+                        *(np.stack([slots[a].onboard.consts[i][0] for a in att]) for i in range(4)),
+                        np.array([slots[a].onboard.consts[4][0] for a in att]),
+                    )  # fmt: skip
+                    for a, f in zip(att, f_att, strict=True):
+                        sim.apply_rotors(a, f, st_now[a])
                 for a in names:
                     sl = slots[a]
-                    st = sim.state(a) if (j > 0 or sl.level is CommandLevel.ATTITUDE or sl.dead) else states[a]
+                    if a in att:
+                        continue
                     if sl.dead:
-                        f = _landing_thrusts(sl, st, cfg.failure.on_agent_death == "motors_off")
-                    elif sl.command is None:
-                        f = sl.onboard.rotor_thrusts(
-                            st, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), sim.dt_s
-                        )
-                    elif sl.level is CommandLevel.ROTORS:
-                        f = sl.command
-                    else:
-                        r, p, yr, T = (float(x) for x in sl.command)
-                        f = sl.onboard.rotor_thrusts(st, AttitudeSetpoint(r, p, yr, T), sim.dt_s)
-                    sim.apply_rotors(a, np.clip(f, 0.0, sl.model.params.f_max_N))
+                        f = _landing_thrusts(sl, st_now[a], cfg.failure.on_agent_death == "motors_off")
+                    else:  # rotor level: the agent's thrusts, held
+                        f = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
+                    sim.apply_rotors(a, f, st_now[a])
                 pairs = set(sim.step())
                 for pair in pairs - touching:
                     collisions += 1

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
-from swarm.model import QuadModel, QuadState, rotor_geometry
+from swarm.model import QuadModel, QuadState
 from swarm.rotation import E3, FloatArray, quat_to_R
 
 
@@ -53,7 +53,7 @@ class PhysicsWorld:
         ground = pb.createMultiBody(0, plane, physicsClientId=self.client)
         self.bodies: dict[int, Body] = {ground: Body("ground", ground, "ground")}
         self.drones: dict[str, int] = {}
-        self._rotors: dict[str, tuple[FloatArray, FloatArray, float]] = {}
+        self._mixer: dict[str, FloatArray] = {}  # per drone: B, [T, tau] = B f
         self.obstacles: dict[str, tuple[int, FloatArray, FloatArray]] = {}  # id -> uid, c0, velocity
         self.t_s = 0.0
 
@@ -74,8 +74,7 @@ class PhysicsWorld:
             uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
             angularDamping=0.0, physicsClientId=self.client,
         )  # fmt: skip
-        pos, spin = rotor_geometry(p)
-        self._rotors[name] = (pos, spin, p.c_tau_m)
+        self._mixer[name] = model.B
         self.drones[name] = uid
         self.bodies[uid] = Body(name, uid, "drone")
 
@@ -118,20 +117,20 @@ class PhysicsWorld:
         _uid, c0, vel = self.obstacles[name]
         return c0 + vel * self.t_s
 
-    def apply_rotors(self, name: str, f_N: FloatArray) -> None:
-        """Rotor thrusts (4,) [N] for the next step (PyBullet clears forces every step)."""
+    def apply_rotors(self, name: str, f_N: FloatArray, state: QuadState | None = None) -> None:
+        """Rotor thrusts (4,) [N] for the next step (PyBullet clears forces every step).
+
+        Applied as the exact equivalent wrench: the collective ``T = B[0] f`` along body z
+        at the centre of mass, and the torque ``B[1:4] f`` (roll and pitch from the rotor
+        offsets, yaw from the rotors' drag); ``state`` saves a query if already read."""
         uid = self.drones[name]
-        pos, spin, c_tau = self._rotors[name]
-        for i in range(4):
-            pb.applyExternalForce(
-                uid, -1, [0, 0, float(f_N[i])], [float(pos[i, 0]), float(pos[i, 1]), 0.0], pb.LINK_FRAME,
-                physicsClientId=self.client,
-            )  # fmt: skip
-        # yaw reaction torque, applied in world frame along body z
-        _, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
-        z_b = quat_to_R(np.array(q))[:, 2]
-        tau = float(c_tau * (spin @ f_N))
-        pb.applyExternalTorque(uid, -1, list(tau * z_b), pb.WORLD_FRAME, physicsClientId=self.client)
+        st = state if state is not None else self.state(name)
+        R = quat_to_R(st.q)
+        wrench = self._mixer[name] @ f_N
+        pb.applyExternalForce(
+            uid, -1, (wrench[0] * R[:, 2]).tolist(), st.x_w.tolist(), pb.WORLD_FRAME, physicsClientId=self.client
+        )
+        pb.applyExternalTorque(uid, -1, (R @ wrench[1:]).tolist(), pb.WORLD_FRAME, physicsClientId=self.client)
 
     def step(self) -> list[tuple[str, str]]:
         """Advance one physics step; returns the pairs of bodies in contact (ground

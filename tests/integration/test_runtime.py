@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
 import sys
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import msgpack
 import numpy as np
+import pytest
 
 from swarm.messages import encode
 from tools.runfiles import read_records
@@ -30,8 +33,9 @@ def trajectories(run_dir) -> dict[str, dict[int, np.ndarray]]:
     return out
 
 
-def test_swap_2_lockstep_reaches_goals_safely_and_repeats_exactly(start_run):
-    cfg = scenario("swap_2.yaml")
+@pytest.mark.parametrize("source", ["agents", "world"])
+def test_swap_2_lockstep_reaches_goals_safely_and_repeats_exactly(start_run, source):
+    cfg = scenario("swap_2.yaml", neighbours={"source": source})
     runs = []
     for name in ("first", "second"):
         h = start_run(cfg, name)
@@ -146,3 +150,49 @@ def test_a_malformed_config_fails_before_anything_starts(tmp_path):
     assert str(bad) in proc.stderr and "agents.1.start" in proc.stderr
     assert not out.exists()  # nothing was started or written
     assert time.monotonic() - t0 < 30
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text.encode() in (entry / "cmdline").read_bytes():
+                    pids.append(int(entry.name))
+            except OSError:
+                continue
+    return pids
+
+
+def test_ctrl_c_stops_every_process_and_keeps_the_recording(tmp_path):
+    from swarm import transport as tp
+    from swarm.config import load
+
+    out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
+    cli = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "run", str(CONFIGS / "circle_8.yaml"), "--out", str(out),
+         "--no-progress", "--run-id", run_id],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / "config.yaml").exists():  # written before any process starts
+            assert cli.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        cfg = load(out / "config.yaml")
+        session = tp.open_session(tp.process_config(cfg.network, is_world=False))
+        status = tp.Inbox(session, tp.Keys(run_id).status)
+        first = status.get(time.monotonic() + 120)  # the world is ticking
+        assert first is not None
+        cli.send_signal(signal.SIGINT)
+        cli.wait(timeout=60)
+        assert cli.returncode == 1  # interrupted, not completed
+        assert _processes_mentioning(run_id) == []
+        assert (out / "run.mcap").exists() and json.loads((out / "metrics.json").read_text())[
+            "stop_reason"
+        ] == "interrupted"
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+        for pid in _processes_mentioning(run_id):
+            os.kill(pid, signal.SIGKILL)

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from swarm.barriers import A_P, A_W, B_P, B_W, BarrierKind, BarrierRows, H, barrier_row
-from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray
 
@@ -105,16 +105,27 @@ def own_affine(level: CommandLevel, model: QuadModel, state: QuadState) -> OwnAf
 
 
 @njit(cache=True)
-def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc):  # noqa: ANN001
-    """All rows at once: returns (Y_used (n,2,3), coef (n,7), inside, Lf_h, Lg_h (n,m), lower)."""
+def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d):  # noqa: ANN001
+    """All rows at once, stacked under the input rows ``C u <= d`` as one QP constraint
+    set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals
+    ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips them).
+
+    Returns (Y_used (n,2,3), coef (n,7), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
+    c_ref (k+n,), ref_ok) where ``ref_ok`` says ``u_ref`` satisfies every row and bound."""
     n = c.shape[0]
+    k_in = C.shape[0]
     m = Aa.shape[1] - 1
     Y = np.empty((n, 2, 3))
     coef = np.empty((n, 7))
     inside = np.empty(n, dtype=np.bool_)
     Lf = np.empty(n)
-    Lg = np.empty((n, m))
-    lower = np.empty(n)
+    A = np.empty((k_in + n, m))
+    b = np.empty(k_in + n)
+    A[:k_in] = C
+    b[:k_in] = d
+    with_ref = u_ref.shape[0] == m
+    c_ref = np.empty(k_in + n if with_ref else 0)
+    ref_ok = with_ref
     p = np.empty(3)
     w = np.empty(3)
     dp = np.empty(3)
@@ -132,21 +143,53 @@ def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho
             dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k]
             rel += dp[k] * Y[i, 1, k]
             own += dw[k] * (cdd[i, k] + Aa[k, m])
+        row = k_in + i
         for j in range(m):
-            Lg[i, j] = dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j]
+            A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
-        lower[i] = -(own + share[i] * (rel + gamma * co[H]))
-    return Y, coef, inside, Lf, Lg, lower
+        b[row] = own + share[i] * (rel + gamma * co[H])
+    if with_ref:
+        for row in range(k_in + n):
+            acc = b[row]
+            for j in range(m):
+                acc -= A[row, j] * u_ref[j]
+            c_ref[row] = acc
+            if acc < 0.0:
+                ref_ok = False
+        for j in range(m):
+            if not lb[j] <= u_ref[j] <= ub[j]:
+                ref_ok = False
+    return Y, coef, inside, Lf, A, b, c_ref, ref_ok
 
 
 @dataclass(slots=True)
 class Rows:
-    """``n`` barrier rows ``Lg_h u >= lower``."""
+    """``n`` barrier rows ``Lg_h u >= lower``, stored as ``G u <= b`` for the QP, under
+    the ``k`` input rows (``A = [C; G]``, ``b_all = [d; b]``)."""
 
     barrier: BarrierRows
     Lf_h: FloatArray  # (n,)
-    Lg_h: FloatArray  # (n, m)
-    lower: FloatArray  # (n,)
+    A: FloatArray  # (k + n, m)
+    b_all: FloatArray  # (k + n,)
+    c_ref: FloatArray  # (k + n,) b_all - A u_ref of the reference given to assemble (or empty)
+    ref_ok: bool  # that reference satisfies every row and input bound
+    k_in: int  # number of input rows on top
+
+    @property
+    def G(self) -> FloatArray:
+        return self.A[self.k_in :]
+
+    @property
+    def b(self) -> FloatArray:
+        return self.b_all[self.k_in :]
+
+    @property
+    def Lg_h(self) -> FloatArray:
+        return -self.G
+
+    @property
+    def lower(self) -> FloatArray:
+        return -self.b
 
     @property
     def h(self) -> FloatArray:
@@ -155,6 +198,9 @@ class Rows:
     @property
     def inside(self) -> BoolArray:
         return self.barrier.inside
+
+
+_NO_REF = np.zeros(0)
 
 
 def assemble(
@@ -168,14 +214,24 @@ def assemble(
     eps: float = 1e-3,
     gamma_ho: float = 1.0,
     escape_speed: float = 0.3,
+    u_ref: FloatArray | None = None,
+    input_set: LinearInputSet | None = None,
 ) -> Rows:
-    """Build every row at once. ``r_total_m`` (n,) is the full safety radius per row."""
-    share = obstacles.share(rho)
-    Y, coef, inside, Lf, Lg, lower = rows_kernel(
-        kind.code, obstacles.c_w, obstacles.c_dot_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w, share,
-        own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
+    """Build every row at once. ``r_total_m`` (n,) is the full safety radius per row.
+    With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
+    ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``)."""
+    m = own.Aa.shape[1] - 1
+    if input_set is None:  # no bounds: residuals of the barrier rows only
+        lb, ub = np.full(m, -np.inf), np.full(m, np.inf)
+        C, d = np.zeros((0, m)), _NO_REF
+    else:
+        lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok = rows_kernel(
+        kind.code, obstacles.c_w, obstacles.c_dot_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w,
+        obstacles.share(rho), own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
+        _NO_REF if u_ref is None else u_ref, lb, ub, C, d,
     )  # fmt: skip
-    return Rows(BarrierRows(Y, coef, inside), Lf, Lg, lower)
+    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0])
 
 
 __all__ = [

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import daqp
@@ -15,6 +16,7 @@ class DaqpBackend:
 
     def __init__(self, primal_tol: float = 1e-9) -> None:
         self.primal_tol = primal_tol
+        self._settings = {"primal_tol": primal_tol} if primal_tol != 1e-6 else {}
         # bound and sense buffers by problem size (n, rows)
         self._bufs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
@@ -31,11 +33,9 @@ class DaqpBackend:
         upper[:n] = problem.ub
         upper[n:] = problem.b
         lower[:n] = problem.lb
-        x, _fval, flag, info = daqp.solve(
-            problem.H, problem.q, problem.A, upper, lower, sense, primal_tol=self.primal_tol
-        )
+        x, _fval, flag, info = daqp.solve(problem.H, problem.q, problem.A, upper, lower, sense, **self._settings)
         dt = time.perf_counter() - t0
-        if flag == 1 and np.isfinite(x).all():
+        if flag == 1 and math.isfinite(x @ x):
             return QPSolution(problem, x, QPStatus.OPTIMAL, dt, int(info["iterations"]))
         status = QPStatus.INFEASIBLE if flag == -1 else QPStatus.FAILED
         return QPSolution(problem, np.zeros(problem.n), status, dt, int(info.get("iterations", 0)))

@@ -53,6 +53,7 @@ class Agent:
         self.obstacles = ObstacleArrays.empty()
         self.obstacles_k = -1
         self.from_world = cfg.neighbours.source == "world"
+        self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self.infeasible = 0
         self.min_h = math.inf
@@ -67,13 +68,30 @@ class Agent:
 
     def on_clock(self, m: Message) -> None:
         self.clock_live[m.k] = m["live"]
-        if self.from_world:
-            xvr = m["xvr"].reshape(-1, 7) if m["xvr"].size == 7 * len(m["ids"]) else np.zeros((0, 7))
-            for name, row in zip(m["ids"], xvr, strict=False):
-                if name in self.others:
-                    self.table.update(name, m.t, m.k, row[0:3], row[3:6], float(row[6]))
+        if self.from_world and m["xvr"].size == 7 * len(m["ids"]):
+            # the world's roster: every other drone's body centre, velocity and radius at tick k
+            mine = [i for i, name in enumerate(m["ids"]) if name in self.others]
+            xvr = m["xvr"].reshape(-1, 7)[mine]
+            n = len(mine)
+            self.roster[m.k] = (m.t, ObstacleArrays(
+                np.ascontiguousarray(xvr[:, 0:3]), np.ascontiguousarray(xvr[:, 3:6]), np.zeros((n, 3)),
+                np.ascontiguousarray(xvr[:, 6]), np.zeros((n, 3)), np.ones(n, dtype=bool),
+            ))  # fmt: skip
+            for old in [kk for kk in self.roster if kk < m.k - 4]:
+                del self.roster[old]
         for old in [kk for kk in self.clock_live if kk < m.k - 4]:
             del self.clock_live[old]
+
+    def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
+        """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""
+        ks = [kk for kk in self.roster if k is None or kk <= k]
+        if not ks:
+            return ObstacleArrays.empty()
+        t_r, arr = self.roster[max(ks)]
+        if t == t_r:
+            return arr
+        return ObstacleArrays(arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m,
+                              arr.axis_w, arr.is_neighbour)  # fmt: skip
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, obstacles, neighbours k-1)?"""
@@ -97,8 +115,11 @@ class Agent:
         v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
         F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
-        k_max = None if not lockstep else (k if self.from_world else k - 1)
-        rows = ObstacleArrays.concat([self.obstacles, self.table.arrays(t, k_max)])
+        if self.from_world:
+            neighbours = self.roster_rows(t, k if lockstep else None)
+        else:
+            neighbours = self.table.arrays(t, k - 1 if lockstep else None)
+        rows = ObstacleArrays.concat([self.obstacles, neighbours])
         if me.filter.enabled:
             res = self.filt.filter(state, u_ref, rows)
             u, status = res.u, res.status

@@ -140,6 +140,7 @@ class TimeSettings(_Strict):
     physics_hz: float = Field(240.0, gt=0)
     control_hz: float = Field(120.0, gt=0)  # must divide physics_hz
     lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
+    command_timeout_s: float = Field(0.05, gt=0)  # realtime: an older command is replaced by braking
     start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
 
     @model_validator(mode="after")

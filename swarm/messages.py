@@ -83,6 +83,11 @@ _NUMBER = (float, int)
 def _vector(name: str, x: Any, n: int | None) -> np.ndarray:
     if type(x) is not list or (n is not None and len(x) != n):
         raise DecodeError(f"{name}: expected a list of {n if n is not None else 'some'} numbers")
+    if len(x) > 16:  # long lists: let numpy check (bools and strings give another dtype kind)
+        arr = np.asarray(x)
+        if arr.ndim != 1 or arr.dtype.kind not in "if" or not np.isfinite(arr).all():
+            raise DecodeError(f"{name}: expected finite numbers")
+        return arr.astype(float, copy=False)
     for e in x:  # exact types: a bool is not a number here
         if type(e) not in _NUMBER or not math.isfinite(e):
             raise DecodeError(f"{name}: expected finite numbers")

@@ -43,6 +43,8 @@ class DroneSlot:
     dead: bool = False
     command: np.ndarray | None = None  # rotors: f (4,) N; attitude: roll, pitch, yaw rate, thrust
     command_k: int = -1
+    command_t_s: float = 0.0  # sim time of the tick the held command answered
+    braking_ticks: int = 0  # realtime: ticks flown on the braking fallback (command too old)
     sent_at: dict[int, float] = field(default_factory=dict)  # tick -> wall time published
     latencies_s: list[float] = field(default_factory=list)
     on_time: int = 0
@@ -57,6 +59,14 @@ def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
     if slot.command is None:
         return (0.0, 0.0, 0.0, slot.model.params.weight_N)
     return slot.command
+
+
+def _braking_thrusts(slot: DroneSlot, state) -> np.ndarray:  # noqa: ANN001
+    """Fallback for a command that is too old: level out and brake to a hover in place
+    (thrust vector ``m (g e3 - 2 v)``), as the firmware's setpoint timeout would."""
+    p = slot.model.params
+    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) - 2.0 * state.v_w)
+    return slot.att.from_thrust_vector(state, F)
 
 
 def _landing_thrusts(slot: DroneSlot, state, motors_off: bool) -> np.ndarray:  # noqa: ANN001
@@ -145,7 +155,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 continue
             if m.k < slot.command_k:
                 continue  # older than what we hold
-            slot.command, slot.command_k = u, m.k
+            slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
             sent = slot.sent_at.pop(m.k, None)
             if sent is not None:
                 slot.answered += 1
@@ -252,7 +262,16 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
                 st_now = {a: sim.state(a) for a in names}
-                att = [a for a in names if not slots[a].dead and slots[a].level is CommandLevel.ATTITUDE]
+                stale = set()
+                if not lockstep:  # realtime: a command older than the timeout is not flown
+                    stale = {
+                        a for a in names
+                        if not slots[a].dead and slots[a].command is not None
+                        and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
+                    }  # fmt: skip
+                att = [
+                    a for a in names if not slots[a].dead and a not in stale and slots[a].level is CommandLevel.ATTITUDE
+                ]
                 att += [a for a in names if not slots[a].dead and slots[a].command is None and a not in att]
                 if att:
                     for a in att:
@@ -272,6 +291,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         continue
                     if sl.dead:
                         f = _landing_thrusts(sl, st_now[a], cfg.failure.on_agent_death == "motors_off")
+                    elif a in stale:
+                        f = _braking_thrusts(sl, st_now[a])
+                        if j == 0:
+                            sl.braking_ticks += 1
                     else:  # rotor level: the agent's thrusts, held
                         f = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
                     sim.apply_rotors(a, f, st_now[a])
@@ -301,6 +324,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
         "real_time_factor": k * dt_ctrl / (time.monotonic() - wall0), "cpu_s": time.process_time(),
         "phase_wall_s": {n: round(v, 3) for n, v in phase.items()}, "dropped": counter.dropped,
+        "braking_ticks": sum(s.braking_ticks for s in slots.values()),
     }  # fmt: skip
     print("WORLD_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0

@@ -1,6 +1,6 @@
 """The agent process: one quadrotor's reference controller and C3BF-QP safety filter.
 
-    python -m agents.agent CONFIG --run RUN --id ID   (or: swarm agent CONFIG --id ID)
+    swarm agent CONFIG --id ID [--run RUN] [--port P]
 
 An event loop over one inbox (the agent's measurement, each neighbour's state, the
 obstacles, the clock): nothing polls. On each measurement it builds one row per
@@ -13,18 +13,15 @@ realtime it uses the newest of everything.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import os
-import signal
 import sys
 import time
 
 import numpy as np
 
 from swarm import transport as tp
-from swarm.config import ScenarioConfig, TimeMode, load
+from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, PathTracker, setpoint_from_thrust_vector, yaw_of
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, encode
@@ -33,6 +30,7 @@ from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays
+from swarm.shutdown import StopFlag
 
 
 class Agent:
@@ -148,13 +146,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     agent = Agent(cfg, agent_id)
     keys = tp.Keys(run)
     lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-    stop = {"now": False}
-
-    def on_signal(signum, frame):  # noqa: ANN001, ARG001
-        stop["now"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = StopFlag()
 
     session = tp.open_session(conf)
     counter = tp.Counter()
@@ -190,12 +182,12 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
         elif m.kind == "clock" and key == keys.clock:
             agent.on_clock(m)
             if m["done"]:
-                stop["now"] = True
+                stop.set()
         else:
             counter.drop(f"unexpected {m.kind} on {key}")
 
     try:
-        while not stop["now"]:
+        while not stop:
             s = inbox.get(time.monotonic() + 0.1)
             if s is not None:
                 handle(s)
@@ -247,27 +239,3 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     if counter.dropped:
         print(f"agent {agent_id}: dropped {counter.dropped} messages {counter.reasons}", file=sys.stderr)
     return 0
-
-
-def run_from_args(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description="c3swarm agent process")
-    ap.add_argument("config")
-    ap.add_argument("--run", required=True)
-    ap.add_argument("--id", required=True)
-    ap.add_argument("--port", type=int)
-    ap.add_argument("--mode", choices=["lockstep", "realtime"])
-    args = ap.parse_args(argv)
-    over: dict = {}
-    if args.port is not None:
-        over["network"] = {"port": args.port}
-    if args.mode:
-        over["time"] = {"mode": args.mode}
-    cfg = load(args.config, over)
-    return main(cfg, args.id, args.run, tp.process_config(cfg.network, is_world=False))
-
-
-if __name__ == "__main__":
-    code = run_from_args()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)  # no interpreter teardown: zenoh sessions can hang there

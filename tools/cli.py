@@ -184,7 +184,9 @@ def record(config: str, out: Path, run_id: str | None, port: int | None) -> None
 
     cfg, run_name = _process_args(config, run_id, port, None)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.yaml").write_text(dump(cfg))
+    target = out / "config.yaml"
+    if not (target.exists() and target.resolve() == Path(config).resolve()):
+        target.write_text(dump(cfg))
     os._exit(record_main(run_name, out, tp.process_config(cfg.network, is_world=False)))
 
 

@@ -65,10 +65,10 @@ class RunHandle:
         cfg_path = out / "config.yaml"
         cfg_path.write_text(dump(cfg))
         common = [str(cfg_path), "--run", h.run]
-        h._spawn("recorder", ["-m", "tools.record", *common, "--out", str(out)])
+        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)])
         for a in cfg.agents:
-            h._spawn(f"agent-{a.id}", ["-m", "agents.agent", *common, "--id", a.id])
-        h._spawn("world", ["-m", "world.main", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
+            h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id])
+        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
         h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         h._states = tp.open_channel(h._session, tp.Keys(h.run).all_states, 1 << 15)

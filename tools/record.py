@@ -1,6 +1,6 @@
 """The recorder process: every message under ``swarm/<run>/**`` into ``run.mcap``.
 
-    python -m tools.record CONFIG --run RUN --out DIR [--port P]   (or: swarm record ...)
+    swarm record CONFIG --out DIR [--run RUN] [--port P]
 
 Messages are decoded and written as JSON (one MCAP channel per key expression, JSON
 schema encoding), so Foxglove can open and plot the file. Undecodable messages are
@@ -10,19 +10,15 @@ a crash loses at most that much. Stops when the world reports done or disappears
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import signal
-import sys
 import time
 from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
 from swarm import transport as tp
-from swarm.config import load
 from swarm.messages import DecodeError, decode, to_json
+from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
 TAIL_S = 0.3  # keep listening this long after the world says done
@@ -30,13 +26,7 @@ TAIL_S = 0.3  # keep listening this long after the world says done
 
 def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
     keys = tp.Keys(run)
-    stop = {"now": False}
-
-    def on_signal(signum, frame):  # noqa: ANN001, ARG001
-        stop["now"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = StopFlag()
     out_dir.mkdir(parents=True, exist_ok=True)
     f = open(out_dir / "run.mcap", "wb")  # noqa: SIM115 - closed in finally
     writer = Writer(f, compression=CompressionType.NONE, use_chunking=False)
@@ -56,7 +46,7 @@ def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
     last_flush = time.monotonic()
     count = 0
     try:
-        while not stop["now"]:
+        while not stop:
             first = inbox.get(time.monotonic() + 0.05)
             for s in ([first] if first is not None else []) + list(inbox.drain()):
                 key = str(s.key_expr)
@@ -95,18 +85,3 @@ def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
         json.dumps({"messages": count, "dropped": counter.dropped, "reasons": counter.reasons})
     )
     return 0
-
-
-if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description="c3swarm recorder process")
-    ap.add_argument("config")
-    ap.add_argument("--run", required=True)
-    ap.add_argument("--out", required=True, type=Path)
-    ap.add_argument("--port", type=int)
-    args = ap.parse_args()
-    over = {"network": {"port": args.port}} if args.port is not None else None
-    cfg = load(args.config, over)
-    code = main(args.run, args.out, tp.process_config(cfg.network, is_world=False))
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)

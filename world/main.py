@@ -1,6 +1,6 @@
 """The world process: PyBullet physics, measurements out, commands in.
 
-    python -m world.main CONFIG --run RUN [--port P] [--gui]   (or: swarm world CONFIG)
+    swarm world CONFIG [--run RUN] [--port P] [--gui]
 
 Lockstep: publish tick k (obstacles, one measurement per agent, the clock), wait until
 every live agent answered k or the timeout passed (those are late and keep their last
@@ -10,10 +10,8 @@ applied when they arrive and held until replaced.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -21,12 +19,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm import transport as tp
-from swarm.config import ScenarioConfig, TimeMode, load
+from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, OnboardController, onboard_rotor_thrusts
 from swarm.messages import encode
 from swarm.model import CommandLevel, QuadModel
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.shutdown import StopFlag
 from world.physics import PhysicsWorld
 
 
@@ -100,13 +99,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m, np.asarray(o.velocity)
             )
 
-    stop = {"now": False}
-
-    def on_signal(signum, frame):  # noqa: ANN001, ARG001
-        stop["now"] = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = StopFlag()
 
     session = tp.open_session(conf)
     counter = tp.Counter()
@@ -167,7 +160,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     deadline = time.monotonic() + cfg.time.start_timeout_s
     while not all(s.alive for s in slots.values()) or not set(expect) <= others_alive:
         poll_liveliness()
-        if stop["now"] or time.monotonic() > deadline:
+        if stop or time.monotonic() > deadline:
             missing = [a for a, s in slots.items() if not s.alive] + sorted(set(expect) - others_alive)
             print(f"world: gave up waiting for {missing}", file=sys.stderr)
             token.undeclare()
@@ -214,7 +207,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 if sl.reached_at_s is None and np.linalg.norm(states[a].x_w - sl.goal) <= cfg.goal_tolerance_m:
                     sl.reached_at_s = t
             all_reached = all(slots[a].reached_at_s is not None for a in names if not slots[a].dead)
-            done = k == K or (cfg.stop_when_all_reached and all_reached) or stop["now"] or not live
+            done = k == K or (cfg.stop_when_all_reached and all_reached) or stop or not live
             wall = time.monotonic() - wall0
             status = dict(
                 rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
@@ -243,7 +236,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 while True:
                     poll_liveliness()
                     waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
-                    if not waiting or stop["now"]:
+                    if not waiting or stop:
                         break
                     if time.monotonic() > wait_until:
                         late += len(waiting)
@@ -328,26 +321,3 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     }  # fmt: skip
     print("WORLD_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0
-
-
-if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description="c3swarm world process")
-    ap.add_argument("config")
-    ap.add_argument("--run", required=True)
-    ap.add_argument("--port", type=int)
-    ap.add_argument("--mode", choices=["lockstep", "realtime"])
-    ap.add_argument("--gui", action="store_true")
-    ap.add_argument("--expect", action="append", default=[], help="other processes to wait for (e.g. recorder)")
-    args = ap.parse_args()
-    over: dict = {}
-    if args.port is not None:
-        over["network"] = {"port": args.port}
-    if args.mode:
-        over["time"] = {"mode": args.mode}
-    cfg = load(args.config, over)
-    code = main(cfg, args.run, tp.process_config(cfg.network, is_world=True), gui=args.gui, expect=tuple(args.expect))
-    sys.stdout.flush()
-    sys.stderr.flush()
-    import os
-
-    os._exit(code)  # no interpreter teardown: zenoh sessions can hang there

@@ -56,9 +56,13 @@ class Agent:
         self.infeasible = 0
         self.min_h = math.inf
         self.reached = False
-        # first filter call loads numba's compiled code (about a second): do it now, before
-        # the world can see this agent, so that no tick pays for it
-        self.filt.filter(QuadState.hover(me.start), self.filt.input_set.lb.copy(), ObstacleArrays.empty())
+        # The first tick loads numba's compiled code and pays every other first-call cost
+        # (about a second): run one now, before the world can see this agent, so that no
+        # real tick pays for it.
+        hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
+        self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
+        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
+        self.infeasible, self.min_h, self.reached = 0, math.inf, False
 
     def on_obstacles(self, m: Message) -> None:
         if m.k >= self.obstacles_k:

@@ -3,6 +3,8 @@ of the agent and of the obstacle (static, constant velocity and accelerating obs
 spheres and cylinders; both command levels). Dropping the obstacle's velocity term or
 the body-centre offset makes this fail."""
 
+import zlib
+
 import numpy as np
 import pytest
 
@@ -28,8 +30,9 @@ def _advance(level, model, state, u, dt):
     return QuadState(state.x_w + state.v_w * dt + 0.5 * a * dt * dt, state.v_w + a * dt, state.q, state.Omega_b)
 
 
-def _richardson(h_of_t, d=1e-4):
-    """dh/dt at 0 from central differences at d and 2d (error O(d^4))."""
+def _richardson(h_of_t, d=2e-5):
+    """dh/dt at 0 from central differences at d and 2d (error O(d^4); at d = 1e-4 a
+    drone spinning at 3 rad/s near the cone boundary left about 2e-6 of truncation)."""
     c1 = (h_of_t(d) - h_of_t(-d)) / (2 * d)
     c2 = (h_of_t(2 * d) - h_of_t(-2 * d)) / (4 * d)
     return (4 * c1 - c2) / 3
@@ -40,7 +43,7 @@ def _richardson(h_of_t, d=1e-4):
 @pytest.mark.parametrize("shape", ["sphere", "cylinder"])
 @pytest.mark.parametrize("motion", list(MOTIONS))
 def test_hdot_matches_finite_difference_along_motion(level, kind, shape, motion):
-    rng = np.random.default_rng(abs(hash((level, kind, shape, motion))) % 2**32)
+    rng = np.random.default_rng(zlib.crc32(f"{level}{kind}{shape}{motion}".encode()))  # stable across runs
     model = QuadModel()
     filt = SafetyFilter(model, FilterConfig(level=level, barrier=kind, gamma_ho=0.8))
     checked = 0

@@ -18,7 +18,8 @@ from swarm.control import (
 from swarm.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import FloatArray
+from swarm.rotation import FloatArray, quat_to_R
+from swarm.scenario import surface_clearance
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -32,17 +33,10 @@ def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
     )  # fmt: skip
 
 
-def surface_distance(x_w: FloatArray, obs: ObstacleArrays) -> FloatArray:
-    """Distance [m] from a point to each obstacle's surface (negative inside)."""
-    d = obs.c_w - x_w
-    d = d - obs.axis_w * np.sum(obs.axis_w * d, axis=1, keepdims=True)
-    return np.linalg.norm(d, axis=1) - obs.radius_m
-
-
 @dataclass
 class ClosedLoopLog:
     t_s: list[float] = field(default_factory=list)
-    x_w: list[FloatArray] = field(default_factory=list)  # body centre... see `x_b_w`
+    x_w: list[FloatArray] = field(default_factory=list)  # (3,) m: centre of mass
     x_b_w: list[FloatArray] = field(default_factory=list)  # (3,) m: body centre x + l R e3
     v_w: list[FloatArray] = field(default_factory=list)
     clearance_m: list[FloatArray] = field(default_factory=list)  # surface distance per obstacle
@@ -91,14 +85,12 @@ def simulate(
             u_ref = F_ref
         res = filt.filter(state, u_ref, obs) if filter_on else None
         u = res.u if res is not None else u_ref
-        from swarm.rotation import quat_to_R
-
         x_b = state.x_w + l_m * quat_to_R(state.q)[:, 2]
         log.t_s.append(t)
         log.x_w.append(state.x_w.copy())
         log.x_b_w.append(x_b)
         log.v_w.append(state.v_w.copy())
-        log.clearance_m.append(surface_distance(x_b, obs))
+        log.clearance_m.append(surface_clearance(x_b[None, :], obs)[0])
         if res is not None:
             log.results.append(res)
         sp = setpoint_from_thrust_vector(u, yaw_of(state)) if config.level is CommandLevel.ATTITUDE else None

@@ -99,11 +99,6 @@ class OwnDynamics:
         return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, *self._consts))
 
 
-def own_affine(level: CommandLevel, model: QuadModel, state: QuadState) -> OwnAffine:
-    """One-off :class:`OwnAffine` (the filter keeps an :class:`OwnDynamics` instead)."""
-    return OwnDynamics(level, model)(state)
-
-
 @njit(cache=True)
 def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d):  # noqa: ANN001
     """All rows at once, stacked under the input rows ``C u <= d`` as one QP constraint
@@ -243,6 +238,5 @@ __all__ = [
     "OwnDynamics",
     "Rows",
     "assemble",
-    "own_affine",
     "rows_kernel",
 ]

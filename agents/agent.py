@@ -52,6 +52,8 @@ class Agent:
         self.obstacles_k = -1
         self.from_world = cfg.neighbours.source == "world"
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
+        self.roster_ids: list[str] = []
+        self.obstacle_ids: list[str] = []
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self.infeasible = 0
         self.min_h = math.inf
@@ -67,12 +69,20 @@ class Agent:
     def on_obstacles(self, m: Message) -> None:
         if m.k >= self.obstacles_k:
             self.obstacles, self.obstacles_k = items_to_arrays(m["items"]), m.k
+            self.obstacle_ids = [i["id"] for i in m["items"]]
+
+    def neighbour_ids(self, neighbours: ObstacleArrays) -> list[str]:
+        """Names of the neighbour rows, in the order the neighbour sources build them."""
+        if self.from_world:
+            return [n for n in self.roster_ids if n in self.others][: len(neighbours)]
+        return self.table.row_names[: len(neighbours)]
 
     def on_clock(self, m: Message) -> None:
         self.clock_live[m.k] = m["live"]
         if self.from_world and m["xvr"].size == 7 * len(m["ids"]):
             # the world's roster: every other drone's body centre, velocity and radius at tick k
             mine = [i for i, name in enumerate(m["ids"]) if name in self.others]
+            self.roster_ids = [m["ids"][i] for i in mine]
             xvr = m["xvr"].reshape(-1, 7)[mine]
             n = len(mine)
             self.roster[m.k] = (m.t, ObstacleArrays(
@@ -122,8 +132,13 @@ class Agent:
         else:
             neighbours = self.table.arrays(t, k - 1 if lockstep else None)
         rows = ObstacleArrays.concat([self.obstacles, neighbours])
+        row_ids: list[str] = []
+        h_rows = np.zeros(0)
         if me.filter.enabled:
             res = self.filt.filter(state, u_ref, rows)
+            names = self.obstacle_ids + self.neighbour_ids(neighbours)
+            row_ids = [names[i] for i in res.row_index]
+            h_rows = res.h
             u, status = res.u, res.status
             if status is not FilterStatus.OK:
                 self.infeasible += 1
@@ -136,7 +151,7 @@ class Agent:
         state_body = dict(
             x=x_b, v=v_b, r=model.params.body_radius_m, goal_reached=self.reached,
             min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status=status.value,
-            infeasible=self.infeasible, solve_us=solve_us,
+            infeasible=self.infeasible, solve_us=solve_us, row_ids=row_ids, h_rows=h_rows,
         )  # fmt: skip
         if level is CommandLevel.ATTITUDE:
             sp = setpoint_from_thrust_vector(u, yaw_of(state), me.yaw_rad)

@@ -25,7 +25,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "measurement": {"x": 3, "v": 3, "q": 4, "w": 3},
     "state": {
         "x": 3, "v": 3, "r": "f", "goal_reached": "b", "min_h": "f", "status": "s",
-        "infeasible": "i", "solve_us": "f", "dropped": "i",
+        "infeasible": "i", "solve_us": "f", "dropped": "i", "row_ids": "ls", "h_rows": "vf",
     },
     "command": {"level": "s", "u": "vf", "intervention": "f", "status": "s"},
     "obstacles": {"items": "obs"},

@@ -38,6 +38,7 @@ class NeighbourTable:
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
         self.history: dict[str, dict[int, Neighbour]] = {}
         self.gone: set[str] = set()
+        self.row_names: list[str] = []  # names of the rows the last arrays() built
 
     def update(self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float) -> None:
         if name in self.gone:
@@ -63,7 +64,9 @@ class NeighbourTable:
         return h[max(ks)] if ks else None
 
     def arrays(self, t_now_s: float, k_max: int | None = None) -> ObstacleArrays:
-        """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``."""
+        """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``; their
+        names are left in :attr:`row_names`."""
+        self.row_names = []
         if not self.history:
             return ObstacleArrays.empty()
         c, cd, r = [], [], []
@@ -78,7 +81,9 @@ class NeighbourTable:
                 c.append(n.x_w)
                 cd.append(np.zeros(3))
                 r.append(n.radius_m)
+                self.row_names.append(name)
                 continue
+            self.row_names.append(name)
             c.append(n.x_w + n.v_w * age)
             cd.append(n.v_w)
             r.append(n.radius_m + self.growth_mps * max(0.0, age - self.timeout_s))

@@ -199,6 +199,16 @@ def metrics(run_dir: Path) -> None:
     click.echo(json.dumps(write_metrics(run_dir), indent=2))
 
 
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def report(run_dir: Path) -> None:
+    """Plots (PNG) and a markdown summary of a run folder, in RUN_DIR/report/."""
+    from tools.report import make_report
+
+    out = make_report(run_dir)
+    click.echo(f"report: {out / 'summary.md'}")
+
+
 def main() -> None:
     cli()
 

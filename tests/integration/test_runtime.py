@@ -196,3 +196,19 @@ def test_ctrl_c_stops_every_process_and_keeps_the_recording(tmp_path):
             os.killpg(cli.pid, signal.SIGKILL)
         for pid in _processes_mentioning(run_id):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_report_writes_plots_and_a_summary(start_run):
+    from tools.report import make_report
+
+    h = start_run(scenario("single_static_sphere.yaml", duration_s=4.0))
+    assert h.wait() == "completed"
+    out = make_report(h.out)
+    for name in ("trajectory_3d", "views", "clearance", "h", "speed", "intervention"):
+        png = (out / f"{name}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+        assert f"({name}.png)" in (out / "summary.md").read_text()
+    summary = (out / "summary.md").read_text()
+    assert "| collisions | 0 |" in summary and "| cf1 |" in summary
+    states = [r for r in read_records(h.out / "run.mcap") if r["kind"] == "state"]
+    assert any(r["row_ids"] == ["ball"] and len(r["h_rows"]) == 1 for r in states)  # h of each row is recorded

@@ -16,6 +16,21 @@ from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
 
 
+def path_deviation(points_w: np.ndarray, path_w: np.ndarray) -> float:
+    """Largest distance [m] of any point from the polyline ``path_w`` (k, 3)."""
+    if len(points_w) == 0:
+        return 0.0
+    if len(path_w) == 1:
+        return float(np.linalg.norm(points_w - path_w[0], axis=1).max())
+    best = np.full(len(points_w), np.inf)
+    for a, b in zip(path_w[:-1], path_w[1:], strict=True):
+        d = b - a
+        L2 = float(d @ d)
+        t = np.clip((points_w - a) @ d / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(points_w))
+        best = np.minimum(best, np.linalg.norm(points_w - (a + t[:, None] * d), axis=1))
+    return float(best.max())
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
@@ -67,6 +82,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "time_to_goal_s": float(m[hit[0]][0]) if hit.size else None,
             "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))) if len(xs) > 1 else 0.0,
             "straight_line_m": float(np.linalg.norm(goal - np.asarray(a.start))),
+            "max_path_deviation_m": path_deviation(xs, np.asarray(a.path(), dtype=float)),
             "min_h": _finite_or_none(min_h[a.id]),
             "infeasible_ticks": int(st.get("infeasible", 0)),
             "dropped_messages": int(st.get("dropped", 0)),

@@ -172,3 +172,12 @@ def test_metrics_from_synthetic_records():
     assert m["agents"]["a"]["reached_goal"] and m["agents"]["a"]["time_to_goal_s"] == pytest.approx(0.9)
     assert not m["agents"]["b"]["reached_goal"] and not m["all_reached_goal"]
     assert m["agents"]["a"]["path_length_m"] == pytest.approx(1.0)
+
+
+def test_path_deviation_is_the_distance_to_the_polyline():
+    from swarm.metrics import path_deviation
+
+    path = np.array([[0.0, 0, 1], [2.0, 0, 1], [2.0, 2, 1]])
+    pts = np.array([[1.0, 0.3, 1], [2.5, 1.0, 1], [0.0, 0, 1]])
+    assert path_deviation(pts, path) == pytest.approx(0.5)
+    assert path_deviation(pts[:1], path[:1]) == pytest.approx(np.hypot(1.0, 0.3))

@@ -209,6 +209,36 @@ def report(run_dir: Path) -> None:
     click.echo(f"report: {out / 'summary.md'}")
 
 
+@cli.command()
+@click.argument("config")
+@click.option("--filters", default="c3bf,hocbf", help="comma-separated: c3bf, hocbf, none (unfiltered)")
+@click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
+@click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
+def compare(config: str, filters: str, mode: str | None, out: Path | None) -> None:
+    """Run one scenario under each filter and print the comparison table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from tools.compare import COLUMNS, _fmt
+    from tools.compare import compare as run_compare
+
+    names = [f.strip() for f in filters.split(",") if f.strip()]
+    bad = [f for f in names if f not in ("c3bf", "hocbf", "none")]
+    if bad:
+        click.echo(f"--filters: unknown filter(s) {bad}; choose from c3bf, hocbf, none", err=True)
+        sys.exit(2)
+    cfg = _load_or_exit(config, _overrides(mode))
+    out = out or Path("runs") / f"compare-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    rows = run_compare(cfg, names, out)
+    table = Table(title=f"{cfg.name}: filters compared")
+    for _, title in COLUMNS:
+        table.add_column(title)
+    for r in rows:
+        table.add_row(*(_fmt(r[key]) for key, _ in COLUMNS))
+    Console().print(table)
+    click.echo(f"saved: {out / 'compare.md'}")
+
+
 def main() -> None:
     cli()
 

@@ -212,3 +212,17 @@ def test_report_writes_plots_and_a_summary(start_run):
     assert "| collisions | 0 |" in summary and "| cf1 |" in summary
     states = [r for r in read_records(h.out / "run.mcap") if r["kind"] == "state"]
     assert any(r["row_ids"] == ["ball"] and len(r["h_rows"]) == 1 for r in states)  # h of each row is recorded
+
+
+def test_compare_runs_each_filter_and_saves_the_table(tmp_path):
+    from tools.compare import compare
+
+    rows = compare(scenario("single_static_sphere.yaml", duration_s=8.0), ["c3bf", "hocbf"], tmp_path)
+    assert [r["filter"] for r in rows] == ["c3bf", "hocbf"]
+    for r in rows:
+        assert r["collisions"] == 0 and r["min_clearance_m"] > 0.07 - 1e-3
+        assert r["max_path_deviation_m"] > 0.0  # it went around the sphere
+    cfgs = [(tmp_path / f / "config.yaml").read_text() for f in ("c3bf", "hocbf")]
+    assert "kind: c3bf" in cfgs[0] and "kind: hocbf" in cfgs[1]
+    table = (tmp_path / "compare.md").read_text()
+    assert "| c3bf |" in table and "| hocbf |" in table

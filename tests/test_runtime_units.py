@@ -80,12 +80,16 @@ def test_generated_circle_is_antipodal_and_valid():
 
 
 def test_messages_round_trip():
-    b = encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, goal_reached=True,
-               min_h=-0.1, status="ok", infeasible=2, solve_us=40.0, dropped=0)  # fmt: skip
+    body = dict(
+        x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, goal_reached=True, min_h=-0.1, status="ok", infeasible=2,
+        solve_us=40.0, dropped=0, row_ids=["ball"], h_rows=[0.5],
+    )  # fmt: skip
+    b = encode("state", "r", "cf1", 7, 1.5, 3, **body)
     m = decode(b, "r", ("state",))
     assert (m.kind, m.src, m.seq, m.t, m.k) == ("state", "cf1", 7, 1.5, 3)
     np.testing.assert_array_equal(m["x"], [1, 2, 3])
     assert m["goal_reached"] is True and m["infeasible"] == 2
+    assert m["row_ids"] == ["ball"] and m["h_rows"].tolist() == [0.5]
 
 
 @settings(max_examples=300, deadline=None)

@@ -85,7 +85,8 @@ class AgentConfig(_Strict):
     """One quadrotor after layering."""
 
     id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
-    start: Vec3  # m, world: initial position, hovering
+    start: Vec3  # m, world: initial position
+    start_velocity: Vec3 = [0.0, 0.0, 0.0]  # m/s, world: initial velocity (level attitude)
     goal: Vec3 | None = None  # m, world
     waypoints: list[Vec3] | None = None  # m, world; the path flown after the start
     speed_mps: float = Field(1.0, gt=0)  # target speed along the path
@@ -95,7 +96,7 @@ class AgentConfig(_Strict):
     airframe: AirframeSettings = AirframeSettings()
     backend: Literal["sim"] = "sim"
 
-    _fin = field_validator("start", "goal", "speed_mps")(_finite)
+    _fin = field_validator("start", "start_velocity", "goal", "speed_mps")(_finite)
 
     @model_validator(mode="after")
     def _path(self) -> AgentConfig:

@@ -83,7 +83,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     slots: dict[str, DroneSlot] = {}
     for a in cfg.agents:
         model = QuadModel(a.airframe.params())
-        sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad)
+        sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad, np.asarray(a.start_velocity, float))
         slots[a.id] = DroneSlot(
             model,
             a.command_level,

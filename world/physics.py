@@ -58,7 +58,14 @@ class PhysicsWorld:
         self.t_s = 0.0
 
     # --- building -------------------------------------------------------------------
-    def add_drone(self, name: str, model: QuadModel, start_w: FloatArray, yaw_rad: float = 0.0) -> None:
+    def add_drone(
+        self,
+        name: str,
+        model: QuadModel,
+        start_w: FloatArray,
+        yaw_rad: float = 0.0,
+        velocity_w: FloatArray | None = None,
+    ) -> None:
         p = model.params
         shape = pb.createCollisionShape(
             pb.GEOM_CYLINDER, radius=p.body_radius_m, height=0.03, collisionFramePosition=[0, 0, p.l_m],
@@ -74,6 +81,8 @@ class PhysicsWorld:
             uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
             angularDamping=0.0, physicsClientId=self.client,
         )  # fmt: skip
+        if velocity_w is not None:
+            pb.resetBaseVelocity(uid, list(velocity_w), [0.0, 0.0, 0.0], physicsClientId=self.client)
         self._mixer[name] = model.B
         self.drones[name] = uid
         self.bodies[uid] = Body(name, uid, "drone")

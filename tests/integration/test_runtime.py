@@ -226,3 +226,14 @@ def test_compare_runs_each_filter_and_saves_the_table(tmp_path):
     assert "kind: c3bf" in cfgs[0] and "kind: hocbf" in cfgs[1]
     table = (tmp_path / "compare.md").read_text()
     assert "| c3bf |" in table and "| hocbf |" in table
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (CONFIGS / "paper").glob("*.yaml")))
+def test_paper_scenarios_run_without_collision_and_reach_their_goals(start_run, name):
+    h = start_run(scenario(f"paper/{name}.yaml"), name)
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["collisions"] == 0
+    assert m["all_reached_goal"] is True
+    if m["min_obstacle_clearance_m"] is not None:
+        assert m["min_obstacle_clearance_m"] >= BODY - 1e-3  # the airframe never touches an obstacle

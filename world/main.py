@@ -4,8 +4,11 @@
 
 Lockstep: publish tick k (obstacles, one measurement per agent, the clock), wait until
 every live agent answered k or the timeout passed (those are late and keep their last
-command), then step physics. Realtime: physics follows the wall clock; commands are
-applied when they arrive and held until replaced.
+command), then step physics. Realtime: physics follows the wall clock and tick k is
+published at wall time k * dt; commands are applied when they arrive and held until
+replaced, but a command older than ``time.command_timeout_s`` is not flown (the drone
+levels out and brakes). The clock message carries the roster of every drone's body
+centre, velocity and radius (used by agents with ``neighbours.source: world``).
 """
 
 from __future__ import annotations

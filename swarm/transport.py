@@ -134,6 +134,19 @@ def drain(sub: Any) -> Iterator[Any]:
         yield s
 
 
+def wait_sample(sub: Any, deadline: float, poll_s: float = 0.002) -> Any | None:
+    """The next sample of a channel subscriber, or None at the wall-clock ``deadline``.
+
+    No thread: it polls ``try_recv``, so it is safe in any process, including ones that
+    must exit normally (a thread blocked in ``recv()`` cannot be stopped, and is killed
+    at interpreter exit). Agents and the world use :class:`Inbox` instead."""
+    while True:
+        s = sub.try_recv()
+        if s is not None or time.monotonic() >= deadline:
+            return s
+        time.sleep(poll_s)
+
+
 def payload(sample: Any) -> bytes:
     return bytes(sample.payload.to_bytes())
 

@@ -61,13 +61,13 @@ def run_scenario(
         TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
         TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,
     )  # fmt: skip
-    limit = time.monotonic() + cfg.time.start_timeout_s + 20.0 * cfg.duration_s + 60.0
+    limit = time.monotonic() + handle.wall_limit_s
     reason: str | None = None
     try:
         with bar:
             task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
             while reason is None:
-                reason = handle.poll(stop_on_agent_death)
+                reason = handle.poll(stop_on_agent_death, wait_s=0.05)
                 st = handle.progress.status
                 if st:
                     sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
@@ -80,7 +80,6 @@ def run_scenario(
                     reason = "interrupted"
                 elif reason is None and time.monotonic() > limit:
                     reason = "wall-clock limit"
-                time.sleep(0.05)
     finally:
         handle.finish(reason or "interrupted")
         signal.signal(signal.SIGINT, old)

@@ -89,9 +89,16 @@ class RunHandle:
     def exited(self) -> dict[str, int]:
         return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
 
-    def poll(self, stop_on_agent_death: bool = False) -> str | None:
-        """Read progress and exit codes once; returns why the run is over, or None."""
-        for s in tp.drain(self._status):
+    @property
+    def wall_limit_s(self) -> float:
+        """Generous wall-clock limit of the whole run (start-up plus 20x real time)."""
+        return self.cfg.time.start_timeout_s + 20.0 * self.cfg.duration_s + 60.0
+
+    def poll(self, stop_on_agent_death: bool = False, wait_s: float = 0.0) -> str | None:
+        """Read progress and exit codes once, first waiting up to ``wait_s`` for a world
+        status message; returns why the run is over, or None."""
+        first = tp.wait_sample(self._status, time.monotonic() + wait_s) if wait_s > 0 else None
+        for s in ([first] if first is not None else []) + list(tp.drain(self._status)):
             try:
                 m = decode(tp.payload(s), self.run, ("status",))
             except DecodeError:
@@ -113,17 +120,24 @@ class RunHandle:
             return f"{dead[0]} died"
         return None
 
+    def wait_sim_time(self, t_s: float, timeout_s: float = 120.0) -> None:
+        """Block until a world status message reports sim time ``t_s`` [s] or later;
+        raises if the run ends first or ``timeout_s`` passes."""
+        deadline = time.monotonic() + timeout_s
+        while not self.progress.status or self.progress.t_s < t_s:
+            reason = self.poll(wait_s=max(0.0, min(0.5, deadline - time.monotonic())))
+            if reason is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"run {self.run} did not reach t = {t_s} s ({reason or 'timeout'})")
+
     def wait(self, timeout_s: float | None = None, stop_on_agent_death: bool = False) -> str:
         """Block until the run is over (or ``timeout_s``), then :meth:`finish`."""
-        limit = timeout_s or (self.cfg.time.start_timeout_s + 20.0 * self.cfg.duration_s + 60.0)
-        deadline = time.monotonic() + limit
+        deadline = time.monotonic() + (timeout_s or self.wall_limit_s)
         reason = None
         while reason is None:
-            reason = self.poll(stop_on_agent_death)
+            # returns on each world status message; exit codes are looked at every 50 ms
+            reason = self.poll(stop_on_agent_death, wait_s=0.05)
             if reason is None and time.monotonic() > deadline:
                 reason = "wall-clock limit"
-            if reason is None:
-                time.sleep(0.05)
         return self.finish(reason)
 
     def _wait_procs(self, names: list[str], timeout_s: float) -> bool:

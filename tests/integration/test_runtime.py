@@ -78,10 +78,7 @@ def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run):
         ],
     )
     h = start_run(cfg)
-    deadline = time.monotonic() + 120
-    while h.progress.t_s < 1.0:  # wait for the swarm to be flying
-        assert h.poll() is None and time.monotonic() < deadline
-        time.sleep(0.02)
+    h.wait_sim_time(1.0)  # the swarm is flying
     killed_at = time.time()
     h.kill("agent-cf3", signal.SIGKILL)
     assert h.wait() == "completed"
@@ -99,7 +96,8 @@ def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run):
 
 
 def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
-    cfg = scenario("swap_2.yaml", name="garbage")
+    # long enough that the injected garbage is routed to every process while they run
+    cfg = scenario("swap_2.yaml", name="garbage", duration_s=8.0, stop_when_all_reached=False)
     h = start_run(cfg)
     keys = [
         *(f"swarm/{h.run}/world/{a}/measurement" for a in ("cf1", "cf2")),
@@ -117,15 +115,14 @@ def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
                        "level": "attitude", "u": [0.0, float("nan"), 0.0, 0.3], "intervention": 0.0, "status": "ok"}),
     ]  # fmt: skip
     pubs = [h.session.declare_publisher(k) for k in keys]
-    deadline = time.monotonic() + 120
     sent = 0
-    while h.progress.t_s < 2.0 and time.monotonic() < deadline:
-        assert h.poll() is None
+    h.wait_sim_time(0.0)  # the world is ticking and its messages reach us
+    while h.progress.t_s < 6.0:  # inject on each world status message until 6 s of sim time
         for p in pubs:
             for payload in bad:
                 p.put(payload)
                 sent += 1
-        time.sleep(0.05)
+        h.wait_sim_time(h.progress.t_s + 0.01)
     assert sent > 0
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
@@ -166,23 +163,21 @@ def _processes_mentioning(text: str) -> list[int]:
 
 def test_ctrl_c_stops_every_process_and_keeps_the_recording(tmp_path):
     from swarm import transport as tp
-    from swarm.config import load
+    from swarm.config import dump, load
+    from tools.launch import free_port
 
     out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
+    cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
+    (tmp_path / "circle_8.yaml").write_text(dump(cfg))
+    session = tp.open_session(tp.process_config(cfg.network, is_world=False))
+    status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "run", str(CONFIGS / "circle_8.yaml"), "--out", str(out),
+        [sys.executable, "-m", "tools.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
          "--no-progress", "--run-id", run_id],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
     )  # fmt: skip
     try:
-        deadline = time.monotonic() + 60
-        while not (out / "config.yaml").exists():  # written before any process starts
-            assert cli.poll() is None and time.monotonic() < deadline
-            time.sleep(0.02)
-        cfg = load(out / "config.yaml")
-        session = tp.open_session(tp.process_config(cfg.network, is_world=False))
-        status = tp.Inbox(session, tp.Keys(run_id).status)
-        first = status.get(time.monotonic() + 120)  # the world is ticking
+        first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking
         assert first is not None
         cli.send_signal(signal.SIGINT)
         cli.wait(timeout=60)

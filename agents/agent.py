@@ -22,7 +22,7 @@ import numpy as np
 
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import AttitudeController, PathTracker, setpoint_from_thrust_vector, yaw_of
+from swarm.control import AttitudeController, PathTracker, setpoint_from_thrust_vector
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, encode
 from swarm.model import CommandLevel, QuadModel, QuadState
@@ -154,7 +154,7 @@ class Agent:
             infeasible=self.infeasible, solve_us=solve_us, row_ids=row_ids, h_rows=h_rows,
         )  # fmt: skip
         if level is CommandLevel.ATTITUDE:
-            sp = setpoint_from_thrust_vector(u, yaw_of(state), me.yaw_rad)
+            sp = setpoint_from_thrust_vector(u, math.atan2(R[1, 0], R[0, 0]), me.yaw_rad)  # yaw from R
             cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
         else:
             cmd = u

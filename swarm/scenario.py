@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -47,10 +46,11 @@ def surface_clearance(points_w: FloatArray, obs: ObstacleArrays) -> FloatArray:
 
 def min_pair_distance(points_w: FloatArray) -> float:
     """Smallest distance [m] between any two points, inf with fewer than two."""
-    best = float("inf")
-    for i, j in itertools.combinations(range(len(points_w)), 2):
-        best = min(best, float(np.linalg.norm(points_w[i] - points_w[j])))
-    return best
+    n = len(points_w)
+    if n < 2:
+        return float("inf")
+    i, j = np.triu_indices(n, 1)
+    return float(np.linalg.norm(points_w[i] - points_w[j], axis=1).min())
 
 
 def circle_swap(

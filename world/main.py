@@ -63,20 +63,16 @@ def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
     return slot.command
 
 
-def _braking_thrusts(slot: DroneSlot, state) -> np.ndarray:  # noqa: ANN001
-    """Fallback for a command that is too old: level out and brake to a hover in place
-    (thrust vector ``m (g e3 - 2 v)``), as the firmware's setpoint timeout would."""
-    p = slot.model.params
-    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) - 2.0 * state.v_w)
-    return slot.att.from_thrust_vector(state, F)
+_STOP = np.zeros(3)
+_DESCEND = np.array([0.0, 0.0, -0.3])  # m/s, landing
 
 
-def _landing_thrusts(slot: DroneSlot, state, motors_off: bool) -> np.ndarray:  # noqa: ANN001
-    if motors_off or state.x_w[2] < 0.05:
-        return np.zeros(4)
+def _velocity_hold(slot: DroneSlot, state: QuadState, v_des_w: np.ndarray) -> np.ndarray:
+    """The world's own fallback: fly level at ``v_des_w`` [m/s, world] with the thrust
+    vector ``m (g e3 + 2 (v_des - v))``. Braking (a command too old, as the firmware's
+    setpoint timeout) holds zero velocity; landing (a dead agent) descends."""
     p = slot.model.params
-    v_des = np.array([0.0, 0.0, -0.3])
-    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) + 2.0 * (v_des - state.v_w))
+    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) + 2.0 * (v_des_w - state.v_w))
     return slot.att.from_thrust_vector(state, F)
 
 
@@ -207,12 +203,13 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             items = obstacle_items(cfg.obstacles, t)
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
-            body = {a: s.x_w + slots[a].model.params.l_m * quat_to_R(s.q)[:, 2] for a, s in states.items()}
-            # roster: every drone's body centre [m], its velocity [m/s] and radius [m], in `names` order
-            roster = []
+            # body centres [m]; the roster: body centre, its velocity [m/s] and radius [m] of
+            # every drone, in `names` order
+            body, roster = {}, []
             for a in names:
                 st, prm = states[a], slots[a].model.params
                 R = quat_to_R(st.q)
+                body[a] = st.x_w + prm.l_m * R[:, 2]
                 v_b = st.v_w + prm.l_m * (R[:, 0] * st.Omega_b[1] - R[:, 1] * st.Omega_b[0])
                 roster.extend([*body[a], *v_b, prm.body_radius_m])
             flying = np.array([body[a] for a in names if not slots[a].dead])
@@ -272,7 +269,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     while time.monotonic() < target:
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
-                st_now = {a: sim.state(a) for a in names}
+                st_now = states if j == 0 else {a: sim.state(a) for a in names}
                 stale = set()
                 if not lockstep:  # realtime: a command older than the timeout is not flown
                     stale = {
@@ -301,9 +298,11 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     if a in att:
                         continue
                     if sl.dead:
-                        f = _landing_thrusts(sl, st_now[a], cfg.failure.on_agent_death == "motors_off")
+                        st = st_now[a]
+                        landed = cfg.failure.on_agent_death == "motors_off" or st.x_w[2] < 0.05
+                        f = np.zeros(4) if landed else _velocity_hold(sl, st, _DESCEND)
                     elif a in stale:
-                        f = _braking_thrusts(sl, st_now[a])
+                        f = _velocity_hold(sl, st_now[a], _STOP)
                         if j == 0:
                             sl.braking_ticks += 1
                     else:  # rotor level: the agent's thrusts, held

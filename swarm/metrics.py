@@ -38,7 +38,7 @@ def _finite_or_none(x: float) -> float | None:
 def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
     """Metrics of one run. ``records`` are decoded messages (``swarm.messages.to_json``)."""
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
-    meas: dict[str, list[tuple[float, int, np.ndarray]]] = defaultdict(list)
+    meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, np.ndarray]] = defaultdict(dict)
     obstacles_at: dict[int, Any] = {}
     last_state: dict[str, dict[str, Any]] = {}
@@ -50,7 +50,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         if kind == "measurement":
             aid = _agent_of(r)
             x, q = np.asarray(r["x"]), np.asarray(r["q"])
-            meas[aid].append((r["t"], r["k"], x))
+            meas[aid].append((r["t"], r["k"], x, np.asarray(r["v"])))
             by_tick[r["k"]][aid] = x + l_m.get(aid, 0.0) * quat_to_R(q)[:, 2]
         elif kind == "obstacles":
             obstacles_at[r["k"]] = r["items"]
@@ -73,6 +73,8 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     for a in cfg.agents:
         m = sorted(meas.get(a.id, []), key=lambda e: e[1])
         xs = np.array([e[2] for e in m]) if m else np.zeros((0, 3))
+        vs = np.array([e[3] for e in m]) if m else np.zeros((0, 3))
+        motion = _motion(np.array([e[0] for e in m]), vs, np.asarray(a.path(), dtype=float))
         goal = np.asarray(a.final_goal)
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
@@ -87,6 +89,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "infeasible_ticks": int(st.get("infeasible", 0)),
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
+            **motion,
         }
     final = statuses[-1] if statuses else {}
     live_ever = {x for s in statuses for x in s["live"]}
@@ -107,6 +110,28 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         + recorder_dropped,
         "lost_agents": lost,
         "agents": agents,
+    }
+
+
+def _motion(t_s: np.ndarray, v_w: np.ndarray, path_w: np.ndarray) -> dict[str, Any]:
+    """How the agent moved along its first path leg (the direction it was sent).
+
+    ``min_along_speed_mps`` and ``final_along_speed_mps`` are the velocity [m/s] along
+    that direction (negative: backwards); ``backward_time_s`` [s] is how long it moved
+    backwards faster than 2 cm/s; ``final_speed_mps`` is |v| at the last measurement.
+    """
+    if len(v_w) == 0:
+        return {"min_along_speed_mps": None, "final_along_speed_mps": None, "backward_time_s": 0.0,
+                "final_speed_mps": None}  # fmt: skip
+    leg = path_w[1] - path_w[0] if len(path_w) > 1 else np.zeros(3)
+    n = float(np.linalg.norm(leg))
+    along = v_w @ (leg / n) if n > 1e-9 else np.zeros(len(v_w))
+    dt = np.diff(t_s, append=t_s[-1])
+    return {
+        "min_along_speed_mps": float(along.min()),
+        "final_along_speed_mps": float(along[-1]),
+        "backward_time_s": float(dt[along < -0.02].sum()),
+        "final_speed_mps": float(np.linalg.norm(v_w[-1])),
     }
 
 

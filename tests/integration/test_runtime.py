@@ -223,12 +223,41 @@ def test_compare_runs_each_filter_and_saves_the_table(tmp_path):
     assert "| c3bf |" in table and "| hocbf |" in table
 
 
+def _brakes_and_holds(a: dict) -> bool:
+    return a["final_speed_mps"] < 0.05 and a["path_length_m"] < 1.5 and a["backward_time_s"] < 0.5
+
+
+def _follows_at_0p1(a: dict) -> bool:
+    return abs(a["final_along_speed_mps"] - 0.1) < 0.03 and a["min_along_speed_mps"] > 0.0
+
+
+def _backs_away(a: dict) -> bool:
+    return a["backward_time_s"] > 2.0 and a["final_along_speed_mps"] < -0.05
+
+
+def _slows_then_passes(a: dict) -> bool:
+    return a["reached_goal"] and a["min_along_speed_mps"] < 0.9
+
+
+# What each paper scenario must show (EXPERIMENTS.md); every other one reaches its goal.
+BEHAVIOUR = {
+    "static_brake_pole": _brakes_and_holds,
+    "moving_slow_behind_pole": _follows_at_0p1,
+    "moving_reverse_pole": _backs_away,
+    "static_brake": _slows_then_passes,
+    "moving_slow_behind": _slows_then_passes,
+    "moving_reverse": _slows_then_passes,
+}
+
+
 @pytest.mark.parametrize("name", sorted(p.stem for p in (CONFIGS / "paper").glob("*.yaml")))
-def test_paper_scenarios_run_without_collision_and_reach_their_goals(start_run, name):
+def test_paper_scenarios_show_their_behaviour_without_collision(start_run, name):
     h = start_run(scenario(f"paper/{name}.yaml"), name)
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0
-    assert m["all_reached_goal"] is True
     if m["min_obstacle_clearance_m"] is not None:
         assert m["min_obstacle_clearance_m"] >= BODY - 1e-3  # the airframe never touches an obstacle
+    behaviour = BEHAVIOUR.get(name, lambda a: a["reached_goal"])
+    for aid, a in m["agents"].items():
+        assert behaviour(a), (aid, a)

@@ -238,6 +238,36 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     click.echo(f"saved: {out / 'compare.md'}")
 
 
+@cli.command()
+@click.argument("config")
+@click.option("--axis", "axes", multiple=True, metavar="NAME=v1,v2,...",
+              help="a knob and its values (repeatable): filter, gamma, gamma_ho, rho, obstacle_speed, "
+                   "approach_angle_deg, seed")  # fmt: skip
+@click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time")
+@click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/sweep-<name>-<time>)")
+def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> None:
+    """Run a grid of variants of CONFIG; write results.csv and one plot per metric."""
+    from tools import sweep as sw
+
+    cfg = _load_or_exit(config, {"time": {"mode": "lockstep"}})
+    try:
+        grid_axes = sw.parse_axes(list(axes))
+        total = len(sw.grid(grid_axes))
+        out = out or Path("runs") / f"sweep-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        done = [0]
+
+        def echo(row: dict[str, Any]) -> None:
+            done[0] += 1
+            click.echo(f"[{done[0]}/{total}] {row['run']}: success={row['success']} "
+                       f"collisions={row['collisions']} time_to_goal_s={row['time_to_goal_s']}")  # fmt: skip
+
+        sw.sweep(cfg.model_dump(mode="json"), grid_axes, out, jobs=jobs, on_done=echo)
+    except ConfigError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    click.echo(f"saved: {out / 'results.csv'} and plots in {out}")
+
+
 def main() -> None:
     cli()
 

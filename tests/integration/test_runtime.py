@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -261,3 +262,19 @@ def test_paper_scenarios_show_their_behaviour_without_collision(start_run, name)
     behaviour = BEHAVIOUR.get(name, lambda a: a["reached_goal"])
     for aid, a in m["agents"].items():
         assert behaviour(a), (aid, a)
+
+
+def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "tools.cli", "sweep", str(CONFIGS / "sweeps/head_on.yaml"),
+           "--axis", "filter=c3bf,hocbf", "--axis", "obstacle_speed=1", "--jobs", "2", "--out", str(out)]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["filter"] for r in rows) == ["c3bf", "hocbf"]
+    c3bf = next(r for r in rows if r["filter"] == "c3bf")
+    assert c3bf["success"] == "1" and c3bf["collisions"] == "0"
+    for r in rows:  # each row is its own run, with its own metrics
+        assert (out / r["run"] / "metrics.json").exists()
+    assert {"success.png", "time_to_goal_s.png", "max_path_deviation_m.png"} <= {p.name for p in out.glob("*.png")}

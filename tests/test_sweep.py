@@ -1,0 +1,55 @@
+"""The sweep's grid and knobs (no processes: the runs themselves are in the integration tests)."""
+
+import numpy as np
+import pytest
+
+from swarm.config import ConfigError, load
+from tools.sweep import build, grid, parse_axes
+
+BASE = load("configs/sweeps/head_on.yaml").model_dump(mode="json")
+
+
+def test_axes_and_grid():
+    axes = parse_axes(["filter=c3bf,hocbf", "obstacle_speed=0.1, 1,3"])
+    assert axes == {"filter": ["c3bf", "hocbf"], "obstacle_speed": ["0.1", "1", "3"]}
+    pts = grid(axes)
+    assert len(pts) == 6 and pts[0] == {"filter": "c3bf", "obstacle_speed": "0.1"}
+
+
+@pytest.mark.parametrize(
+    ("spec", "needle"),
+    [("nope=1", "unknown knob"), ("gamma", "NAME=v1"), ("gamma=", "NAME=v1")],
+)
+def test_bad_axes_are_named(spec, needle):
+    with pytest.raises(ConfigError, match=needle):
+        parse_axes([spec])
+
+
+def test_bad_values_are_named_before_any_run():
+    with pytest.raises(ConfigError, match="gamma"):
+        build(BASE, {"gamma": "-1"})
+    with pytest.raises(ConfigError, match="not a number"):
+        build(BASE, {"obstacle_speed": "fast"})
+    with pytest.raises(ConfigError, match="filter"):
+        build(BASE, {"filter": "mpc"})
+
+
+@pytest.mark.parametrize("angle", [0.0, 45.0, 90.0, 180.0])
+@pytest.mark.parametrize("speed", [0.1, 1.0, 3.0])
+def test_the_obstacle_is_aimed_at_the_meeting_point(speed, angle):
+    cfg = build(BASE, {"obstacle_speed": str(speed), "approach_angle_deg": str(angle)})
+    o, a = cfg.obstacles[0], cfg.agents[0]
+    meet = np.array(BASE["obstacles"][0]["center"])
+    t_meet = np.linalg.norm(meet - np.array(a.start)) / a.speed_mps
+    v = np.array(o.velocity)
+    assert np.linalg.norm(v) == pytest.approx(speed)
+    np.testing.assert_allclose(np.array(o.center) + v * t_meet, meet, atol=1e-8)  # there when the drone is
+    heading = np.array(a.goal) - np.array(a.start)
+    cos = -(v @ heading) / (np.linalg.norm(v) * np.linalg.norm(heading))
+    assert cos == pytest.approx(np.cos(np.radians(angle)), abs=1e-9)  # 0 deg: head-on
+
+
+def test_filter_and_gains_reach_every_agent():
+    cfg = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
+    assert all(a.filter.kind.value == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
+    assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"}).agents)

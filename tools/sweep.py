@@ -1,0 +1,308 @@
+"""``swarm sweep``: a grid of variants of one scenario, run in parallel, in one table.
+
+Each grid point is the base scenario with some *knobs* turned (``--axis NAME=v1,v2``).
+Every point is validated before anything starts, then run as a whole multi-process
+swarm (lockstep, so the numbers do not depend on the machine's load), ``--jobs`` runs
+at a time. The output folder gets one run folder per point, ``results.csv`` (one row
+per run: the point's knobs and its metrics) and one PNG per metric, plotted against the
+first numeric axis with one line per combination of the other axes (seeds averaged).
+
+Knobs (DESIGN.md names; units in brackets):
+
+* ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered).
+* ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share).
+* ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
+  re-aimed so that it passes its configured centre when the first agent, flying its
+  first path leg at its target speed, gets there. Angle 0 is head-on, 90 crosses from
+  the agent's left, 180 comes from behind. Speed 0 makes it static.
+* ``seed``: the scenario seed.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm.config import ConfigError, ScenarioConfig, resolve
+from swarm.model import QuadParams
+from tools.launch import RunHandle
+
+Raw = dict[str, Any]
+Knob = Callable[[Raw, str], Raw]
+
+
+def _float(name: str, value: str) -> float:
+    try:
+        x = float(value)
+    except ValueError:
+        raise ConfigError(f"--axis {name}: {value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ConfigError(f"--axis {name}: {value!r} is not finite")
+    return x
+
+
+def _each_filter(field: str, convert: Callable[[str, str], Any]) -> Knob:
+    def knob(raw: Raw, value: str) -> Raw:
+        v = convert(field, value)
+        for a in raw["agents"]:
+            a.setdefault("filter", {})[field] = v
+        return raw
+
+    return knob
+
+
+def _filter_kind(raw: Raw, value: str) -> Raw:
+    if value not in ("c3bf", "hocbf", "none"):
+        raise ConfigError(f"--axis filter: {value!r} is not one of c3bf, hocbf, none")
+    for a in raw["agents"]:
+        f = a.setdefault("filter", {})
+        f["enabled"] = value != "none"
+        if value != "none":
+            f["kind"] = value
+    return raw
+
+
+def _aim(key: str) -> Knob:
+    def knob(raw: Raw, value: str) -> Raw:
+        raw.setdefault("_aim", {})[key] = _float(key, value)
+        return raw
+
+    return knob
+
+
+def aim_first_obstacle(raw: Raw, speed_mps: float | None = None, angle_deg: float = 0.0) -> Raw:
+    """Re-aim obstacle 0 at its configured centre (the meeting point), see the module doc.
+    ``speed_mps`` None keeps the configured speed."""
+    if not raw.get("obstacles"):
+        raise ConfigError("--axis obstacle_speed/approach_angle_deg: the scenario has no obstacle")
+    obs, agent = raw["obstacles"][0], raw["agents"][0]
+    meet = np.asarray(obs["center"], dtype=float)
+    start = np.asarray(agent["start"], dtype=float)
+    first = np.asarray((agent.get("waypoints") or [agent.get("goal") or agent["start"]])[0], dtype=float)
+    heading = first - start
+    heading[2] = 0.0
+    if np.linalg.norm(heading) < 1e-9:
+        raise ConfigError("--axis obstacle_speed/approach_angle_deg: the first agent has no horizontal first leg")
+    heading /= np.linalg.norm(heading)
+    t_meet = float(np.linalg.norm(meet - start)) / float(agent.get("speed_mps", 1.0))
+    if speed_mps is None:
+        speed_mps = float(np.linalg.norm(obs.get("velocity", [0.0, 0.0, 0.0])))
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    towards = -np.array([c * heading[0] - s * heading[1], s * heading[0] + c * heading[1], 0.0])
+    v = speed_mps * towards
+    obs["velocity"] = v.round(9).tolist()
+    obs["center"] = (meet - t_meet * v).round(9).tolist()
+    return raw
+
+
+KNOBS: dict[str, Knob] = {
+    "filter": _filter_kind,
+    "gamma": _each_filter("gamma", _float),
+    "gamma_ho": _each_filter("gamma_ho", _float),
+    "rho": _each_filter("rho", _float),
+    "obstacle_speed": _aim("speed_mps"),
+    "approach_angle_deg": _aim("angle_deg"),
+    "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
+}
+ORDER = ("seed", "obstacle_speed", "approach_angle_deg", "filter", "gamma", "gamma_ho", "rho")
+
+
+def parse_axes(specs: list[str], known: dict[str, Knob] | None = None) -> dict[str, list[str]]:
+    """``["gamma=0.5,1", ...]`` to ``{"gamma": ["0.5", "1"]}``, checked against the knobs."""
+    known = KNOBS if known is None else known
+    axes: dict[str, list[str]] = {}
+    for spec in specs:
+        name, sep, values = spec.partition("=")
+        name = name.strip()
+        if not sep or not values.strip():
+            raise ConfigError(f"--axis {spec!r}: expected NAME=v1,v2,...")
+        if name not in known:
+            raise ConfigError(f"--axis {name}: unknown knob (have {', '.join(sorted(known))})")
+        if name in axes:
+            raise ConfigError(f"--axis {name}: given twice")
+        axes[name] = [v.strip() for v in values.split(",") if v.strip()]
+    return axes
+
+
+def grid(axes: dict[str, list[str]]) -> list[dict[str, str]]:
+    names = list(axes)
+    return [dict(zip(names, combo, strict=True)) for combo in itertools.product(*(axes[n] for n in names))]
+
+
+def point_name(i: int, point: dict[str, str]) -> str:
+    return f"p{i:03d}_" + "_".join(f"{k}-{v}" for k, v in point.items()) if point else f"p{i:03d}"
+
+
+def build(base: Raw, point: dict[str, str], knobs: dict[str, Knob] | None = None) -> ScenarioConfig:
+    """The base scenario (raw, resolved form) with the point's knobs turned, validated."""
+    knobs = KNOBS if knobs is None else knobs
+    raw = json.loads(json.dumps(base))  # a deep copy
+    for name in sorted(point, key=lambda n: ORDER.index(n) if n in ORDER else -1):
+        raw = knobs[name](raw, point[name])
+    aim = raw.pop("_aim", None)
+    if aim:
+        aim_first_obstacle(raw, **aim)
+    return resolve(raw, f"sweep point {point}")
+
+
+def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
+    """One results row from a run's ``metrics.json``."""
+    agents = list(metrics.get("agents", {}).values())
+    times = [a["time_to_goal_s"] for a in agents]
+    ratios = [a["path_length_m"] / a["straight_line_m"] for a in agents if a["straight_line_m"] > 1e-9]
+    hs = [a["min_h"] for a in agents if a["min_h"] is not None]
+    reached = bool(metrics.get("all_reached_goal"))
+    return {
+        "success": int(reached and metrics.get("collisions", 1) == 0),
+        "collisions": metrics.get("collisions"),
+        "min_clearance_m": metrics.get("min_obstacle_clearance_m"),
+        "min_separation_m": metrics.get("min_separation_m"),
+        "min_h": min(hs) if hs else None,
+        "time_to_goal_s": None if (not times or None in times) else float(np.mean(times)),
+        "max_time_to_goal_s": None if (not times or None in times) else max(times),
+        "path_length_ratio": float(np.mean(ratios)) if ratios else None,
+        "max_path_deviation_m": max((a["max_path_deviation_m"] for a in agents), default=None),
+        "infeasible_ticks": sum(a["infeasible_ticks"] for a in agents),
+        "stop_reason": metrics.get("stop_reason"),
+    }
+
+
+def run_point(cfg: ScenarioConfig, out: Path) -> dict[str, Any]:
+    h = RunHandle.start(cfg, out)
+    h.wait()
+    return summarise(json.loads((out / "metrics.json").read_text()))
+
+
+Runner = Callable[[ScenarioConfig, Path], dict[str, Any]]
+
+
+def sweep(
+    base: Raw,
+    axes: dict[str, list[str]],
+    out: Path,
+    *,
+    jobs: int = 1,
+    knobs: dict[str, Knob] | None = None,
+    runner: Callable[[dict[str, str], ScenarioConfig, Path], dict[str, Any]] | None = None,
+    on_done: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run every grid point; write ``results.csv`` and the plots; return the rows."""
+    points = grid(axes)
+    cfgs = [build(base, p, knobs) for p in points]  # every point validated before any run
+    out.mkdir(parents=True, exist_ok=True)
+
+    def one(i: int) -> dict[str, Any]:
+        folder = out / point_name(i, points[i])
+        metrics = runner(points[i], cfgs[i], folder) if runner else run_point(cfgs[i], folder)
+        row = {"run": folder.name, **points[i], **metrics}
+        if on_done:
+            on_done(row)
+        return row
+
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        rows = list(pool.map(one, range(len(points))))
+    write_csv(rows, out / "results.csv")
+    plot(rows, list(axes), out)
+    return rows
+
+
+def write_csv(rows: list[dict[str, Any]], path: Path) -> None:
+    fields: list[str] = []
+    for r in rows:
+        fields += [k for k in r if k not in fields]
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+
+
+PLOTTED = {
+    "success": "success rate",
+    "time_to_goal_s": "mean time to goal [s] (successful runs)",
+    "max_path_deviation_m": "largest path deviation [m]",
+    "path_length_ratio": "path length / straight line",
+    "min_clearance_m": "closest approach to an obstacle surface [m]",
+    "min_separation_m": "closest approach between agents [m]",
+    "infeasible_ticks": "infeasible ticks",
+    "deadlock": "deadlock rate",
+}
+
+
+UNITS = {"obstacle_speed": "m/s", "approach_angle_deg": "deg", "gamma": "1/s", "gamma_ho": "m/s", "radius": "m"}
+
+
+def _numeric(values: list[str]) -> bool:
+    try:
+        [float(v) for v in values]
+    except ValueError:
+        return False
+    return True
+
+
+def aggregate(rows: list[dict[str, Any]], axes: list[str]) -> tuple[str | None, dict[tuple, dict[float, dict]]]:
+    """Group rows by the non-x, non-seed axes; average each metric over seeds per x."""
+    xs = [a for a in axes if a != "seed" and _numeric([str(r[a]) for r in rows])]
+    x_axis = xs[0] if xs else None
+    group_axes = [a for a in axes if a not in (x_axis, "seed")]
+    groups: dict[tuple, dict[float, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        key = tuple((a, r[a]) for a in group_axes)
+        groups[key][float(r[x_axis]) if x_axis else 0.0].append(r)
+    table: dict[tuple, dict[float, dict]] = {}
+    for key, by_x in groups.items():
+        table[key] = {}
+        for x, rs in sorted(by_x.items()):
+            agg: dict[str, Any] = {"n": len(rs)}
+            for m in PLOTTED:
+                if m == "time_to_goal_s":
+                    vals = [r[m] for r in rs if r.get("success") and r.get(m) is not None]
+                else:
+                    vals = [r[m] for r in rs if r.get(m) is not None]
+                agg[m] = float(np.mean(vals)) if vals else None
+            table[key][x] = agg
+    return x_axis, table
+
+
+def plot(rows: list[dict[str, Any]], axes: list[str], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x_axis, table = aggregate(rows, axes)
+    paths = []
+    for m, title in PLOTTED.items():
+        if not any(r.get(m) is not None for r in rows):
+            continue
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        for key, by_x in table.items():
+            pts = [(x, a[m]) for x, a in by_x.items() if a[m] is not None]
+            if not pts:
+                continue
+            label = ", ".join(f"{k}={v}" for k, v in key) or "all"
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=label)
+        if m == "min_clearance_m":
+            ax.axhline(QuadParams().body_radius_m, color="red", ls="--", lw=1, label="airframe radius: contact below")
+        unit = UNITS.get(x_axis or "")
+        ax.set_xlabel(f"{x_axis} [{unit}]" if unit else (x_axis or "(single point)"))
+        ax.set_ylabel(title)
+        ax.set_title(f"{title} against {x_axis}" if x_axis else title)
+        if m == "success" or m == "deadlock":
+            ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        p = out / f"{m}.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        paths.append(p)
+    return paths

@@ -22,7 +22,7 @@ import numpy as np
 
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import AttitudeController, PathTracker, setpoint_from_thrust_vector
+from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, encode
 from swarm.model import CommandLevel, QuadModel, QuadState
@@ -125,12 +125,18 @@ class Agent:
         wx, wy, _wz = state.Omega_b
         x_b = state.x_w + model.params.l_m * R[:, 2]
         v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
-        F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w)
-        u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         if self.from_world:
             neighbours = self.roster_rows(t, k if lockstep else None)
         else:
             neighbours = self.table.arrays(t, k - 1 if lockstep else None)
+        bias = None
+        if me.tiebreak.kind == "right_hand":
+            tb = me.tiebreak
+            bias = right_hand_bias(
+                x_b, self.tracker.desired_velocity(state.x_w), neighbours.c_w, tb.trigger_m, tb.speed_mps
+            )
+        F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w, bias)
+        u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours])
         row_ids: list[str] = []
         h_rows = np.zeros(0)

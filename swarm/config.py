@@ -81,6 +81,15 @@ class AirframeSettings(_Strict):
         return QuadParams(**{k: v for k, v in self.model_dump().items() if v is not None})
 
 
+class TiebreakSettings(_Strict):
+    """A deadlock answer that changes the reference, never the filter
+    (``swarm.control.right_hand_bias``)."""
+
+    kind: Literal["none", "right_hand"] = "none"
+    trigger_m: float = Field(1.0, gt=0)  # other agents closer than this, and in front, count
+    speed_mps: float = Field(0.3, gt=0)  # largest sideways velocity added to the reference
+
+
 class AgentConfig(_Strict):
     """One quadrotor after layering."""
 
@@ -93,6 +102,7 @@ class AgentConfig(_Strict):
     yaw_rad: float = 0.0
     command_level: CommandLevel = CommandLevel.ATTITUDE
     filter: FilterSettings = FilterSettings()
+    tiebreak: TiebreakSettings = TiebreakSettings()
     airframe: AirframeSettings = AirframeSettings()
     backend: Literal["sim"] = "sim"
 
@@ -186,6 +196,13 @@ class NeighbourSettings(_Strict):
     motion-capture system would broadcast them (O(N) deliveries; DESIGN.md section 7b)."""
 
 
+class DeadlockSettings(_Strict):
+    """When the metrics call an agent deadlocked (``swarm.metrics.deadlock_start``)."""
+
+    speed_mps: float = Field(0.05, gt=0)  # slower than this ...
+    hold_s: float = Field(2.0, gt=0)  # ... for this long, outside the goal tolerance
+
+
 class ScenarioConfig(_Strict):
     version: Literal[1]
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -197,6 +214,7 @@ class ScenarioConfig(_Strict):
     network: NetworkSettings = NetworkSettings()
     failure: FailureSettings = FailureSettings()
     neighbours: NeighbourSettings = NeighbourSettings()
+    deadlock: DeadlockSettings = DeadlockSettings()
     agents: list[AgentConfig] = Field(min_length=1)
     obstacles: list[ObstacleConfig] = []
     gui: bool = False

@@ -81,12 +81,20 @@ class PathTracker:
             tangent = d / L if L > 1e-9 else np.zeros(3)
             return a + t * d, tangent, (1.0 - t) * L + self._tail[i]
 
-    def desired_accel(self, x_w: FloatArray, v_w: FloatArray) -> FloatArray:
-        """Commanded acceleration [m/s^2, world] (without gravity compensation)."""
+    def desired_velocity(self, x_w: FloatArray) -> FloatArray:
+        """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
         g = self.gains
         c, tangent, remaining = self.reference(x_w)
         speed = min(self.speed_mps, g.kp_per_s * remaining)
-        v_des = speed * tangent + g.kp_per_s * (c - x_w)
+        return speed * tangent + g.kp_per_s * (c - x_w)
+
+    def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_bias_w: FloatArray | None = None) -> FloatArray:
+        """Commanded acceleration [m/s^2, world] (without gravity compensation);
+        ``v_bias_w`` [m/s, world] is added to the commanded velocity (a tie-break)."""
+        g = self.gains
+        v_des = self.desired_velocity(x_w)
+        if v_bias_w is not None:
+            v_des = v_des + v_bias_w
         a = g.kd_per_s * (v_des - v_w)
         h = math.hypot(a[0], a[1])
         if h > g.max_horizontal_accel_mps2:
@@ -94,10 +102,38 @@ class PathTracker:
         a[2] = min(max(a[2], -g.max_vertical_accel_mps2), g.max_vertical_accel_mps2)
         return a
 
-    def thrust_vector(self, model: QuadModel, x_w: FloatArray, v_w: FloatArray) -> FloatArray:
+    def thrust_vector(
+        self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_bias_w: FloatArray | None = None
+    ) -> FloatArray:
         """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]."""
         p = model.params
-        return p.mass_kg * (self.desired_accel(x_w, v_w) + p.g_mps2 * E3)
+        return p.mass_kg * (self.desired_accel(x_w, v_w, v_bias_w) + p.g_mps2 * E3)
+
+
+def right_hand_bias(
+    x_w: FloatArray, heading_w: FloatArray, others_w: FloatArray, trigger_m: float, speed_mps: float
+) -> FloatArray:
+    """The right-hand rule, a deadlock tie-break [m/s, world].
+
+    For every other agent ``others_w`` (k, 3) [m] closer than ``trigger_m`` and in front
+    (positive along ``heading_w``, the commanded velocity), add a horizontal velocity to
+    the right of the heading, ``heading x e3`` normalised, weighted ``1 - d / trigger_m``;
+    the sum is capped at ``speed_mps``. Every agent turning right is consistent: two agents
+    head-on pass left shoulder to left shoulder, and a symmetric swap turns into a
+    roundabout instead of a stall. It only changes the reference; the filter still
+    guarantees safety.
+    """
+    out = np.zeros(3)
+    hx, hy = float(heading_w[0]), float(heading_w[1])
+    n = math.hypot(hx, hy)
+    if n < 1e-9 or len(others_w) == 0:
+        return out
+    right = np.array([hy / n, -hx / n, 0.0])  # heading x e3
+    d_w = others_w - x_w
+    dist = np.linalg.norm(d_w, axis=1)
+    ahead = (d_w[:, 0] * hx + d_w[:, 1] * hy > 0) & (dist < trigger_m)
+    weight = float(np.sum(1.0 - dist[ahead] / trigger_m))
+    return right * (speed_mps * min(weight, 1.0))
 
 
 @dataclass(frozen=True)

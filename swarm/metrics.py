@@ -31,6 +31,30 @@ def path_deviation(points_w: np.ndarray, path_w: np.ndarray) -> float:
     return float(best.max())
 
 
+def deadlock_start(
+    t_s: np.ndarray, x_w: np.ndarray, v_w: np.ndarray, goal_w: np.ndarray, tolerance_m: float,
+    *, speed_mps: float = 0.05, hold_s: float = 2.0,
+) -> float | None:  # fmt: skip
+    """When [s] an agent became deadlocked, or None.
+
+    Deadlocked: outside ``tolerance_m`` of its goal and slower than ``speed_mps`` without
+    a break for at least ``hold_s`` seconds (up to the end of the record). An agent that
+    arrives, or that stops only briefly (a yield), is not deadlocked.
+    """
+    if len(t_s) == 0:
+        return None
+    stalled = (np.linalg.norm(x_w - goal_w, axis=1) > tolerance_m) & (np.linalg.norm(v_w, axis=1) < speed_mps)
+    start: float | None = None
+    for t, s in zip(t_s, stalled, strict=True):
+        if not s:
+            start = None
+        elif start is None:
+            start = float(t)
+        if start is not None and t - start >= hold_s:
+            return start
+    return None
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
@@ -43,6 +67,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     obstacles_at: dict[int, Any] = {}
     last_state: dict[str, dict[str, Any]] = {}
     min_h: dict[str, float] = defaultdict(lambda: math.inf)
+    solve_us: dict[str, list[float]] = defaultdict(list)
     statuses: list[dict[str, Any]] = []
     collisions: list[dict[str, Any]] = []
     for r in records:
@@ -57,6 +82,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         elif kind == "state":
             last_state[r["src"]] = r
             min_h[r["src"]] = min(min_h[r["src"]], r["min_h"])
+            solve_us[r["src"]].append(r["solve_us"])
         elif kind == "status":
             statuses.append(r)
         elif kind == "collision":
@@ -74,8 +100,12 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         m = sorted(meas.get(a.id, []), key=lambda e: e[1])
         xs = np.array([e[2] for e in m]) if m else np.zeros((0, 3))
         vs = np.array([e[3] for e in m]) if m else np.zeros((0, 3))
-        motion = _motion(np.array([e[0] for e in m]), vs, np.asarray(a.path(), dtype=float))
         goal = np.asarray(a.final_goal)
+        ts = np.array([e[0] for e in m])
+        motion = _motion(ts, vs, np.asarray(a.path(), dtype=float))
+        dl = cfg.deadlock
+        stuck = deadlock_start(ts, xs, vs, goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s)
+        us = np.asarray(solve_us.get(a.id, []))
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
         st = last_state.get(a.id, {})
@@ -89,6 +119,9 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "infeasible_ticks": int(st.get("infeasible", 0)),
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
+            "deadlock_at_s": stuck,
+            "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
+            "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
             **motion,
         }
     final = statuses[-1] if statuses else {}
@@ -102,6 +135,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         "min_separation_m": _finite_or_none(min_sep),
         "min_obstacle_clearance_m": _finite_or_none(min_clear),
         "all_reached_goal": all(v["reached_goal"] for v in agents.values()),
+        "deadlocked_agents": sorted(k for k, v in agents.items() if v["deadlock_at_s"] is not None),
         "duration_s": float(final.get("t", 0.0)),
         "real_time_factor": float(final.get("rtf", 0.0)),
         "late_ticks": int(final.get("late", 0)),

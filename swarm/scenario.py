@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,30 +54,104 @@ def min_pair_distance(points_w: FloatArray) -> float:
     return float(np.linalg.norm(points_w[i] - points_w[j], axis=1).min())
 
 
-def circle_swap(
-    n: int,
-    radius_m: float = 2.0,
-    *,
-    altitude_m: float = 1.0,
-    speed_mps: float = 0.8,
-    rotation_rad: float = 0.05,
-    control_hz: float = 120.0,
-    physics_hz: float = 240.0,
-    duration_s: float = 20.0,
-    mode: str = "lockstep",
-    name: str | None = None,
-) -> dict:
-    """A raw scenario (as :func:`swarm.config.resolve` takes it): ``n`` agents swapping
-    antipodal points of a circle. ``rotation_rad`` turns the whole pattern slightly off
-    the axes; it does not break the swap's symmetry."""
-    agents = []
-    for i in range(n):
-        th = 2 * math.pi * i / n + rotation_rad
-        start = [round(radius_m * math.cos(th), 6), round(radius_m * math.sin(th), 6), altitude_m]
-        agents.append({"id": f"cf{i + 1}", "start": start, "goal": [-start[0], -start[1], altitude_m]})
+@dataclass(frozen=True)
+class SwapSettings:
+    """What every generated swap scenario shares. Units in the names."""
+
+    altitude_m: float = 1.0  # circle and random sets: flight altitude; sphere: lowest point + 0.5 m
+    speed_mps: float = 0.8  # target speed along the straight path
+    perturb_m: float = 0.0  # uniform random offset (per axis, in the swap's plane or space) of starts and goals
+    rotation_rad: float = 0.0  # turn the whole pattern about the vertical
+    seed: int = 0
+    control_hz: float = 100.0
+    physics_hz: float = 300.0
+    mode: str = "lockstep"
+    neighbours: str = "world"  # world roster (O(N) deliveries) or agents' mesh
+    sensing_radius_m: float = 2.5
+    duration_s: float | None = None  # default: 2.5 x the longest straight path / speed + 5 s
+
+
+def _scenario(name: str, starts: FloatArray, goals: FloatArray, s: SwapSettings, *, planar: bool) -> dict:
+    rng = np.random.default_rng(s.seed)
+    if s.perturb_m > 0:
+        d = 2 if planar else 3
+        starts, goals = starts.copy(), goals.copy()
+        starts[:, :d] += rng.uniform(-s.perturb_m, s.perturb_m, (len(starts), d))
+        goals[:, :d] += rng.uniform(-s.perturb_m, s.perturb_m, (len(goals), d))
+    longest = float(np.linalg.norm(goals - starts, axis=1).max()) if len(starts) else 0.0
+    duration = s.duration_s or round(2.5 * longest / s.speed_mps + 5.0, 1)
+    agents = [
+        {"id": f"cf{i + 1}", "start": [round(float(c), 6) for c in a], "goal": [round(float(c), 6) for c in b]}
+        for i, (a, b) in enumerate(zip(starts, goals, strict=True))
+    ]
     return {
-        "version": 1, "name": name or f"circle_{n}", "duration_s": duration_s, "goal_tolerance_m": 0.15,
-        "time": {"mode": mode, "physics_hz": physics_hz, "control_hz": control_hz},
-        "defaults": {"speed_mps": speed_mps, "command_level": "attitude", "filter": {"kind": "c3bf", "gamma": 1.0}},
+        "version": 1, "name": name, "seed": s.seed, "duration_s": duration, "goal_tolerance_m": 0.15,
+        "time": {"mode": s.mode, "physics_hz": s.physics_hz, "control_hz": s.control_hz},
+        "neighbours": {"source": s.neighbours},
+        "defaults": {"speed_mps": s.speed_mps, "command_level": "attitude",
+                     "filter": {"kind": "c3bf", "gamma": 1.0, "rho": 1.0, "sensing_radius_m": s.sensing_radius_m}},
         "agents": agents,
     }  # fmt: skip
+
+
+def _turn(points: FloatArray, rotation_rad: float) -> FloatArray:
+    c, si = math.cos(rotation_rad), math.sin(rotation_rad)
+    out = points.copy()
+    out[:, 0], out[:, 1] = c * points[:, 0] - si * points[:, 1], si * points[:, 0] + c * points[:, 1]
+    return out
+
+
+def circle_swap(n: int, radius_m: float = 2.0, settings: SwapSettings | None = None, name: str | None = None) -> dict:
+    """A raw scenario (as :func:`swarm.config.resolve` takes it): ``n`` agents on a
+    horizontal circle, each flying to the antipodal point. With no perturbation and no
+    rotation the swap is exactly symmetric (every path crosses the centre)."""
+    s = settings or SwapSettings()
+    th = 2 * math.pi * np.arange(n) / n
+    starts = np.column_stack([radius_m * np.cos(th), radius_m * np.sin(th), np.full(n, s.altitude_m)])
+    starts = _turn(starts, s.rotation_rad)
+    goals = starts * [-1.0, -1.0, 1.0]
+    return _scenario(name or f"circle_{n}", starts, goals, s, planar=True)
+
+
+def sphere_swap(n: int, radius_m: float = 2.0, settings: SwapSettings | None = None, name: str | None = None) -> dict:
+    """``n`` agents on a sphere (Fibonacci lattice, so evenly spread), each flying to the
+    antipodal point through the centre. The sphere's lowest point is ``altitude_m`` +
+    0.5 m up."""
+    s = settings or SwapSettings()
+    i = np.arange(n) + 0.5
+    polar = np.arccos(1.0 - 2.0 * i / n)
+    azim = math.pi * (1.0 + 5**0.5) * i
+    unit = np.column_stack([np.sin(polar) * np.cos(azim), np.sin(polar) * np.sin(azim), np.cos(polar)])
+    centre = np.array([0.0, 0.0, s.altitude_m + 0.5 + radius_m])
+    starts = _turn(centre + radius_m * unit, s.rotation_rad)
+    goals = 2 * centre - starts
+    return _scenario(name or f"sphere_{n}", starts, goals, s, planar=False)
+
+
+def random_swap(
+    n: int, density_per_m2: float = 0.5, settings: SwapSettings | None = None, name: str | None = None,
+    min_spacing_m: float = 0.5,
+) -> dict:  # fmt: skip
+    """``n`` agents with random starts and random goals (seeded) in a square at one
+    altitude whose side makes ``n / side^2 = density_per_m2``; starts are at least
+    ``min_spacing_m`` apart, and so are goals."""
+    s = settings or SwapSettings()
+    side = math.sqrt(n / density_per_m2)
+    rng = np.random.default_rng(s.seed)
+
+    def spaced() -> FloatArray:
+        pts: list[FloatArray] = []
+        for _ in range(200 * n):
+            p = rng.uniform(-side / 2, side / 2, 2)
+            if all(np.linalg.norm(p - q) >= min_spacing_m for q in pts):
+                pts.append(p)
+                if len(pts) == n:
+                    return np.column_stack([np.array(pts), np.full(n, s.altitude_m)])
+        raise ValueError(
+            f"random_swap: cannot place {n} agents {min_spacing_m} m apart at {density_per_m2} per m^2; "
+            "lower the density"
+        )
+
+    starts = spaced()
+    goals = spaced()
+    return _scenario(name or f"random_{n}", starts, goals, s, planar=True)

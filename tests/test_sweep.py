@@ -37,7 +37,7 @@ def test_bad_values_are_named_before_any_run():
 @pytest.mark.parametrize("angle", [0.0, 45.0, 90.0, 180.0])
 @pytest.mark.parametrize("speed", [0.1, 1.0, 3.0])
 def test_the_obstacle_is_aimed_at_the_meeting_point(speed, angle):
-    cfg = build(BASE, {"obstacle_speed": str(speed), "approach_angle_deg": str(angle)})
+    cfg, _ = build(BASE, {"obstacle_speed": str(speed), "approach_angle_deg": str(angle)})
     o, a = cfg.obstacles[0], cfg.agents[0]
     meet = np.array(BASE["obstacles"][0]["center"])
     t_meet = np.linalg.norm(meet - np.array(a.start)) / a.speed_mps
@@ -50,6 +50,6 @@ def test_the_obstacle_is_aimed_at_the_meeting_point(speed, angle):
 
 
 def test_filter_and_gains_reach_every_agent():
-    cfg = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
+    cfg, _ = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
     assert all(a.filter.kind.value == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
-    assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"}).agents)
+    assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"})[0].agents)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import resolve
-from swarm.scenario import circle_swap
+from swarm.scenario import SwapSettings, circle_swap
 from tools.launch import RunHandle
 
 
@@ -38,10 +38,10 @@ def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
 
 
 def bench_one(n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents") -> dict:
-    raw = circle_swap(n, radius_m=max(2.0, 0.35 * n), control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
-                      mode=mode, name=f"bench_{n}_{mode}")  # fmt: skip
+    settings = SwapSettings(rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
+                            mode=mode, neighbours=source)  # fmt: skip
+    raw = circle_swap(n, max(2.0, 0.35 * n), settings, name=f"bench_{n}_{mode}")
     raw["stop_when_all_reached"] = False
-    raw["neighbours"] = {"source": source}
     cfg = resolve(raw, f"circle_{n}")
     h = RunHandle.start(cfg, out / f"circle_{n}_{mode}_{source}")
     reason = h.wait()

@@ -241,31 +241,85 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
 @cli.command()
 @click.argument("config")
 @click.option("--axis", "axes", multiple=True, metavar="NAME=v1,v2,...",
-              help="a knob and its values (repeatable): filter, gamma, gamma_ho, rho, obstacle_speed, "
-                   "approach_angle_deg, seed")  # fmt: skip
+              help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
+                   "tiebreak, seed, obstacle_speed, approach_angle_deg; for generated scenarios also agents, "
+                   "radius, perturb_m, density")  # fmt: skip
 @click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time")
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/sweep-<name>-<time>)")
 def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> None:
-    """Run a grid of variants of CONFIG; write results.csv and one plot per metric."""
+    """Run a grid of variants of CONFIG (a file, or circle, sphere or random for generated
+    swaps); write results.csv and one plot per metric."""
     from tools import sweep as sw
 
-    cfg = _load_or_exit(config, {"time": {"mode": "lockstep"}})
     try:
+        if config in sw.GENERATORS:
+            base, name = sw.generator_base(config), config
+        else:
+            cfg = _load_or_exit(config, {"time": {"mode": "lockstep"}})
+            base, name = cfg.model_dump(mode="json"), cfg.name
         grid_axes = sw.parse_axes(list(axes))
         total = len(sw.grid(grid_axes))
-        out = out or Path("runs") / f"sweep-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        out = out or Path("runs") / f"sweep-{name}-{time.strftime('%Y%m%d-%H%M%S')}"
         done = [0]
 
         def echo(row: dict[str, Any]) -> None:
             done[0] += 1
-            click.echo(f"[{done[0]}/{total}] {row['run']}: success={row['success']} "
-                       f"collisions={row['collisions']} time_to_goal_s={row['time_to_goal_s']}")  # fmt: skip
+            click.echo(f"[{done[0]}/{total}] {row['run']}: success={row['success']} collisions={row['collisions']} "
+                       f"deadlock={row['deadlock']} time_to_goal_s={row['time_to_goal_s']}")  # fmt: skip
 
-        sw.sweep(cfg.model_dump(mode="json"), grid_axes, out, jobs=jobs, on_done=echo)
+        sw.sweep(base, grid_axes, out, jobs=jobs, on_done=echo)
     except ConfigError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
     click.echo(f"saved: {out / 'results.csv'} and plots in {out}")
+
+
+@cli.command()
+@click.argument("kind", type=click.Choice(["circle", "sphere", "random"]))
+@click.option("--agents", "n", type=int, required=True, help="number of agents")
+@click.option("--radius", type=float, help="circle or sphere radius [m] (default grows with N, 2 m at least)")
+@click.option("--density", type=float, default=0.5, show_default=True, help="random sets: agents per m^2")
+@click.option("--perturb", type=float, default=0.0, show_default=True,
+              help="uniform random offset [m] of each start and goal (0: exact symmetry)")  # fmt: skip
+@click.option("--rotate-deg", type=float, default=0.0, show_default=True, help="turn the pattern about z [deg]")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--speed", type=float, default=0.8, show_default=True, help="target speed [m/s]")
+@click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share (DESIGN.md 5)")
+@click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="none", show_default=True)
+@click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
+@click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
+def scenario(kind: str, n: int, radius: float | None, density: float, perturb: float, rotate_deg: float, seed: int,
+             speed: float, rho: float, tiebreak: str, mode: str, out: Path | None) -> None:  # fmt: skip
+    """Write a swap scenario: antipodal points of a circle or a sphere, or random sets."""
+    import math
+
+    import yaml
+
+    from swarm.config import resolve
+    from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
+    from tools.sweep import default_radius
+
+    settings = SwapSettings(speed_mps=speed, perturb_m=perturb, rotation_rad=math.radians(rotate_deg), seed=seed,
+                            mode=mode)  # fmt: skip
+    try:
+        if kind == "random":
+            raw = random_swap(n, density, settings)
+        else:
+            gen = circle_swap if kind == "circle" else sphere_swap
+            raw = gen(n, radius or default_radius(kind, n), settings)
+        raw["defaults"]["filter"]["rho"] = rho
+        raw["defaults"]["tiebreak"] = {"kind": tiebreak}
+        resolve(raw, f"generated {kind} scenario")  # validated before it is written
+    except (ConfigError, ValueError) as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    header = f"# Generated by: swarm scenario {kind} --agents {n} (units: m, m/s, s, Hz)\n"
+    text = header + yaml.safe_dump(raw, sort_keys=False, default_flow_style=None, width=120)
+    if out:
+        out.write_text(text)
+        click.echo(f"wrote {out}")
+    else:
+        click.echo(text, nl=False)
 
 
 def main() -> None:

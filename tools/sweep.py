@@ -34,7 +34,9 @@ import numpy as np
 
 from swarm.config import ConfigError, ScenarioConfig, resolve
 from swarm.model import QuadParams
+from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 from tools.launch import RunHandle
+from tools.orca import run_orca
 
 Raw = dict[str, Any]
 Knob = Callable[[Raw, str], Raw]
@@ -61,8 +63,11 @@ def _each_filter(field: str, convert: Callable[[str, str], Any]) -> Knob:
 
 
 def _filter_kind(raw: Raw, value: str) -> Raw:
-    if value not in ("c3bf", "hocbf", "none"):
-        raise ConfigError(f"--axis filter: {value!r} is not one of c3bf, hocbf, none")
+    if value not in ("c3bf", "hocbf", "none", "orca"):
+        raise ConfigError(f"--axis filter: {value!r} is not one of c3bf, hocbf, none, orca")
+    if value == "orca":
+        raw["_method"] = "orca"
+        return raw
     for a in raw["agents"]:
         f = a.setdefault("filter", {})
         f["enabled"] = value != "none"
@@ -104,6 +109,14 @@ def aim_first_obstacle(raw: Raw, speed_mps: float | None = None, angle_deg: floa
     return raw
 
 
+def _tiebreak(raw: Raw, value: str) -> Raw:
+    if value not in ("none", "right_hand"):
+        raise ConfigError(f"--axis tiebreak: {value!r} is not one of none, right_hand")
+    for a in raw["agents"]:
+        a.setdefault("tiebreak", {})["kind"] = value
+    return raw
+
+
 KNOBS: dict[str, Knob] = {
     "filter": _filter_kind,
     "gamma": _each_filter("gamma", _float),
@@ -112,8 +125,64 @@ KNOBS: dict[str, Knob] = {
     "obstacle_speed": _aim("speed_mps"),
     "approach_angle_deg": _aim("angle_deg"),
     "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
+    "tiebreak": _tiebreak,
+    # generated scenarios only (base circle, sphere or random): see GENERATORS
+    "agents": lambda raw, v: raw,
+    "radius": lambda raw, v: raw,
+    "perturb_m": lambda raw, v: raw,
+    "density": lambda raw, v: raw,
 }
-ORDER = ("seed", "obstacle_speed", "approach_angle_deg", "filter", "gamma", "gamma_ho", "rho")
+GENERATED_ONLY = ("agents", "radius", "perturb_m", "density")
+GENERATORS = ("circle", "sphere", "random")
+
+
+def generator_base(kind: str, **options: Any) -> Raw:
+    """The base of a sweep over generated scenarios: ``kind`` circle, sphere or random,
+    with ``agents``, ``radius`` [m] (default grows with N), ``perturb_m``, ``density``
+    [1/m^2] and ``seed`` as defaults for the knobs of the same names."""
+    if kind not in GENERATORS:
+        raise ConfigError(f"scenario kind {kind!r}: choose one of {', '.join(GENERATORS)}")
+    return {"_generate": {"kind": kind, "agents": 4, "radius": None, "perturb_m": 0.0, "density": 0.5, "seed": 0,
+                          **{k: v for k, v in options.items() if v is not None}}}  # fmt: skip
+
+
+def generate(gen: dict[str, Any]) -> Raw:
+    """A generated scenario (raw) from a ``_generate`` spec."""
+    n = int(_float("agents", str(gen["agents"])))
+    if n < 1:
+        raise ConfigError(f"--axis agents: {n} agents")
+    settings = SwapSettings(perturb_m=_float("perturb_m", str(gen["perturb_m"])), seed=int(gen["seed"]))
+    radius = _float("radius", str(gen["radius"])) if gen["radius"] is not None else default_radius(gen["kind"], n)
+    if gen["kind"] == "circle":
+        return circle_swap(n, radius, settings)
+    if gen["kind"] == "sphere":
+        return sphere_swap(n, radius, settings)
+    try:
+        return random_swap(n, _float("density", str(gen["density"])), settings)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def default_radius(kind: str, n: int) -> float:
+    """Swap radius [m] for ``n`` agents: 2 m, growing so that neighbours start >= 0.6 m apart."""
+    if kind == "sphere":
+        return max(2.0, math.sqrt(n * 0.6**2 / (4 * math.pi)) * 2)
+    return max(2.0, n * 0.6 / (2 * math.pi))
+
+
+ORDER = (
+    "agents",
+    "radius",
+    "perturb_m",
+    "density",
+    "seed",
+    "obstacle_speed",
+    "approach_angle_deg",
+    "filter",
+    "gamma",
+    "gamma_ho",
+    "rho",
+)
 
 
 def parse_axes(specs: list[str], known: dict[str, Knob] | None = None) -> dict[str, list[str]]:
@@ -142,16 +211,26 @@ def point_name(i: int, point: dict[str, str]) -> str:
     return f"p{i:03d}_" + "_".join(f"{k}-{v}" for k, v in point.items()) if point else f"p{i:03d}"
 
 
-def build(base: Raw, point: dict[str, str], knobs: dict[str, Knob] | None = None) -> ScenarioConfig:
-    """The base scenario (raw, resolved form) with the point's knobs turned, validated."""
+def build(base: Raw, point: dict[str, str], knobs: dict[str, Knob] | None = None) -> tuple[ScenarioConfig, str]:
+    """The base scenario (raw) with the point's knobs turned, validated, and the method
+    that flies it: ``swarm`` (the multi-process runtime) or ``orca``."""
     knobs = KNOBS if knobs is None else knobs
     raw = json.loads(json.dumps(base))  # a deep copy
+    gen = raw.pop("_generate", None)
+    if gen is not None:
+        gen.update({k: v for k, v in point.items() if k in (*GENERATED_ONLY, "seed")})
+        raw = generate(gen)
+    else:
+        given = [k for k in point if k in GENERATED_ONLY]
+        if given:
+            raise ConfigError(f"--axis {given[0]}: only for generated scenarios (circle, sphere, random)")
     for name in sorted(point, key=lambda n: ORDER.index(n) if n in ORDER else -1):
         raw = knobs[name](raw, point[name])
     aim = raw.pop("_aim", None)
     if aim:
         aim_first_obstacle(raw, **aim)
-    return resolve(raw, f"sweep point {point}")
+    method = raw.pop("_method", "swarm")
+    return resolve(raw, f"sweep point {point}"), method
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -172,17 +251,26 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         "path_length_ratio": float(np.mean(ratios)) if ratios else None,
         "max_path_deviation_m": max((a["max_path_deviation_m"] for a in agents), default=None),
         "infeasible_ticks": sum(a["infeasible_ticks"] for a in agents),
+        "deadlock": int(bool(metrics.get("deadlocked_agents"))),
+        "deadlocked_agents": len(metrics.get("deadlocked_agents", [])),
+        "solve_us_mean": float(np.mean(us))
+        if (us := [a["solve_us_mean"] for a in agents if a.get("solve_us_mean")])
+        else None,
+        "agents": len(agents),
         "stop_reason": metrics.get("stop_reason"),
     }
 
 
-def run_point(cfg: ScenarioConfig, out: Path) -> dict[str, Any]:
+def run_point(cfg: ScenarioConfig, method: str, out: Path) -> dict[str, Any]:
+    """Fly one point: the whole swarm as real processes, or the ORCA baseline."""
+    if method == "orca":
+        try:
+            return summarise(run_orca(cfg, out))
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.name}: {exc}") from None
     h = RunHandle.start(cfg, out)
     h.wait()
     return summarise(json.loads((out / "metrics.json").read_text()))
-
-
-Runner = Callable[[ScenarioConfig, Path], dict[str, Any]]
 
 
 def sweep(
@@ -192,17 +280,16 @@ def sweep(
     *,
     jobs: int = 1,
     knobs: dict[str, Knob] | None = None,
-    runner: Callable[[dict[str, str], ScenarioConfig, Path], dict[str, Any]] | None = None,
     on_done: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every grid point; write ``results.csv`` and the plots; return the rows."""
     points = grid(axes)
-    cfgs = [build(base, p, knobs) for p in points]  # every point validated before any run
+    built = [build(base, p, knobs) for p in points]  # every point validated before any run
     out.mkdir(parents=True, exist_ok=True)
 
     def one(i: int) -> dict[str, Any]:
         folder = out / point_name(i, points[i])
-        metrics = runner(points[i], cfgs[i], folder) if runner else run_point(cfgs[i], folder)
+        metrics = run_point(*built[i], folder)
         row = {"run": folder.name, **points[i], **metrics}
         if on_done:
             on_done(row)
@@ -234,6 +321,7 @@ PLOTTED = {
     "min_separation_m": "closest approach between agents [m]",
     "infeasible_ticks": "infeasible ticks",
     "deadlock": "deadlock rate",
+    "solve_us_mean": "filter (or ORCA step) time per agent per tick [us]",
 }
 
 

@@ -56,11 +56,15 @@ class FilterSettings(_Strict):
     margin_m: float = Field(0.02, ge=0)
     backend: Literal["daqp", "osqp"] = "daqp"
     enabled: bool = True  # false: fly the reference controller unfiltered (baseline)
+    floor_z_m: float | None = Field(
+        0.25, allow_inf_nan=False
+    )  # m, world: the centre of mass stays above (HO-CBF row); null: no floor
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
             level=level, barrier=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
             sensing_radius_m=self.sensing_radius_m, margin_m=self.margin_m, backend=self.backend,
+            floor_z_m=self.floor_z_m,
         )  # fmt: skip
 
 

@@ -100,11 +100,18 @@ class FilterConfig:
     """Penalty on squared row violation in the infeasible fallback QP."""
     backend: str = DEFAULT_BACKEND
     max_rows: int = 64
+    floor_z_m: float | None = None
+    """Height [m, world] the centre of mass must stay above, or None (no floor). The
+    floor is the HO-CBF ``z'' >= -2 k z' - k^2 (z - floor_z_m)`` (``k`` = ``floor_gain_per_s``),
+    one more input row: ``F_z`` at the attitude level, ``R33 sum f`` at the rotor level."""
+    floor_gain_per_s: float = 2.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
         object.__setattr__(self, "barrier", BarrierKind(self.barrier))
-        for name in ("gamma", "gamma_ho", "sensing_radius_m", "eps_w_mps", "slack_weight"):
+        if self.floor_z_m is not None and not math.isfinite(self.floor_z_m):
+            raise InputError(f"FilterConfig.floor_z_m: must be finite or None, got {self.floor_z_m!r}")
+        for name in ("gamma", "gamma_ho", "sensing_radius_m", "eps_w_mps", "slack_weight", "floor_gain_per_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number > 0, got {v!r}")
@@ -157,7 +164,11 @@ class SafetyFilter:
             self.input_set = thrust_vector_input_set(model.params)
         self.m = self.input_set.lb.shape[0]
         self.r_own_m = model.params.body_radius_m + cfg.margin_m
-        k_in = self.input_set.d.shape[0]
+        ins = self.input_set
+        if cfg.floor_z_m is not None:  # the floor: one more input row, refilled every call
+            self._floor_set = LinearInputSet(ins.lb, ins.ub, np.vstack([ins.C, np.zeros((1, self.m))]),
+                                             np.append(ins.d, 0.0))  # fmt: skip
+        k_in = self.input_set.d.shape[0] + (cfg.floor_z_m is not None)
         self._qp = make_backend(cfg.backend, self.m, cfg.max_rows + k_in)
         # The least-violation QP always uses daqp: its slack weights make ADMM (OSQP)
         # converge badly (measured: p99 about 0.3 s at 5 rows before falling back).
@@ -192,14 +203,41 @@ class SafetyFilter:
             idx = np.sort(np.concatenate([fixed, near]))
         return idx
 
-    def rows(self, state: QuadState, obstacles: ObstacleArrays, u_ref: FloatArray | None = None) -> Rows:
+    def with_floor(self, state: QuadState) -> LinearInputSet:
+        """The input set of this tick: the fixed one, plus the floor row if configured."""
+        cfg = self.config
+        if cfg.floor_z_m is None:
+            return self.input_set
+        p, k = self.model.params, cfg.floor_gain_per_s
+        a_min = -2.0 * k * state.v_w[2] - k * k * (state.x_w[2] - cfg.floor_z_m)  # m/s^2
+        need = p.mass_kg * (p.g_mps2 + a_min)  # N of vertical thrust
+        ins = self._floor_set
+        row = ins.C[-1]
+        if cfg.level is CommandLevel.ATTITUDE:
+            row[:] = (0.0, 0.0, -1.0)
+            ins.d[-1] = -min(need, 0.95 * self.input_set.ub[2])
+        else:
+            qx, qy = state.q[0], state.q[1]  # scalar-last (swarm.rotation)
+            r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
+            if r33 < 0.1:  # upside down or on edge: no useful vertical thrust; no row
+                row[:] = 0.0
+                ins.d[-1] = 0.0
+            else:
+                row[:] = -r33
+                ins.d[-1] = -min(need, 0.95 * r33 * float(self.input_set.ub.sum()))
+        return ins
+
+    def rows(
+        self, state: QuadState, obstacles: ObstacleArrays, u_ref: FloatArray | None = None,
+        input_set: LinearInputSet | None = None,
+    ) -> Rows:  # fmt: skip
         """The barrier rows for ``obstacles`` (all of them, no selection); with ``u_ref``
-        also their residuals at it."""
+        also their residuals at it (against ``input_set``, default the filter's)."""
         cfg = self.config
         return assemble(
             cfg.barrier, self._own(state), obstacles, obstacles.radius_m + self.r_own_m, gamma=cfg.gamma,
             rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
-            input_set=self.input_set,
+            input_set=input_set or self.input_set,
         )  # fmt: skip
 
     def filter(
@@ -217,14 +255,14 @@ class SafetyFilter:
                 u_ref = check_finite("u_ref", u_ref, (self.m,))
         idx = self.select(state, obstacles)
         obs = obstacles if idx.size == len(obstacles) else obstacles.subset(idx)
-        rows = self.rows(state, obs, u_ref)
+        ins = self.with_floor(state)
+        rows = self.rows(state, obs, u_ref, ins)
         G, b = rows.G, rows.b  # barrier rows as G u <= b
-        ins = self.input_set
         n = b.shape[0]
 
         # Fast path: the reference already satisfies everything.
         if rows.ref_ok:
-            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, np.zeros(n), t0, G, b, (rows.c_ref, 0.0))
+            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, np.zeros(n), t0, G, b, (rows.c_ref, 0.0), ins)
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
         problem = QPProblem(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb)
@@ -233,7 +271,7 @@ class SafetyFilter:
             sol = self._fallback.solve(problem)
         status = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.OK
         if sol.status is QPStatus.OPTIMAL:
-            return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b)
+            return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b, ins=ins)
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
         m, W = self.m, self.config.slack_weight
@@ -250,9 +288,9 @@ class SafetyFilter:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)
             st = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.INFEASIBLE
-            return self._result(u, u_ref, st, idx, rows, slack, t0, G, b)
+            return self._result(u, u_ref, st, idx, rows, slack, t0, G, b, ins=ins)
         u = np.clip(u_ref, ins.lb, ins.ub)
-        return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b)
+        return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b, ins=ins)
 
     def _qp_slack_solve(self, problem: QPProblem) -> FloatArray | None:
         sol = self._qp_slack.solve(problem)
@@ -270,8 +308,9 @@ class SafetyFilter:
         G: FloatArray,
         b: FloatArray,
         residuals: tuple[FloatArray, float] | None = None,
+        ins: LinearInputSet | None = None,
     ) -> FilterResult:
-        ins = self.input_set
+        ins = ins or self.input_set
         if residuals is not None:  # the reference, already checked: c over [input rows; barrier rows]
             c, viol = residuals[0][ins.d.size :], residuals[1]
         else:

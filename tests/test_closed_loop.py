@@ -66,3 +66,16 @@ def test_c3bf_brakes_straight_at_a_wall_like_sphere():
 def test_hocbf_baseline_also_runs_closed_loop(level):
     log = fly(level, ObstacleArrays.build([2.5, 0.1, 1.0], [0.3]), duration=8.0, barrier=BarrierKind.HOCBF)
     assert np.isfinite(log.array("x_w")).all()
+
+
+@pytest.mark.parametrize("level", list(CommandLevel))
+def test_the_floor_holds_the_drone_above_it(level):
+    """A path that dives into the ground: the floor row stops the descent at floor_z_m."""
+    floor = 0.3
+    log = fly(level, ObstacleArrays.empty(), duration=6.0, goal=(3, 0, -0.5), floor_z_m=floor)
+    z = log.array("x_w")[:, 2]
+    assert z.min() >= floor - 0.02  # the HO-CBF holds to within the discretisation
+    assert z[-1] < floor + 0.05  # and it does not hover needlessly high: it went down to the floor
+    assert all(r.max_violation < 1e-6 for r in log.results if r.status.value == "ok")
+    free = fly(level, ObstacleArrays.empty(), duration=6.0, goal=(3, 0, -0.5))
+    assert free.array("x_w")[:, 2].min() < 0.0  # without the floor it would have gone through

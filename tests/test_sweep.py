@@ -34,7 +34,7 @@ def test_bad_values_are_named_before_any_run():
         build(BASE, {"filter": "mpc"})
 
 
-@pytest.mark.parametrize("angle", [0.0, 45.0, 90.0, 180.0])
+@pytest.mark.parametrize("angle", [0.0, 45.0, 90.0, 135.0])
 @pytest.mark.parametrize("speed", [0.1, 1.0, 3.0])
 def test_the_obstacle_is_aimed_at_the_meeting_point(speed, angle):
     cfg, _ = build(BASE, {"obstacle_speed": str(speed), "approach_angle_deg": str(angle)})
@@ -53,3 +53,8 @@ def test_filter_and_gains_reach_every_agent():
     cfg, _ = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
     assert all(a.filter.kind.value == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
     assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"})[0].agents)
+
+
+def test_an_obstacle_that_would_start_on_the_agent_is_refused():
+    with pytest.raises(ConfigError, match="start on the agent"):
+        build(BASE, {"obstacle_speed": "1", "approach_angle_deg": "180"})

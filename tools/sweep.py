@@ -104,8 +104,14 @@ def aim_first_obstacle(raw: Raw, speed_mps: float | None = None, angle_deg: floa
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     towards = -np.array([c * heading[0] - s * heading[1], s * heading[0] + c * heading[1], 0.0])
     v = speed_mps * towards
+    c0 = meet - t_meet * v
+    if np.linalg.norm(c0 - start) < float(obs.get("radius_m", 0.0)) + 0.3:
+        raise ConfigError(
+            f"--axis obstacle_speed/approach_angle_deg: at {speed_mps} m/s from {angle_deg} deg the obstacle "
+            "would start on the agent (it keeps pace from behind); drop this point"
+        )
     obs["velocity"] = v.round(9).tolist()
-    obs["center"] = (meet - t_meet * v).round(9).tolist()
+    obs["center"] = c0.round(9).tolist()
     return raw
 
 

@@ -278,3 +278,16 @@ def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
     for r in rows:  # each row is its own run, with its own metrics
         assert (out / r["run"] / "metrics.json").exists()
     assert {"success.png", "time_to_goal_s.png", "max_path_deviation_m.png"} <= {p.name for p in out.glob("*.png")}
+
+
+@pytest.mark.parametrize("kind", ["circle", "sphere"])
+def test_four_agent_swap_ends_with_success(start_run, kind):
+    from swarm.config import resolve
+    from swarm.scenario import circle_swap, sphere_swap
+
+    gen = circle_swap if kind == "circle" else sphere_swap
+    h = start_run(resolve(gen(4, 2.0)), kind)
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["all_reached_goal"] and not m["deadlocked_agents"], m
+    assert m["min_separation_m"] >= 2 * BODY

@@ -17,9 +17,11 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 
+from agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
@@ -41,7 +43,10 @@ class Agent:
         me = self.me = cfg.agent(agent_id)
         self.model = QuadModel(me.airframe.params())
         self.level = me.command_level
-        self.filt = SafetyFilter(self.model, me.filter.filter_config(self.level))
+        fc = me.filter.filter_config(self.level)
+        self.filt = SafetyFilter(self.model, fc)
+        # a real drone lands through its floor: landing filters with the floor off
+        self.filt_land = SafetyFilter(self.model, replace(fc, floor_z_m=None)) if me.backend == "crazyflie" else None
         self.tracker = PathTracker(me.path(), me.speed_mps)
         self.att = AttitudeController(self.model)
         f = cfg.failure
@@ -58,6 +63,7 @@ class Agent:
         self.infeasible = 0
         self.min_h = math.inf
         self.reached = False
+        self.plan: FlightPlan | None = None  # a real drone's phases (set after the warm-up)
         # The first tick loads numba's compiled code and pays every other first-call cost
         # (about a second): run one now, before the world can see this agent, so that no
         # real tick pays for it.
@@ -65,6 +71,15 @@ class Agent:
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
         encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
+        self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
+
+    def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
+        state_body = dict(
+            x=x_b, v=v_b, r=self.model.params.body_radius_m, goal_reached=self.reached,
+            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status="ok", infeasible=self.infeasible,
+            solve_us=0.0, row_ids=[], h_rows=np.zeros(0),
+        )  # fmt: skip
+        return state_body, dict(level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
 
     def on_obstacles(self, m: Message) -> None:
         if m.k >= self.obstacles_k:
@@ -129,19 +144,25 @@ class Agent:
             neighbours = self.roster_rows(t, k if lockstep else None)
         else:
             neighbours = self.table.arrays(t, k - 1 if lockstep else None)
+        tracker: PathTracker | None = self.tracker
+        filt = self.filt
+        if self.plan is not None:
+            tracker = self.plan.tracker(state.x_w)
+            if self.plan.phase is Phase.LAND and self.filt_land is not None:
+                filt = self.filt_land
+        if tracker is None:  # a real drone that has landed or been stopped: motors off
+            return self._motors_off(x_b, v_b)
         bias = None
         if me.tiebreak.kind == "right_hand":
             tb = me.tiebreak
-            bias = right_hand_bias(
-                x_b, self.tracker.desired_velocity(state.x_w), neighbours.c_w, tb.trigger_m, tb.speed_mps
-            )
-        F_ref = self.tracker.thrust_vector(model, state.x_w, state.v_w, bias)
+            bias = right_hand_bias(x_b, tracker.desired_velocity(state.x_w), neighbours.c_w, tb.trigger_m, tb.speed_mps)
+        F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, bias)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours])
         row_ids: list[str] = []
         h_rows = np.zeros(0)
         if me.filter.enabled:
-            res = self.filt.filter(state, u_ref, rows)
+            res = filt.filter(state, u_ref, rows)
             names = self.obstacle_ids + self.neighbour_ids(neighbours)
             row_ids = [names[i] for i in res.row_index]
             h_rows = res.h
@@ -184,6 +205,23 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     token = tp.declare_liveliness(session, keys.alive(agent_id))
     startup_cpu_s = time.process_time()
 
+    link: CrazyflieLink | None = None
+    cf_settings = cfg.agent(agent_id).crazyflie
+    if agent.plan is not None and cf_settings is not None:
+        link = CrazyflieLink(cf_settings, agent_id)
+        if not link.ready.wait(15.0):
+            print(f"agent {agent_id}: the Crazyflie link guard did not come up", file=sys.stderr)
+            token.undeclare()
+            return 2
+    last_meas = [time.monotonic()]
+    flying = [False]  # a real drone has been sent a setpoint
+
+    def safety_stop(reason: str) -> None:
+        if link is not None and not link.stopped:
+            link.emergency_stop(reason)
+            if agent.plan is not None:
+                agent.plan.phase = Phase.STOPPED
+
     alive: set[str] = set()
     world_seen = False
     pending: list[Message] = []  # measurements not yet acted on
@@ -207,13 +245,17 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
         elif m.kind == "clock" and key == keys.clock:
             agent.on_clock(m)
             if m["done"]:
-                stop.set()
+                if agent.plan is not None and flying[0] and agent.plan.phase in (Phase.TAKEOFF, Phase.MISSION):
+                    agent.plan.land()  # the run is over: a real drone lands on its measurements
+                elif agent.plan is None or not flying[0]:
+                    stop.set()
         else:
             counter.drop(f"unexpected {m.kind} on {key}")
 
+    wake_s = 0.02 if link is not None else 0.1
     try:
         while not stop:
-            s = inbox.get(time.monotonic() + 0.1)
+            s = inbox.get(time.monotonic() + wake_s)
             if s is not None:
                 handle(s)
             for s in inbox.drain():
@@ -231,7 +273,21 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                               file=sys.stderr)  # fmt: skip
             if world_seen and "world" not in alive:
                 print(f"agent {agent_id}: the world is gone, stopping", file=sys.stderr)
+                if flying[0]:
+                    safety_stop("the world's liveliness is gone")
                 break
+            if link is not None and agent.plan is not None and cf_settings is not None:
+                if link.lost.is_set():
+                    print(f"agent {agent_id}: Crazyflie link lost ({link.lost_reason}); the guard stopped it",
+                          file=sys.stderr)  # fmt: skip
+                    link.stopped = True
+                    break
+                silent_s = time.monotonic() - last_meas[0]
+                if flying[0] and not link.stopped and silent_s > cf_settings.mocap_timeout_s:
+                    safety_stop(f"no motion-capture measurement for {silent_s:.2f} s (body lost)")
+                    break
+                if agent.plan.phase in (Phase.LANDED, Phase.STOPPED):
+                    break
             if not pending:
                 continue
             if lockstep:
@@ -246,13 +302,37 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                 msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters
                 pending.clear()
             t0 = time.perf_counter()
-            state_body, cmd_body = agent.tick(msg, lockstep)
+            if link is not None and agent.plan is not None:
+                last_meas[0] = time.monotonic()
+                if agent.plan.outside_geofence(msg["x"]):
+                    safety_stop(f"outside the geofence at {np.round(msg['x'], 3).tolist()}")
+                    break
+            try:
+                state_body, cmd_body = agent.tick(msg, lockstep)
+            except Exception:
+                safety_stop("the control step raised")
+                raise
+            if link is not None and agent.plan is not None:
+                if cmd_body["status"] == FilterStatus.FAILED.value:
+                    safety_stop("filter fault (no usable command)")
+                    break
+                if agent.plan.phase is Phase.LANDED:
+                    link.motors_off()
+                    print(f"agent {agent_id}: landed, motors off", file=sys.stderr)
+                else:
+                    link.pose(msg["x"], msg["q"])
+                    link.setpoint(*map(float, cmd_body["u"]))
+                    flying[0] = True
             seq += 1
             pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **state_body))
             seq += 1
             pub_cmd.put(encode("command", run, agent_id, seq, msg.t, msg.k, **cmd_body))
             tick_s.append(time.perf_counter() - t0)
     finally:
+        if link is not None:
+            if stop and flying[0] and agent.plan is not None and agent.plan.phase is not Phase.LANDED:
+                safety_stop("stopped by a signal (Ctrl-C or the launcher) while flying")
+            link.close()
         token.undeclare()
     ts = np.array(tick_s or [0.0]) * 1e3
     summary = {

@@ -12,6 +12,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -90,8 +91,38 @@ class TiebreakSettings(_Strict):
     (``swarm.control.right_hand_bias``)."""
 
     kind: Literal["none", "right_hand"] = "none"
-    trigger_m: float = Field(1.0, gt=0)  # other agents closer than this, and in front, count
+    trigger_m: float = Field(2.0, gt=0)  # m: other agents closer than this, and in front, count
     speed_mps: float = Field(0.3, gt=0)  # largest sideways velocity added to the reference
+
+
+class ThrustCalibration(_Strict):
+    """Collective thrust [N] to the Crazyflie's 16-bit thrust command:
+    ``pwm = offset + per_newton * F``, clipped to ``[0, max_pwm]``. The default maps the
+    stock Crazyflie 2.1's weight (0.265 N) to about 42000, a typical hover value; fly a
+    hover test and fit these two numbers for your drones and batteries."""
+
+    pwm_offset: float = 0.0
+    pwm_per_newton: float = Field(158_000.0, gt=0)
+    max_pwm: int = Field(60_000, gt=0, le=65_535)
+
+
+class CrazyflieSettings(_Strict):
+    """A real Crazyflie 2.1 flown through cflib (``backend: crazyflie``)."""
+
+    uri: str = Field(pattern=r"^(radio|usb|udp|tcp)://.+")  # e.g. radio://0/80/2M/E7E7E7E701
+    mocap_body: str | None = None  # rigid-body name in the motion-capture system (default: the agent id)
+    send_external_pose: bool = True  # relay the motion-capture pose to the drone's estimator
+    thrust: ThrustCalibration = ThrustCalibration()
+    takeoff_speed_mps: float = Field(0.3, gt=0)  # climbs at this speed from below start z
+    land_speed_mps: float = Field(0.3, gt=0)
+    landed_height_m: float = Field(0.08, gt=0)  # below this the motors are stopped when landing
+    geofence_min_m: Vec3 = [-3.0, -3.0, -0.1]  # m, world: leaving this box is an emergency stop
+    geofence_max_m: Vec3 = [3.0, 3.0, 2.5]
+    link_timeout_s: float = Field(0.5, gt=0)  # no packet back from the drone for this long: link lost
+    mocap_timeout_s: float = Field(0.2, gt=0)  # no measurement for this long: body lost
+    expect_replies: bool = True  # the radio (and the test stand-in) answer every packet
+
+    _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
 
 
 class AgentConfig(_Strict):
@@ -108,7 +139,8 @@ class AgentConfig(_Strict):
     filter: FilterSettings = FilterSettings()
     tiebreak: TiebreakSettings = TiebreakSettings()
     airframe: AirframeSettings = AirframeSettings()
-    backend: Literal["sim"] = "sim"
+    backend: Literal["sim", "crazyflie"] = "sim"  # simulated in PyBullet, or a real Crazyflie
+    crazyflie: CrazyflieSettings | None = None  # required with backend: crazyflie
 
     _fin = field_validator("start", "start_velocity", "goal", "speed_mps")(_finite)
 
@@ -116,7 +148,21 @@ class AgentConfig(_Strict):
     def _path(self) -> AgentConfig:
         if self.goal is not None and self.waypoints is not None:
             raise ValueError("give either goal or waypoints, not both")
+        if self.backend == "crazyflie":
+            if self.crazyflie is None:
+                raise ValueError("backend crazyflie needs a crazyflie: {uri: ...} section")
+            if self.command_level is not CommandLevel.ATTITUDE:
+                raise ValueError("a real Crazyflie is flown at command_level: attitude (roll, pitch, yaw rate, thrust)")
+            lo, hi = np.asarray(self.crazyflie.geofence_min_m), np.asarray(self.crazyflie.geofence_max_m)
+            for name, pt in [("start", self.start), *(("path", w) for w in self.path()[1:])]:
+                if np.any(np.asarray(pt) < lo) or np.any(np.asarray(pt) > hi):
+                    raise ValueError(f"{name} {pt} is outside the geofence {list(lo)} .. {list(hi)}")
         return self
+
+    @property
+    def mocap_body(self) -> str:
+        """Rigid-body name of a real drone in the motion-capture system."""
+        return (self.crazyflie.mocap_body if self.crazyflie else None) or self.id
 
     def path(self) -> list[list[float]]:
         """Waypoints from the start: [start, ...waypoints] or [start, goal] or [start]."""
@@ -157,6 +203,7 @@ class TimeSettings(_Strict):
     lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
     command_timeout_s: float = Field(0.05, gt=0)  # realtime: an older command is replaced by braking
     start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
+    land_timeout_s: float = Field(15.0, gt=0)  # after the end: how long real drones get to land
 
     @model_validator(mode="after")
     def _ratio(self) -> TimeSettings:
@@ -207,6 +254,18 @@ class DeadlockSettings(_Strict):
     hold_s: float = Field(2.0, gt=0)  # ... for this long, outside the goal tolerance
 
 
+class MocapSettings(_Strict):
+    """The motion-capture system the world relays for real drones (libmotioncapture:
+    vicon, qualisys, optitrack, vrpn, ..., or ``mock`` for tests)."""
+
+    type: str = Field(pattern=r"^[a-z_]+$")
+    hostname: str | None = None
+    options: dict[str, str] = {}  # passed to motioncapture.connect as they are (e.g. mock: rigid_bodies)
+    rate_hz: float = Field(100.0, gt=0)  # nominal frame rate: a longer gap counts dropped frames
+    lost_after_s: float = Field(0.1, gt=0)  # a body not seen for this long is lost
+    velocity_filter_s: float = Field(0.02, ge=0)  # time constant of the velocity / body-rate low-pass
+
+
 class ScenarioConfig(_Strict):
     version: Literal[1]
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -221,7 +280,17 @@ class ScenarioConfig(_Strict):
     deadlock: DeadlockSettings = DeadlockSettings()
     agents: list[AgentConfig] = Field(min_length=1)
     obstacles: list[ObstacleConfig] = []
+    mocap: MocapSettings | None = None  # required when any agent is a real Crazyflie
     gui: bool = False
+
+    @model_validator(mode="after")
+    def _real_drones(self) -> ScenarioConfig:
+        real = [a.id for a in self.agents if a.backend == "crazyflie"]
+        if real and self.mocap is None:
+            raise ValueError(f"agents {real} are real Crazyflies: add a mocap section")
+        if real and self.time.mode is not TimeMode.REALTIME:
+            raise ValueError(f"agents {real} are real Crazyflies: time.mode must be realtime")
+        return self
 
     @model_validator(mode="after")
     def _unique(self) -> ScenarioConfig:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -29,6 +30,7 @@ from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.shutdown import StopFlag
+from world.mocap import BodyEstimate, MocapRelay, connect
 from world.physics import PhysicsWorld
 
 
@@ -80,9 +82,17 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     keys = tp.Keys(run)
     sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
     slots: dict[str, DroneSlot] = {}
+    real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
     for a in cfg.agents:
         model = QuadModel(a.airframe.params())
-        sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad, np.asarray(a.start_velocity, float))
+        sim.add_drone(
+            a.id,
+            model,
+            np.asarray(a.start, float),
+            a.yaw_rad,
+            np.asarray(a.start_velocity, float),
+            kinematic=a.id in real,
+        )
         slots[a.id] = DroneSlot(
             model,
             a.command_level,
@@ -113,6 +123,29 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     pub_coll = session.declare_publisher(keys.collision)
     others_alive: set[str] = set()
 
+    # --- motion capture for the real drones: measurements at the capture rate --------
+    relay: MocapRelay | None = None
+    running = threading.Event()  # the relay publishes only while the run is on
+    mocap_seq = [10**9]  # the relay thread's own sequence numbers
+    wall0 = time.monotonic()
+    dt_ctrl = 1.0 / cfg.time.control_hz
+
+    def on_frame(aid: str, est: BodyEstimate) -> None:
+        if not running.is_set():
+            return
+        t = time.monotonic() - wall0
+        mocap_seq[0] += 1
+        pubs[aid].put(encode("measurement", run, "world", mocap_seq[0], t, int(t / dt_ctrl), x=est.x_w, v=est.v_w,
+                             q=est.q, w=est.Omega_b))  # fmt: skip
+
+    if real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
+        m = cfg.mocap
+        bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in real}
+        relay = MocapRelay(
+            connect(m.type, m.hostname, m.options), bodies, m.rate_hz, m.lost_after_s, m.velocity_filter_s,
+            on_frame, lambda aid: None,
+        ).start()  # fmt: skip
+
     def poll_liveliness() -> None:
         for name, up in tp.liveliness_events(live_sub):
             if name in slots:
@@ -139,6 +172,9 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             slot = slots.get(m.src)
             if slot is None or slot.dead:
                 counter.drop("command from unknown or dead agent")
+                continue
+            if m.src in real:  # a real drone's command went to it by radio: recorded, not flown
+                slot.command_k = max(slot.command_k, m.k)
                 continue
             u = m["u"]
             want = 4
@@ -176,12 +212,12 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
 
     K = round(cfg.duration_s * cfg.time.control_hz)
     sub = cfg.time.substeps
-    dt_ctrl = 1.0 / cfg.time.control_hz
     lockstep = cfg.time.mode is TimeMode.LOCKSTEP
     collisions = 0
     touching: set[tuple[str, str]] = set()
     min_sep, min_clear, late = math.inf, math.inf, 0
     wall0 = time.monotonic()
+    running.set()
     k = 0
     done = False
     names = list(slots)
@@ -198,8 +234,12 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 while time.monotonic() < target:
                     poll_commands(k - 1, target)
             poll_liveliness()
-            # ground truth for metrics and measurements
+            # ground truth for metrics and measurements (motion capture for real drones)
             states = {a: sim.state(a) for a in names}
+            for a in real:
+                est = relay.latest(a) if relay else None
+                if est is not None:
+                    states[a] = QuadState(est.x_w, est.v_w, est.q, est.Omega_b)
             items = obstacle_items(cfg.obstacles, t)
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
@@ -232,6 +272,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             pub_obs.put(encode("obstacles", run, "world", seq, t, k, items=items))
             now = time.monotonic()
             for a in live:
+                if a in real:
+                    continue  # the relay publishes real drones' measurements at the capture rate
                 s = states[a]
                 seq += 1
                 if not done:
@@ -270,6 +312,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
                 st_now = states if j == 0 else {a: sim.state(a) for a in names}
+                for a in real:  # real drones: where motion capture saw them last
+                    est = relay.latest(a) if relay else None
+                    if est is not None:
+                        sim.set_pose(a, est.x_w, est.q)
                 stale = set()
                 if not lockstep:  # realtime: a command older than the timeout is not flown
                     stale = {
@@ -277,10 +323,11 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         if not slots[a].dead and slots[a].command is not None
                         and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
                     }  # fmt: skip
+                flown = [a for a in names if a not in real]
                 att = [
-                    a for a in names if not slots[a].dead and a not in stale and slots[a].level is CommandLevel.ATTITUDE
+                    a for a in flown if not slots[a].dead and a not in stale and slots[a].level is CommandLevel.ATTITUDE
                 ]
-                att += [a for a in names if not slots[a].dead and slots[a].command is None and a not in att]
+                att += [a for a in flown if not slots[a].dead and slots[a].command is None and a not in att]
                 if att:
                     for a in att:
                         slots[a].yaw_sp_rad += (slots[a].command[2] if slots[a].command is not None else 0.0) * sim.dt_s
@@ -293,7 +340,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     )  # fmt: skip
                     for a, f in zip(att, f_att, strict=True):
                         sim.apply_rotors(a, f, st_now[a])
-                for a in names:
+                for a in flown:
                     sl = slots[a]
                     if a in att:
                         continue
@@ -322,7 +369,16 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     late += len(stale)
                     for kk in stale:
                         sl.sent_at.pop(kk)
+        if relay is not None:
+            # real drones land on their own measurements: keep relaying until they are gone
+            until = time.monotonic() + cfg.time.land_timeout_s
+            while any(slots[a].alive for a in real) and time.monotonic() < until and not stop:
+                poll_liveliness()
+                time.sleep(0.02)
     finally:
+        running.clear()
+        if relay is not None:
+            relay.stop()
         token.undeclare()
         sim.close()
     lat = [x for s in slots.values() for x in s.latencies_s]
@@ -335,6 +391,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         "real_time_factor": k * dt_ctrl / (time.monotonic() - wall0), "cpu_s": time.process_time(),
         "phase_wall_s": {n: round(v, 3) for n, v in phase.items()}, "dropped": counter.dropped,
         "braking_ticks": sum(s.braking_ticks for s in slots.values()),
+        "mocap": None if relay is None else {"frames": relay.frames, "dropped_frames": relay.dropped_frames,
+                                             "lost": sorted(relay.lost)},
     }  # fmt: skip
     print("WORLD_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0

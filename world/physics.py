@@ -55,6 +55,7 @@ class PhysicsWorld:
         self.drones: dict[str, int] = {}
         self._mixer: dict[str, FloatArray] = {}  # per drone: B, [T, tau] = B f
         self.obstacles: dict[str, tuple[int, FloatArray, FloatArray]] = {}  # id -> uid, c0, velocity
+        self.kinematic: set[str] = set()  # drones placed from motion capture
         self.t_s = 0.0
 
     # --- building -------------------------------------------------------------------
@@ -65,7 +66,10 @@ class PhysicsWorld:
         start_w: FloatArray,
         yaw_rad: float = 0.0,
         velocity_w: FloatArray | None = None,
+        kinematic: bool = False,
     ) -> None:
+        """A drone body. ``kinematic``: a real drone, placed by :meth:`set_pose` from motion
+        capture every step (mass 0 to PyBullet: it pushes, is never pushed)."""
         p = model.params
         shape = pb.createCollisionShape(
             pb.GEOM_CYLINDER, radius=p.body_radius_m, height=0.03, collisionFramePosition=[0, 0, p.l_m],
@@ -76,12 +80,16 @@ class PhysicsWorld:
             rgbaColor=[0.2, 0.4, 0.9, 1], physicsClientId=self.client,
         )  # fmt: skip
         q = pb.getQuaternionFromEuler([0, 0, yaw_rad])
-        uid = pb.createMultiBody(p.mass_kg, shape, visual, list(start_w), q, physicsClientId=self.client)
-        pb.changeDynamics(
-            uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
-            angularDamping=0.0, physicsClientId=self.client,
-        )  # fmt: skip
-        if velocity_w is not None:
+        mass = 0.0 if kinematic else p.mass_kg
+        uid = pb.createMultiBody(mass, shape, visual, list(start_w), q, physicsClientId=self.client)
+        if kinematic:
+            self.kinematic.add(name)
+        else:
+            pb.changeDynamics(
+                uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
+                angularDamping=0.0, physicsClientId=self.client,
+            )  # fmt: skip
+        if velocity_w is not None and not kinematic:
             pb.resetBaseVelocity(uid, list(velocity_w), [0.0, 0.0, 0.0], physicsClientId=self.client)
         self._mixer[name] = model.B
         self.drones[name] = uid
@@ -156,7 +164,22 @@ class PhysicsWorld:
             if a is None or b is None or (a.kind != "drone" and b.kind != "drone"):
                 continue
             pairs.add(tuple(sorted((a.name, b.name))))
+        # PyBullet finds no contact between two bodies of mass 0: test a kinematic (real)
+        # drone against the obstacles, the ground and the other kinematic drones directly
+        statics = [self.drones[n] for n in self.kinematic]
+        statics += [uid for uid, b in self.bodies.items() if b.kind != "drone"]
+        for name in self.kinematic:
+            uid = self.drones[name]
+            for other in statics:
+                if other == uid:
+                    continue
+                if pb.getClosestPoints(uid, other, 0.0, physicsClientId=self.client):
+                    pairs.add(tuple(sorted((name, self.bodies[other].name))))
         return sorted(pairs)  # type: ignore[arg-type]
+
+    def set_pose(self, name: str, x_w: FloatArray, q: FloatArray) -> None:
+        """Place a kinematic drone where motion capture saw it (``q`` scalar-last)."""
+        pb.resetBasePositionAndOrientation(self.drones[name], list(x_w), list(q), physicsClientId=self.client)
 
     def state(self, name: str) -> QuadState:
         uid = self.drones[name]

@@ -1,0 +1,180 @@
+"""Flying a real Crazyflie from an agent: the link to its guard process, the flight
+phases (take off, mission, hold, land) and the safety stops.
+
+The agent computes the same filtered command as for a simulated drone: the thrust
+vector, turned into roll, pitch [rad], yaw rate [rad/s] and thrust [N] by
+``swarm.control.setpoint_from_thrust_vector``. This module turns that into the
+Crazyflie's legacy RPYT setpoint:
+
+* roll and pitch in degrees. Positive roll moves the drone to its right. Positive pitch
+  moves it forward: the thrust tilts towards +x of the body. That is what cflib's
+  ``send_setpoint`` expects; cflib itself negates pitch on the wire.
+* yaw rate in degrees per second, counter-clockwise positive (z up);
+* thrust as a 16-bit command, through the config's calibration (:func:`thrust_command`).
+
+Fly a new setup with the propellers off first, and check these signs against the
+client's attitude display.
+
+The radio belongs to a child process (:mod:`agents.cf_guard`) in its own session.
+When the agent dies, even by SIGKILL, its pipe closes and the guard sends the
+emergency stop. The agent stops the drone itself on:
+
+* Ctrl-C;
+* a filter fault;
+* leaving the geofence;
+* its motion-capture body going missing;
+* the world's liveliness disappearing.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import threading
+from enum import StrEnum
+
+import msgpack
+import numpy as np
+
+from swarm.config import AgentConfig, CrazyflieSettings, ThrustCalibration
+from swarm.control import PathTracker
+from swarm.rotation import FloatArray
+
+
+def thrust_command(thrust_N: float, cal: ThrustCalibration) -> int:
+    """Collective thrust [N] to the 16-bit thrust command, clipped to ``[0, max_pwm]``."""
+    if not math.isfinite(thrust_N):
+        return 0
+    return int(round(min(max(cal.pwm_offset + cal.pwm_per_newton * thrust_N, 0.0), cal.max_pwm)))
+
+
+def rpyt(roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float, cal: ThrustCalibration) -> tuple:
+    """Our attitude setpoint as the arguments of cflib's ``Commander.send_setpoint``."""
+    return (
+        math.degrees(roll_rad),
+        math.degrees(pitch_rad),
+        math.degrees(yaw_rate_radps),
+        thrust_command(thrust_N, cal),
+    )
+
+
+class Phase(StrEnum):
+    """Where a real drone is in its flight."""
+
+    TAKEOFF = "takeoff"  # climbing to the start height at takeoff speed
+    MISSION = "mission"  # flying the configured path (then holding its goal)
+    LAND = "land"  # descending at land speed; below landed height the motors stop
+    LANDED = "landed"  # motors off
+    STOPPED = "stopped"  # emergency stop sent
+
+
+class FlightPlan:
+    """Which path tracker flies the drone now (pure: positions in, a tracker out)."""
+
+    def __init__(self, me: AgentConfig) -> None:
+        if me.crazyflie is None:
+            raise ValueError(f"agent {me.id}: not a real Crazyflie")
+        self.me, self.cf = me, me.crazyflie
+        self.mission = PathTracker(me.path(), me.speed_mps)
+        self.phase = Phase.MISSION
+        self._takeoff: PathTracker | None = None
+        self._land: PathTracker | None = None
+
+    def tracker(self, x_w: FloatArray) -> PathTracker | None:
+        """The tracker for this tick (None once landed or stopped)."""
+        start = np.asarray(self.me.start, dtype=float)
+        if self._takeoff is None and self.phase is Phase.MISSION and x_w[2] < start[2] - 0.1:
+            self.phase = Phase.TAKEOFF
+            self._takeoff = PathTracker([x_w, [x_w[0], x_w[1], start[2]], start], self.cf.takeoff_speed_mps)
+        if self.phase is Phase.TAKEOFF:
+            assert self._takeoff is not None
+            if np.linalg.norm(x_w - start) < 0.1:
+                self.phase = Phase.MISSION
+            else:
+                return self._takeoff
+        if self.phase is Phase.MISSION:
+            return self.mission
+        if self.phase is Phase.LAND:
+            if x_w[2] < self.cf.landed_height_m:
+                self.phase = Phase.LANDED
+                return None
+            if self._land is None:
+                self._land = PathTracker([x_w, [x_w[0], x_w[1], 0.0]], self.cf.land_speed_mps)
+            return self._land
+        return None
+
+    def land(self) -> None:
+        if self.phase in (Phase.TAKEOFF, Phase.MISSION):
+            self.phase = Phase.LAND
+
+    def outside_geofence(self, x_w: FloatArray) -> bool:
+        lo, hi = np.asarray(self.cf.geofence_min_m), np.asarray(self.cf.geofence_max_m)
+        return bool(np.any(x_w < lo) or np.any(x_w > hi))
+
+
+class CrazyflieLink:
+    """The agent's end of the guard process (:mod:`agents.cf_guard`)."""
+
+    def __init__(self, settings: CrazyflieSettings, name: str) -> None:
+        self.settings, self.name = settings, name
+        args = [sys.executable, "-m", "agents.cf_guard", "--uri", settings.uri,
+                "--link-timeout", str(settings.link_timeout_s)]  # fmt: skip
+        if not settings.expect_replies:
+            args.append("--no-replies")
+        # its own session: stopping the agent's process group leaves the guard to stop the drone
+        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        self.ready = threading.Event()
+        self.lost = threading.Event()
+        self.lost_reason = ""
+        self.stopped = False
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for raw in self.proc.stdout:
+            line = raw.decode(errors="replace").strip()
+            if line == "READY":
+                self.ready.set()
+            elif line.startswith("LINK_LOST"):
+                self.lost_reason = line[len("LINK_LOST") :].strip()
+                self.lost.set()
+        if not self.ready.is_set() or not self.stopped:
+            self.lost_reason = self.lost_reason or "the guard exited"
+            self.lost.set()
+
+    def _send(self, frame: list) -> None:
+        if self.proc.stdin is None or self.proc.poll() is not None:
+            return
+        try:
+            self.proc.stdin.write(msgpack.packb(frame))
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            self.lost.set()
+
+    def setpoint(self, roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float) -> None:
+        if not self.stopped:
+            self._send(["sp", *rpyt(roll_rad, pitch_rad, yaw_rate_radps, thrust_N, self.settings.thrust)])
+
+    def pose(self, x_w: FloatArray, q: FloatArray) -> None:
+        if self.settings.send_external_pose and not self.stopped:
+            self._send(["pose", *map(float, x_w), *map(float, q)])
+
+    def motors_off(self) -> None:
+        self._send(["stop"])
+
+    def emergency_stop(self, reason: str) -> None:
+        print(f"agent {self.name}: EMERGENCY STOP: {reason}", file=sys.stderr)
+        self._send(["estop", reason])
+        self.stopped = True
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """A clean end: the guard sends the stop setpoint and exits."""
+        self.stopped = True
+        self._send(["bye"])
+        try:
+            if self.proc.stdin:
+                self.proc.stdin.close()
+            self.proc.wait(timeout_s)
+        except (subprocess.TimeoutExpired, OSError):
+            self.proc.kill()

@@ -1,0 +1,159 @@
+"""A real-Crazyflie agent against a stand-in drone, with no hardware.
+
+The agent process is the real one (``swarm agent``): it starts its cflib link guard,
+which talks CRTP over cflib's UDP driver to the stand-in (tests/standin_cf.py). The
+test plays the world: it declares the world's liveliness and publishes the clock and
+the motion-capture measurements over Zenoh at 100 Hz. Every wait is on a condition
+(packets at the stand-in, messages on the bus) with a deadline.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents.crazyflie import thrust_command
+from swarm import transport as tp
+from swarm.config import ScenarioConfig, dump, resolve
+from swarm.messages import decode, encode
+from tests.standin_cf import StandIn
+from tools.launch import free_port
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def real_config(uri: str, port: int, **cf: object) -> ScenarioConfig:
+    raw = {
+        "version": 1, "name": "cf_standin", "duration_s": 60.0,
+        "time": {"mode": "realtime", "physics_hz": 200, "control_hz": 100},
+        "network": {"port": port}, "mocap": {"type": "mock"},
+        "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0],
+                    "crazyflie": {"uri": uri, "mocap_timeout_s": 0.2, "link_timeout_s": 0.3, **cf}}],
+    }  # fmt: skip
+    return resolve(raw)
+
+
+class FakeWorld:
+    """The world's side of one agent: liveliness, clock and measurements at 100 Hz."""
+
+    def __init__(self, cfg: ScenarioConfig, run: str) -> None:
+        self.cfg, self.run, self.keys = cfg, run, tp.Keys(run)
+        self.session = tp.open_session(tp.process_config(cfg.network, is_world=True))
+        self.token = tp.declare_liveliness(self.session, self.keys.alive("world"))
+        self.pub_meas = self.session.declare_publisher(self.keys.measurement("cf1"))
+        self.pub_clock = self.session.declare_publisher(self.keys.clock)
+        self.commands = tp.open_channel(self.session, self.keys.command("cf1"), 1 << 14)
+        self.measuring = threading.Event()
+        self.measuring.set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        k, seq, t0 = 0, 0, time.monotonic()
+        while not self._stop.is_set():
+            t = k * 0.01
+            seq += 2
+            self.pub_clock.put(encode("clock", self.run, "world", seq, t, k, live=["cf1"], done=False, ids=["cf1"],
+                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07]))  # fmt: skip
+            if self.measuring.is_set():
+                self.pub_meas.put(encode("measurement", self.run, "world", seq + 1, t, k, x=[0.0, 0.0, 1.0],
+                                         v=[0.0, 0.0, 0.0], q=[0.0, 0.0, 0.0, 1.0], w=[0.0, 0.0, 0.0]))  # fmt: skip
+            k += 1
+            time.sleep(max(0.0, t0 + k * 0.01 - time.monotonic()))  # the 100 Hz capture clock
+
+    def received_commands(self) -> list[np.ndarray]:
+        out = []
+        for s in tp.drain(self.commands):
+            m = decode(tp.payload(s), self.run)
+            out.append(np.asarray(m["u"]))
+        return out
+
+    def vanish(self) -> None:
+        self.token.undeclare()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+        self.session.close()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    made: list = []
+
+    def start(**cf: object) -> tuple[StandIn, FakeWorld, subprocess.Popen, ScenarioConfig]:
+        standin = StandIn.start()
+        cfg = real_config(standin.uri, free_port(), **cf)
+        run = f"cf-{os.getpid()}-{len(made)}"
+        path = tmp_path / f"cfg{len(made)}.yaml"
+        path.write_text(dump(cfg))
+        world = FakeWorld(cfg, run)
+        log = open(tmp_path / f"agent{len(made)}.log", "wb")  # noqa: SIM115
+        agent = subprocess.Popen(
+            [sys.executable, "-m", "tools.cli", "agent", str(path), "--id", "cf1", "--run", run,
+             "--port", str(cfg.network.port)],
+            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+        made.append((standin, world, agent, log))
+        assert standin.wait_for("setpoints", 20, timeout_s=60.0), (tmp_path / f"agent{len(made) - 1}.log").read_text()
+        return standin, world, agent, cfg
+
+    yield start
+    for standin, world, agent, log in made:
+        if agent.poll() is None:
+            os.killpg(agent.pid, signal.SIGKILL)
+            agent.wait()
+        world.close()
+        standin.close()
+        log.close()
+
+
+def test_setpoints_at_the_drone_are_the_filtered_commands_and_a_lost_body_stops_it(rig):
+    standin, world, agent, cfg = rig()
+    assert standin.wait_for("poses", 5)
+    commands = world.received_commands()
+    assert len(commands) >= 5
+    cal = cfg.agents[0].crazyflie.thrust
+    sent = [(math.degrees(u[0]), math.degrees(u[1]), math.degrees(u[2]), thrust_command(u[3], cal)) for u in commands]
+    got = [(s.roll_deg, s.pitch_deg, s.yawrate_dps, s.thrust) for s in standin.setpoints]
+    matched = [g for g in got[-10:] if any(np.allclose(g[:3], c[:3], atol=1e-4) and g[3] == c[3] for c in sent)]
+    assert len(matched) == len(got[-10:]), (got[-3:], sent[-3:])
+    assert any(abs(s.pitch_deg) > 0.5 for s in standin.setpoints)  # flying towards its goal, not just hovering
+    assert all(10_000 < s.thrust < 60_000 for s in standin.setpoints[-10:])
+    x, y, z = standin.poses[-1][:3]
+    assert (x, y, z) == pytest.approx((0.0, 0.0, 1.0))  # the motion-capture pose went to the drone
+    assert not standin.estops
+    world.measuring.clear()  # the body disappears from motion capture
+    assert standin.wait_for("estops", 1, timeout_s=5.0)
+
+
+def test_link_loss_sends_an_emergency_stop(rig):
+    standin, _world, agent, _cfg = rig()
+    standin.deaf()  # the drone stops answering: to cflib the link is gone
+    assert standin.wait_for("estops", 1, timeout_s=5.0)
+    agent.wait(10)  # and the agent ends
+
+
+def test_agent_death_sends_an_emergency_stop(rig):
+    standin, _world, agent, _cfg = rig()
+    os.kill(agent.pid, signal.SIGKILL)  # not even a chance to clean up: the guard does it
+    assert standin.wait_for("estops", 1, timeout_s=5.0)
+
+
+def test_world_gone_and_ctrl_c_send_an_emergency_stop(rig):
+    standin, world, _agent, _cfg = rig()
+    world.vanish()
+    assert standin.wait_for("estops", 1, timeout_s=5.0)
+    standin2, _world2, agent2, _cfg2 = rig()
+    os.kill(agent2.pid, signal.SIGINT)
+    assert standin2.wait_for("estops", 1, timeout_s=5.0)

@@ -186,7 +186,9 @@ def record(config: str, out: Path, run_id: str | None, port: int | None) -> None
     target = out / "config.yaml"
     if not (target.exists() and target.resolve() == Path(config).resolve()):
         target.write_text(dump(cfg))
-    os._exit(record_main(run_name, out, tp.process_config(cfg.network, is_world=False)))
+    real = any(a.backend == "crazyflie" for a in cfg.agents)
+    linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
+    os._exit(record_main(run_name, out, tp.process_config(cfg.network, is_world=False), linger_s))
 
 
 @cli.command()

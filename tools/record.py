@@ -11,6 +11,7 @@ a crash loses at most that much. Stops when the world reports done or disappears
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -24,7 +25,9 @@ FLUSH_S = 0.5
 TAIL_S = 0.3  # keep listening this long after the world says done
 
 
-def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
+def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: ANN001
+    """Record until the world disappears, or ``linger_s`` + a short tail after it says
+    done (``linger_s``: how long real drones may take to land after the end)."""
     keys = tp.Keys(run)
     stop = StopFlag()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -66,12 +69,12 @@ def main(run: str, out_dir: Path, conf) -> int:  # noqa: ANN001
                 writer.add_message(ch, log_ns, json.dumps(to_json(m)).encode(), now_ns, sequence=m.seq & 0xFFFFFFFF)
                 count += 1
                 if m.kind == "status" and m["done"] and done_at is None:
-                    done_at = time.monotonic()
+                    done_at = time.monotonic() + linger_s
             for name, up in tp.liveliness_events(live_sub):
                 if name == "world":
                     world_seen |= up
-                    if not up and done_at is None:
-                        done_at = time.monotonic()
+                    if not up:
+                        done_at = min(done_at or math.inf, time.monotonic())
             if time.monotonic() - last_flush > FLUSH_S:
                 f.flush()
                 last_flush = time.monotonic()

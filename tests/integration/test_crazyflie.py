@@ -25,8 +25,8 @@ from agents.crazyflie import thrust_command
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump, resolve
 from swarm.messages import decode, encode
-from tests.standin_cf import StandIn
 from tools.launch import free_port
+from tools.standin_cf import StandIn
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -157,3 +157,54 @@ def test_world_gone_and_ctrl_c_send_an_emergency_stop(rig):
     standin2, _world2, agent2, _cfg2 = rig()
     os.kill(agent2.pid, signal.SIGINT)
     assert standin2.wait_for("estops", 1, timeout_s=5.0)
+
+
+def test_mixed_swarm_with_mock_motion_capture(tmp_path):
+    """configs/mixed_mock.yaml: two real agents held by the mock capture system, flown
+    through stand-ins; two simulated agents fly through their space and go around them."""
+    from swarm.config import load
+    from tools.launch import RunHandle
+    from tools.runfiles import read_records
+
+    stand = {"real1": StandIn.start(), "real2": StandIn.start()}
+    try:
+        cfg = load(ROOT / "configs" / "mixed_mock.yaml")
+        agents = [
+            a.model_copy(update={"crazyflie": a.crazyflie.model_copy(update={"uri": stand[a.id].uri})})
+            if a.id in stand else a
+            for a in cfg.agents
+        ]  # fmt: skip
+        h = RunHandle.start(cfg.model_copy(update={"agents": agents}), tmp_path / "mixed")
+        reason = h.wait()
+        m = __import__("json").loads((h.out / "metrics.json").read_text())
+        assert reason == "completed", (reason, m.get("exit_codes"))
+        assert m["collisions"] == 0, m["collision_pairs"]
+        assert m["min_separation_m"] >= 2 * 0.07  # airframes never touched
+        assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
+        assert m["min_obstacle_clearance_m"] > 0.07
+        assert m["agents"]["sim1"]["max_path_deviation_m"] > 0.1  # it went around real1
+        records = read_records(h.out / "run.mcap")
+        # the simulated agents had the real ones as rows, through the same agent-state topics
+        rows = {r["src"]: set() for r in records if r["kind"] == "state"}
+        for r in records:
+            if r["kind"] == "state":
+                rows[r["src"]].update(r["row_ids"])
+        assert "real1" in rows["sim1"] and "real2" in rows["sim2"] and "sim1" in rows["real1"]
+        # the real drone avoids the virtual obstacle: its filter changes its command because of the ball
+        assert "ball" in rows["real2"]
+        assert max(r["intervention"] for r in records if r["kind"] == "command" and r["src"] == "real2") > 1e-3
+        # every setpoint at a stand-in is one of that agent's recorded filtered commands
+        cal = cfg.agents[0].crazyflie.thrust
+        for aid, st in stand.items():
+            sent = [
+                (math.degrees(u[0]), math.degrees(u[1]), math.degrees(u[2]), thrust_command(u[3], cal))
+                for u in (r["u"] for r in records if r["kind"] == "command" and r["src"] == aid)
+            ]
+            assert len(st.setpoints) > 100
+            for s in st.setpoints[::10]:
+                g = (s.roll_deg, s.pitch_deg, s.yawrate_dps, s.thrust)
+                assert any(np.allclose(g[:3], c[:3], atol=1e-4) and g[3] == c[3] for c in sent), (aid, g)
+            assert len(st.poses) > 100
+    finally:
+        for st in stand.values():
+            st.close()

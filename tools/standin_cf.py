@@ -1,4 +1,4 @@
-"""A stand-in Crazyflie for tests: speaks CRTP over cflib's UDP link on loopback.
+"""A stand-in Crazyflie for tests and demos: speaks CRTP over cflib's UDP link on loopback.
 
 It binds a UDP port on 127.0.0.1, decodes every CRTP packet it receives (one per
 datagram: a header byte ``port << 4 | 3 << 2 | channel``, then up to 30 data bytes),
@@ -46,9 +46,10 @@ class StandIn:
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @classmethod
-    def start(cls) -> StandIn:
+    def start(cls, port: int = 0) -> StandIn:
+        """Listen on 127.0.0.1:``port`` (0: any free port; see :attr:`uri`)."""
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        s.bind(("127.0.0.1", 0))
+        s.bind(("127.0.0.1", port))
         s.settimeout(0.05)
         st = cls(s)
         threading.Thread(target=st._run, daemon=True).start()
@@ -103,3 +104,23 @@ class StandIn:
                 self.poses.append(struct.unpack("<Bfffffff", body)[1:])
             elif (port == 9 and ch == 1 and body[:1] == b"\x03") or (port == 6 and ch == 1 and body[:1] == b"\x03"):
                 self.estops.append(now)
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Stand-in Crazyflies on loopback (UDP), for demos without hardware.")
+    ap.add_argument("--port", type=int, action="append", required=True, help="one stand-in per port (repeatable)")
+    args = ap.parse_args()
+    drones = [StandIn.start(p) for p in args.port]
+    print("stand-ins at " + ", ".join(d.uri for d in drones) + " (Ctrl-C to end)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+            for d in drones:
+                last = d.setpoints[-1] if d.setpoints else None
+                print(f"{d.uri}: {len(d.setpoints)} setpoints, {len(d.poses)} poses, {len(d.estops)} emergency stops"
+                      + (f"; last roll {last.roll_deg:+.1f} pitch {last.pitch_deg:+.1f} deg, thrust {last.thrust}"
+                         if last else ""), flush=True)  # fmt: skip
+    except KeyboardInterrupt:
+        pass

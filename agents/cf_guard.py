@@ -1,27 +1,38 @@
-"""The Crazyflie link guard: the one process that holds a drone's radio link.
+"""The Crazyflie link guard: the one process on a machine that holds the radio links.
 
-    python -m agents.cf_guard --uri URI [--link-timeout S] [--no-replies]
+    python -m agents.cf_guard --serve SOCKET [--exit-when-idle]
 
-An agent flying a real Crazyflie starts this as a child in its own session and writes
-msgpack frames to its standard input. The frames, with units:
+A Crazyradio is one USB device. cflib can share it among several links, but only
+within one process. So every real drone on a machine talks through one guard server,
+and each agent connects to it over a Unix socket. Drones on one radio must share the
+channel and data rate and differ in address, e.g. ``radio://0/80/2M/E7E7E7E701`` and
+``.../E7E7E7E702``.
 
-* ``["sp", roll_deg, pitch_deg, yawrate_dps, thrust]``: a setpoint for cflib's
+The first agent that finds no server starts one, in a session of its own; it outlives
+the agent. With ``--exit-when-idle`` the server ends 2 s after its last connection
+closes.
+
+Each connection flies one drone. The agent sends msgpack frames, with units:
+
+* ``["hello", uri, link_timeout_s, expect_replies]``: first, opens the link;
+* ``["sp", roll_deg, pitch_deg, yawrate_dps, thrust]``: cflib's
   ``Commander.send_setpoint``, with thrust the 16-bit command;
-* ``["pose", x, y, z, qx, qy, qz, qw]``: the motion-capture pose [m, world] for
+* ``["pose", x, y, z, qx, qy, qz, qw]``: the motion-capture pose [m, world], sent with
   ``Localization.send_extpose``;
 * ``["stop"]``: the stop setpoint (motors off, as after landing);
 * ``["estop", reason]``: an emergency stop;
-* ``["bye"]``: a clean end. The guard sends the stop setpoint and exits.
+* ``["bye"]``: a clean end. The server sends the stop setpoint and closes the link.
 
-The guard sends an emergency stop by itself in three cases:
+The server answers ``["ready"]``, or ``["lost", reason]`` when the link goes.
 
-* its standard input closes without ``bye``: the agent died, even by SIGKILL;
+It sends an emergency stop by itself in three cases:
+
+* the connection closes without ``bye``: the agent died, even by SIGKILL;
 * the link reports an error;
-* no packet has come back for ``--link-timeout`` seconds. The guard polls the link with
+* no packet has come back for ``link_timeout_s``. The server polls each link with
   null packets every 50 ms, as cflib's radio driver does; the radio acknowledges every
-  packet, and so does the test stand-in. ``--no-replies`` turns this check off.
-
-It writes ``READY`` and ``LINK_LOST <reason>`` lines to its standard output for the agent.
+  packet, and so does the test stand-in. Set ``expect_replies`` false to turn this check
+  off.
 
 An emergency stop goes out both ways, the supervisor's command (protocol 12 and later)
 and the older localization packet, each three times. A firmware ignores the form it
@@ -31,13 +42,21 @@ does not know.
 from __future__ import annotations
 
 import argparse
+import os
+import socket
 import struct
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import msgpack
+
+
+def default_socket() -> Path:
+    """The machine's guard socket (one per user)."""
+    return Path(os.environ.get("C3SWARM_CF_SOCKET", f"/tmp/c3swarm-cf-{os.getuid()}.sock"))
 
 
 class _Shim:
@@ -55,74 +74,79 @@ class _Shim:
         pass
 
 
-def main(uri: str, link_timeout_s: float, expect_replies: bool) -> int:
-    import cflib.crtp
-    from cflib.crazyflie.commander import Commander
-    from cflib.crazyflie.localization import Localization
-    from cflib.crazyflie.supervisor import CMD_EMERGENCY_STOP, SUPERVISOR_CH_COMMAND
-    from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
+class _Drone:
+    """One connection: one drone's link."""
 
-    out_lock = threading.Lock()
+    def __init__(self, conn: socket.socket) -> None:
+        self.conn = conn
+        self.send_lock = threading.Lock()
+        self.lost = threading.Event()
+        self.uri = "?"
 
-    def say(line: str) -> None:
-        with out_lock:
-            sys.stdout.write(line + "\n")
-            sys.stdout.flush()
+    def reply(self, frame: list) -> None:
+        with self.send_lock:
+            try:
+                self.conn.sendall(msgpack.packb(frame))
+            except OSError:
+                pass
 
-    lost = threading.Event()
-    link_errors: list[str] = []
-    cflib.crtp.init_drivers()
-    driver = cflib.crtp.get_link_driver(uri, link_error_callback=lambda msg: link_errors.append(str(msg)))
-    if driver is None:
-        say(f"LINK_LOST no driver for {uri}")
-        return 2
-    cf = _Shim(driver)
-    commander, loc = Commander(cf), Localization(cf)
+    def serve(self) -> None:
+        import cflib.crtp
+        from cflib.crazyflie.commander import Commander
+        from cflib.crazyflie.localization import Localization
+        from cflib.crazyflie.supervisor import CMD_EMERGENCY_STOP, SUPERVISOR_CH_COMMAND
+        from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 
-    def estop(reason: str) -> None:
-        for _ in range(3):
-            pk = CRTPPacket()
-            pk.set_header(CRTPPort.SUPERVISOR, SUPERVISOR_CH_COMMAND)
-            pk.data = struct.pack("<B", CMD_EMERGENCY_STOP)
-            cf.send_packet(pk)
-            legacy = CRTPPacket()
-            legacy.set_header(CRTPPort.LOCALIZATION, Localization.GENERIC_CH)
-            legacy.data = struct.pack("<B", Localization.EMERGENCY_STOP)
-            cf.send_packet(legacy)
-        print(f"cf_guard {uri}: emergency stop ({reason})", file=sys.stderr)
+        unpacker = msgpack.Unpacker(raw=False)
+        frames = self._frames(unpacker)
+        hello = next(frames, None)
+        if not (isinstance(hello, list) and len(hello) == 4 and hello[0] == "hello"):
+            self.reply(["lost", f"expected hello, got {hello!r}"])
+            return
+        self.uri, link_timeout_s, expect_replies = str(hello[1]), float(hello[2]), bool(hello[3])
+        errors: list[str] = []
+        driver = cflib.crtp.get_link_driver(self.uri, link_error_callback=lambda msg: errors.append(str(msg)))
+        if driver is None:
+            self.reply(["lost", f"no cflib driver for {self.uri}"])
+            return
+        cf = _Shim(driver)
+        commander, loc = Commander(cf), Localization(cf)
 
-    def watch_link() -> None:
-        """Poll the link with null packets (as the radio driver does) and watch replies."""
-        last_rx = time.monotonic()
-        while not lost.is_set():
-            cf.send_packet(CRTPPacket(0xFF))  # a null packet: port 15, channel 3, no data
-            pk = driver.receive_packet(0.05)
-            now = time.monotonic()
-            while pk is not None:
-                last_rx = now
-                pk = driver.receive_packet(0)
-            reason = None
-            if link_errors:
-                reason = f"link error: {link_errors[0]}"
-            elif expect_replies and now - last_rx > link_timeout_s:
-                reason = f"no reply for {now - last_rx:.2f} s"
-            if reason:
-                lost.set()
-                estop(f"link lost: {reason}")
-                say(f"LINK_LOST {reason}")
+        def estop(reason: str) -> None:
+            for _ in range(3):
+                pk = CRTPPacket()
+                pk.set_header(CRTPPort.SUPERVISOR, SUPERVISOR_CH_COMMAND)
+                pk.data = struct.pack("<B", CMD_EMERGENCY_STOP)
+                cf.send_packet(pk)
+                legacy = CRTPPacket()
+                legacy.set_header(CRTPPort.LOCALIZATION, Localization.GENERIC_CH)
+                legacy.data = struct.pack("<B", Localization.EMERGENCY_STOP)
+                cf.send_packet(legacy)
+            print(f"cf_guard {self.uri}: emergency stop ({reason})", file=sys.stderr, flush=True)
 
-    watcher = threading.Thread(target=watch_link, daemon=True)
-    watcher.start()
-    say("READY")
-    unpacker = msgpack.Unpacker(raw=False)
-    clean = False
-    stdin = sys.stdin.buffer
-    while True:
-        chunk = stdin.read1(4096) if hasattr(stdin, "read1") else stdin.read(4096)
-        if not chunk:
-            break
-        unpacker.feed(chunk)
-        for frame in unpacker:
+        def watch_link() -> None:
+            last_rx = time.monotonic()
+            while not self.lost.is_set():
+                cf.send_packet(CRTPPacket(0xFF))  # a null packet: port 15, channel 3, no data
+                pk = driver.receive_packet(0.05)
+                now = time.monotonic()
+                while pk is not None:
+                    last_rx = now
+                    pk = driver.receive_packet(0)
+                reason = None
+                if errors:
+                    reason = f"link error: {errors[0]}"
+                elif expect_replies and now - last_rx > link_timeout_s:
+                    reason = f"no reply for {now - last_rx:.2f} s"
+                if reason and not self.lost.is_set():
+                    self.lost.set()
+                    estop(f"link lost: {reason}")
+                    self.reply(["lost", reason])
+
+        threading.Thread(target=watch_link, daemon=True).start()
+        self.reply(["ready"])
+        clean = False
+        for frame in frames:
             kind = frame[0] if isinstance(frame, list) and frame else None
             if kind == "sp":
                 commander.send_setpoint(float(frame[1]), float(frame[2]), float(frame[3]), int(frame[4]))
@@ -137,21 +161,78 @@ def main(uri: str, link_timeout_s: float, expect_replies: bool) -> int:
                 clean = True
                 break
             else:
-                print(f"cf_guard {uri}: unknown frame {frame!r} dropped", file=sys.stderr)
-        if clean:
-            break
-    if not clean:
-        estop("the agent is gone (its pipe closed)")
-    lost.set()
-    time.sleep(0.05)  # let the last packets leave the socket or radio
-    driver.close()
-    return 0
+                print(f"cf_guard {self.uri}: unknown frame {frame!r} dropped", file=sys.stderr)
+        if not clean:
+            estop("the agent is gone (its connection closed)")
+        self.lost.set()
+        time.sleep(0.05)  # let the last packets leave the socket or radio
+        driver.close()
+
+    def _frames(self, unpacker: msgpack.Unpacker) -> Any:
+        while True:
+            try:
+                chunk = self.conn.recv(4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            unpacker.feed(chunk)
+            yield from unpacker
+
+
+def serve(path: Path, exit_when_idle: bool) -> int:
+    import cflib.crtp
+
+    cflib.crtp.init_drivers()
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    bound = False
+    try:
+        if path.exists():
+            probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                probe.connect(str(path))
+                probe.close()
+                print(f"cf_guard: a server already answers at {path}", file=sys.stderr)
+                return 0
+            except OSError:
+                path.unlink()  # left by a server that died
+        srv.bind(str(path))
+        bound = True
+    except OSError as exc:  # another one won the race
+        print(f"cf_guard: cannot serve at {path}: {exc}", file=sys.stderr)
+        srv.close()
+        return 0
+    srv.listen(64)
+    srv.settimeout(0.2)
+    active: list[threading.Thread] = []
+    idle_since = time.monotonic()
+    print(f"cf_guard: serving at {path}", file=sys.stderr, flush=True)
+    try:
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except TimeoutError:
+                active = [t for t in active if t.is_alive()]
+                if active:
+                    idle_since = time.monotonic()
+                elif exit_when_idle and time.monotonic() - idle_since > 2.0:
+                    return 0
+                continue
+            t = threading.Thread(target=_Drone(conn).serve, daemon=True)
+            t.start()
+            active.append(t)
+    finally:
+        srv.close()
+        if bound:
+            try:
+                path.unlink()
+            except OSError:
+                pass
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--uri", required=True)
-    ap.add_argument("--link-timeout", type=float, default=0.5)
-    ap.add_argument("--no-replies", action="store_true")
+    ap.add_argument("--serve", type=Path, default=default_socket(), help="Unix socket path")
+    ap.add_argument("--exit-when-idle", action="store_true")
     args = ap.parse_args()
-    sys.exit(main(args.uri, args.link_timeout, not args.no_replies))
+    sys.exit(serve(args.serve, args.exit_when_idle))

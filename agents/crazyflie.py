@@ -15,9 +15,10 @@ Crazyflie's legacy RPYT setpoint:
 Fly a new setup with the propellers off first, and check these signs against the
 client's attitude display.
 
-The radio belongs to a child process (:mod:`agents.cf_guard`) in its own session.
-When the agent dies, even by SIGKILL, its pipe closes and the guard sends the
-emergency stop. The agent stops the drone itself on:
+The radio belongs to the machine's link guard (:mod:`agents.cf_guard`), one process
+that serves every real drone on the machine, since a Crazyradio can be shared only
+within one process. When the agent dies, even by SIGKILL, its connection closes and
+the guard sends the emergency stop. The agent stops the drone itself on:
 
 * Ctrl-C;
 * a filter fault;
@@ -29,14 +30,18 @@ emergency stop. The agent stops the drone itself on:
 from __future__ import annotations
 
 import math
+import socket
 import subprocess
 import sys
 import threading
+import time
 from enum import StrEnum
+from pathlib import Path
 
 import msgpack
 import numpy as np
 
+from agents.cf_guard import default_socket
 from swarm.config import AgentConfig, CrazyflieSettings, ThrustCalibration
 from swarm.control import PathTracker
 from swarm.rotation import FloatArray
@@ -114,43 +119,67 @@ class FlightPlan:
 
 
 class CrazyflieLink:
-    """The agent's end of the guard process (:mod:`agents.cf_guard`)."""
+    """The agent's connection to the machine's link guard (:mod:`agents.cf_guard`),
+    started here in a session of its own if none is running."""
 
-    def __init__(self, settings: CrazyflieSettings, name: str) -> None:
+    def __init__(self, settings: CrazyflieSettings, name: str, socket_path: Path | None = None) -> None:
         self.settings, self.name = settings, name
-        args = [sys.executable, "-m", "agents.cf_guard", "--uri", settings.uri,
-                "--link-timeout", str(settings.link_timeout_s)]  # fmt: skip
-        if not settings.expect_replies:
-            args.append("--no-replies")
-        # its own session: stopping the agent's process group leaves the guard to stop the drone
-        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        self.path = socket_path or default_socket()
         self.ready = threading.Event()
         self.lost = threading.Event()
         self.lost_reason = ""
         self.stopped = False
+        self._lock = threading.Lock()
+        self.sock = self._connect()
         threading.Thread(target=self._read, daemon=True).start()
+        self._send(["hello", settings.uri, settings.link_timeout_s, settings.expect_replies])
+
+    def _connect(self, timeout_s: float = 15.0) -> socket.socket:
+        started = False
+        deadline = time.monotonic() + timeout_s
+        while True:
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                s.connect(str(self.path))
+                return s
+            except OSError:
+                s.close()
+            if not started:  # no guard on this machine yet: start one that outlives us
+                subprocess.Popen(
+                    [sys.executable, "-m", "agents.cf_guard", "--serve", str(self.path), "--exit-when-idle"],
+                    stdin=subprocess.DEVNULL, start_new_session=True,
+                )  # fmt: skip
+                started = True
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"agent {self.name}: no Crazyflie link guard at {self.path}")
+            time.sleep(0.02)  # waiting for the guard's socket to appear
 
     def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for raw in self.proc.stdout:
-            line = raw.decode(errors="replace").strip()
-            if line == "READY":
-                self.ready.set()
-            elif line.startswith("LINK_LOST"):
-                self.lost_reason = line[len("LINK_LOST") :].strip()
-                self.lost.set()
-        if not self.ready.is_set() or not self.stopped:
-            self.lost_reason = self.lost_reason or "the guard exited"
+        unpacker = msgpack.Unpacker(raw=False)
+        while True:
+            try:
+                chunk = self.sock.recv(4096)
+            except OSError:
+                chunk = b""
+            if not chunk:
+                break
+            unpacker.feed(chunk)
+            for frame in unpacker:
+                if frame == ["ready"]:
+                    self.ready.set()
+                elif isinstance(frame, list) and frame[:1] == ["lost"]:
+                    self.lost_reason = str(frame[1]) if len(frame) > 1 else "lost"
+                    self.lost.set()
+        if not self.stopped:
+            self.lost_reason = self.lost_reason or "the link guard closed the connection"
             self.lost.set()
 
     def _send(self, frame: list) -> None:
-        if self.proc.stdin is None or self.proc.poll() is not None:
-            return
-        try:
-            self.proc.stdin.write(msgpack.packb(frame))
-            self.proc.stdin.flush()
-        except (BrokenPipeError, OSError):
-            self.lost.set()
+        with self._lock:
+            try:
+                self.sock.sendall(msgpack.packb(frame))
+            except OSError:
+                self.lost.set()
 
     def setpoint(self, roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float) -> None:
         if not self.stopped:
@@ -168,13 +197,12 @@ class CrazyflieLink:
         self._send(["estop", reason])
         self.stopped = True
 
-    def close(self, timeout_s: float = 2.0) -> None:
-        """A clean end: the guard sends the stop setpoint and exits."""
+    def close(self) -> None:
+        """A clean end: the guard sends the stop setpoint and closes the link."""
         self.stopped = True
         self._send(["bye"])
         try:
-            if self.proc.stdin:
-                self.proc.stdin.close()
-            self.proc.wait(timeout_s)
-        except (subprocess.TimeoutExpired, OSError):
-            self.proc.kill()
+            self.sock.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass
+        self.sock.close()

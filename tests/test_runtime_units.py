@@ -185,3 +185,9 @@ def test_path_deviation_is_the_distance_to_the_polyline():
     pts = np.array([[1.0, 0.3, 1], [2.5, 1.0, 1], [0.0, 0, 1]])
     assert path_deviation(pts, path) == pytest.approx(0.5)
     assert path_deviation(pts[:1], path[:1]) == pytest.approx(np.hypot(1.0, 0.3))
+
+
+@pytest.mark.parametrize("path", sorted(Path(__file__).resolve().parent.parent.glob("configs/**/*.yaml")), ids=str)
+def test_every_shipped_config_validates(path):
+    cfg = load(path)
+    assert cfg.agents

@@ -9,13 +9,17 @@ first numeric axis with one line per combination of the other axes (seeds averag
 
 Knobs (DESIGN.md names; units in brackets):
 
-* ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered).
+* ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
+  or ``orca``: the ORCA baseline (``tools/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share).
+* ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
 * ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
   re-aimed so that it passes its configured centre when the first agent, flying its
   first path leg at its target speed, gets there. Angle 0 is head-on, 90 crosses from
   the agent's left, 180 comes from behind. Speed 0 makes it static.
 * ``seed``: the scenario seed.
+* For generated swaps (base ``circle``, ``sphere`` or ``random`` instead of a file):
+  ``agents``, ``radius`` [m], ``perturb_m`` [m] and ``density`` [1/m^2] (``swarm.scenario``).
 """
 
 from __future__ import annotations
@@ -245,6 +249,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     times = [a["time_to_goal_s"] for a in agents]
     ratios = [a["path_length_m"] / a["straight_line_m"] for a in agents if a["straight_line_m"] > 1e-9]
     hs = [a["min_h"] for a in agents if a["min_h"] is not None]
+    solve = [a["solve_us_mean"] for a in agents if a.get("solve_us_mean")]
     reached = bool(metrics.get("all_reached_goal"))
     return {
         "success": int(reached and metrics.get("collisions", 1) == 0),
@@ -259,9 +264,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         "infeasible_ticks": sum(a["infeasible_ticks"] for a in agents),
         "deadlock": int(bool(metrics.get("deadlocked_agents"))),
         "deadlocked_agents": len(metrics.get("deadlocked_agents", [])),
-        "solve_us_mean": float(np.mean(us))
-        if (us := [a["solve_us_mean"] for a in agents if a.get("solve_us_mean")])
-        else None,
+        "solve_us_mean": float(np.mean(solve)) if solve else None,
         "agents": len(agents),
         "stop_reason": metrics.get("stop_reason"),
     }

@@ -237,6 +237,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
             return
         if key == meas_key and m.kind == "measurement":
             pending.append(m)
+            last_meas[0] = time.monotonic()  # arrival time: a slow tick of ours is not a lost body
             msg_seen.setdefault(m.k, time.monotonic())
         elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
@@ -303,7 +304,6 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                 pending.clear()
             t0 = time.perf_counter()
             if link is not None and agent.plan is not None:
-                last_meas[0] = time.monotonic()
                 if agent.plan.outside_geofence(msg["x"]):
                     safety_stop(f"outside the geofence at {np.round(msg['x'], 3).tolist()}")
                     break

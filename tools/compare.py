@@ -17,6 +17,7 @@ from typing import Any
 from swarm.barriers import BarrierKind
 from swarm.config import ScenarioConfig
 from tools.launch import RunHandle
+from tools.sweep import summarise
 
 COLUMNS = (
     ("filter", "filter"),
@@ -24,7 +25,7 @@ COLUMNS = (
     ("min_clearance_m", "closest to an obstacle surface [m]"),
     ("min_separation_m", "closest between agents [m]"),
     ("min_h", "min h"),
-    ("time_to_goal_s", "time to goal [s] (latest)"),
+    ("max_time_to_goal_s", "time to goal [s] (latest)"),
     ("max_path_deviation_m", "largest path deviation [m]"),
     ("infeasible_ticks", "infeasible ticks"),
     ("all_reached_goal", "all reached goal"),
@@ -44,20 +45,8 @@ def with_filter(cfg: ScenarioConfig, name: str) -> ScenarioConfig:
 
 
 def row(name: str, metrics: dict[str, Any]) -> dict[str, Any]:
-    agents = metrics.get("agents", {}).values()
-    times = [a["time_to_goal_s"] for a in agents]
-    hs = [a["min_h"] for a in agents if a["min_h"] is not None]
-    return {
-        "filter": name,
-        "collisions": metrics.get("collisions"),
-        "min_clearance_m": metrics.get("min_obstacle_clearance_m"),
-        "min_separation_m": metrics.get("min_separation_m"),
-        "min_h": min(hs) if hs else None,
-        "time_to_goal_s": None if (not times or None in times) else max(times),
-        "max_path_deviation_m": max((a["max_path_deviation_m"] for a in agents), default=None),
-        "infeasible_ticks": sum(a["infeasible_ticks"] for a in agents),
-        "all_reached_goal": metrics.get("all_reached_goal"),
-    }
+    """One table row: the sweep's summary of the run (``tools.sweep.summarise``)."""
+    return {"filter": name, **summarise(metrics)}
 
 
 def compare(cfg: ScenarioConfig, filters: list[str], out: Path) -> list[dict[str, Any]]:

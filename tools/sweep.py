@@ -253,6 +253,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     reached = bool(metrics.get("all_reached_goal"))
     return {
         "success": int(reached and metrics.get("collisions", 1) == 0),
+        "all_reached_goal": reached,
         "collisions": metrics.get("collisions"),
         "min_clearance_m": metrics.get("min_obstacle_clearance_m"),
         "min_separation_m": metrics.get("min_separation_m"),

@@ -11,7 +11,8 @@ Knobs (DESIGN.md names; units in brackets):
 
 * ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
   or ``orca``: the ORCA baseline (``tools/orca.py``) instead of the swarm.
-* ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share).
+* ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
+  ``sensing_radius_m`` [m] (neighbours farther away get no row).
 * ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
 * ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
   re-aimed so that it passes its configured centre when the first agent, flying its
@@ -132,6 +133,7 @@ KNOBS: dict[str, Knob] = {
     "gamma": _each_filter("gamma", _float),
     "gamma_ho": _each_filter("gamma_ho", _float),
     "rho": _each_filter("rho", _float),
+    "sensing_radius_m": _each_filter("sensing_radius_m", _float),
     "obstacle_speed": _aim("speed_mps"),
     "approach_angle_deg": _aim("angle_deg"),
     "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
@@ -180,21 +182,6 @@ def default_radius(kind: str, n: int) -> float:
     return max(2.0, n * 0.6 / (2 * math.pi))
 
 
-ORDER = (
-    "agents",
-    "radius",
-    "perturb_m",
-    "density",
-    "seed",
-    "obstacle_speed",
-    "approach_angle_deg",
-    "filter",
-    "gamma",
-    "gamma_ho",
-    "rho",
-)
-
-
 def parse_axes(specs: list[str], known: dict[str, Knob] | None = None) -> dict[str, list[str]]:
     """``["gamma=0.5,1", ...]`` to ``{"gamma": ["0.5", "1"]}``, checked against the knobs."""
     known = KNOBS if known is None else known
@@ -234,8 +221,8 @@ def build(base: Raw, point: dict[str, str], knobs: dict[str, Knob] | None = None
         given = [k for k in point if k in GENERATED_ONLY]
         if given:
             raise ConfigError(f"--axis {given[0]}: only for generated scenarios (circle, sphere, random)")
-    for name in sorted(point, key=lambda n: ORDER.index(n) if n in ORDER else -1):
-        raw = knobs[name](raw, point[name])
+    for name, value in point.items():  # each knob edits its own fields: order does not matter
+        raw = knobs[name](raw, value)
     aim = raw.pop("_aim", None)
     if aim:
         aim_first_obstacle(raw, **aim)

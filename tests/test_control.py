@@ -43,3 +43,17 @@ def test_tracks_a_path_at_the_target_speed(level, rate_hz):
     assert np.abs(speed[cruise] - 1.0).max() < 0.05
     assert np.abs(x[t < 2.8, 1]).max() < 0.05  # stays on the first segment
     assert np.linalg.norm(x[-1] - waypoints[-1]) < 0.05
+
+
+def test_right_hand_bias_turns_right_of_the_heading_for_agents_ahead_only():
+    from swarm.control import right_hand_bias
+
+    x, heading = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    ahead = np.array([[1.0, 0.0, 0.0]])
+    b = right_hand_bias(x, heading, ahead, 2.0, 0.3)
+    assert b[1] < 0 and b[0] == 0 and b[2] == 0  # facing +x with z up, right is -y
+    assert np.linalg.norm(b) == pytest.approx(0.3 * 0.5)  # weight 1 - d / trigger
+    assert not right_hand_bias(x, heading, -ahead, 2.0, 0.3).any()  # behind: nothing
+    assert not right_hand_bias(x, heading, 3 * ahead, 2.0, 0.3).any()  # beyond the trigger: nothing
+    crowd = np.array([[0.2, 0.1, 0.0], [0.3, -0.1, 0.0], [0.2, 0.0, 0.1]])
+    assert np.linalg.norm(right_hand_bias(x, heading, crowd, 2.0, 0.3)) == pytest.approx(0.3)  # capped

@@ -114,6 +114,13 @@ class RunHandle:
         if "world" in ex:
             return "completed" if ex["world"] == 0 else f"world exited with {ex['world']}"
         if "recorder" in ex:
+            if ex["recorder"] == 0 and self.progress.status.get("done"):
+                # the world said done and the recorder finished its tail: the world is exiting
+                try:
+                    code = self.procs["world"].wait(30)
+                except subprocess.TimeoutExpired:
+                    return "the world did not exit after it reported done"
+                return "completed" if code == 0 else f"world exited with {code}"
             return f"recorder exited with {ex['recorder']}"
         dead = [n for n in ex if n.startswith("agent-")]
         if dead and stop_on_agent_death:

@@ -155,7 +155,8 @@ class Agent:
         bias = None
         if me.tiebreak.kind == "right_hand":
             tb = me.tiebreak
-            bias = right_hand_bias(x_b, tracker.desired_velocity(state.x_w), neighbours.c_w, tb.trigger_m, tb.speed_mps)
+            heading = tracker.desired_velocity(state.x_w)
+            bias = right_hand_bias(x_b, heading, neighbours.c_w, tb.trigger_m, tb.speed_mps, tracker.speed_mps)
         F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, bias)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours])

@@ -111,17 +111,20 @@ class PathTracker:
 
 
 def right_hand_bias(
-    x_w: FloatArray, heading_w: FloatArray, others_w: FloatArray, trigger_m: float, speed_mps: float
-) -> FloatArray:
+    x_w: FloatArray, heading_w: FloatArray, others_w: FloatArray, trigger_m: float, speed_mps: float,
+    cruise_mps: float | None = None,
+) -> FloatArray:  # fmt: skip
     """The right-hand rule, a deadlock tie-break [m/s, world].
 
     For every other agent ``others_w`` (k, 3) [m] closer than ``trigger_m`` and in front
     (positive along ``heading_w``, the commanded velocity), add a horizontal velocity to
     the right of the heading, ``heading x e3`` normalised, weighted ``1 - d / trigger_m``;
-    the sum is capped at ``speed_mps``. Every agent turning right is consistent: two agents
-    head-on pass left shoulder to left shoulder, and a symmetric swap turns into a
-    roundabout instead of a stall. It only changes the reference; the filter still
-    guarantees safety.
+    the sum is capped at ``speed_mps``. With ``cruise_mps`` (the agent's target speed
+    [m/s]) it is scaled by ``|heading| / cruise_mps`` (at most 1), so it fades out as the
+    tracker slows down to the goal: an agent that has arrived is not pushed around its goal
+    by its neighbours there. Every agent turning right is consistent: two agents head-on pass
+    left shoulder to left shoulder, and a symmetric swap turns into a roundabout instead of a
+    stall. It only changes the reference; the filter still guarantees safety.
     """
     out = np.zeros(3)
     hx, hy = float(heading_w[0]), float(heading_w[1])
@@ -132,8 +135,10 @@ def right_hand_bias(
     d_w = others_w - x_w
     dist = np.linalg.norm(d_w, axis=1)
     ahead = (d_w[:, 0] * hx + d_w[:, 1] * hy > 0) & (dist < trigger_m)
-    weight = float(np.sum(1.0 - dist[ahead] / trigger_m))
-    return right * (speed_mps * min(weight, 1.0))
+    weight = min(float(np.sum(1.0 - dist[ahead] / trigger_m)), 1.0)
+    if cruise_mps is not None and cruise_mps > 0:
+        weight *= min(1.0, n / cruise_mps)
+    return right * (speed_mps * weight)
 
 
 @dataclass(frozen=True)

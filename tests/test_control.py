@@ -57,3 +57,5 @@ def test_right_hand_bias_turns_right_of_the_heading_for_agents_ahead_only():
     assert not right_hand_bias(x, heading, 3 * ahead, 2.0, 0.3).any()  # beyond the trigger: nothing
     crowd = np.array([[0.2, 0.1, 0.0], [0.3, -0.1, 0.0], [0.2, 0.0, 0.1]])
     assert np.linalg.norm(right_hand_bias(x, heading, crowd, 2.0, 0.3)) == pytest.approx(0.3)  # capped
+    arriving = 0.1 * heading  # the tracker slows to 0.1 m/s near the goal, cruising at 1 m/s
+    assert np.linalg.norm(right_hand_bias(x, arriving, crowd, 2.0, 0.3, cruise_mps=1.0)) == pytest.approx(0.03)

@@ -40,17 +40,20 @@ DEFAULT_BACKEND = "daqp"
 
 
 @njit(cache=True)
-def _residuals(G, b, u, lb, ub, C, d):  # noqa: ANN001, ANN202
-    """``c = b - G u`` (>= 0 where a row holds) and the largest violation of a bound or
-    input row by ``u`` (0 when inside the input set)."""
+def _residuals(G, b, u, lb, ub, C, d, tol):  # noqa: ANN001, ANN202
+    """``c = b - G u`` (>= 0 where a row holds), the rows with ``c <= tol`` (active), and
+    the largest violation of a row, bound or input row by ``u`` (0 when all hold)."""
     n, m = G.shape
     c = np.empty(n)
+    active = np.empty(n, dtype=np.bool_)
+    v = 0.0
     for i in range(n):
         acc = b[i]
         for j in range(m):
             acc -= G[i, j] * u[j]
         c[i] = acc
-    v = 0.0
+        active[i] = acc <= tol
+        v = max(v, -acc)
     for j in range(m):
         v = max(v, lb[j] - u[j], u[j] - ub[j])
     for i in range(C.shape[0]):
@@ -58,7 +61,7 @@ def _residuals(G, b, u, lb, ub, C, d):  # noqa: ANN001, ANN202
         for j in range(m):
             acc += C[i, j] * u[j]
         v = max(v, acc)
-    return c, v
+    return c, active, v
 
 
 ACTIVE_TOL = 1e-8
@@ -265,7 +268,7 @@ class SafetyFilter:
             return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, np.zeros(n), t0, G, b, (rows.c_ref, 0.0), ins)
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
-        problem = QPProblem(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb)
+        problem = QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb)  # rows from the kernel
         sol = self._qp.solve(problem)
         if sol.status is QPStatus.FAILED and self._fallback is not None:
             sol = self._fallback.solve(problem)
@@ -313,12 +316,11 @@ class SafetyFilter:
         ins = ins or self.input_set
         if residuals is not None:  # the reference, already checked: c over [input rows; barrier rows]
             c, viol = residuals[0][ins.d.size :], residuals[1]
+            active = c <= ACTIVE_TOL
         else:
-            c, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
-        if c.size:
-            viol = max(viol, -float(c.min()))
+            c, active, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d, ACTIVE_TOL)  # c = Lg_h u - lower
         return FilterResult(
             u=u, u_ref=u_ref, status=status, row_index=idx, h=rows.h, constraint=c,
-            active=c <= ACTIVE_TOL, inside=rows.inside, slack=slack,
+            active=active, inside=rows.inside, slack=slack,
             solve_time_s=time.perf_counter() - t0, max_violation=viol,
         )  # fmt: skip

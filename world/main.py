@@ -9,6 +9,13 @@ published at wall time k * dt; commands are applied when they arrive and held un
 replaced, but a command older than ``time.command_timeout_s`` is not flown (the drone
 levels out and brakes). The clock message carries the roster of every drone's body
 centre, velocity and radius (used by agents with ``neighbours.source: world``).
+
+Real drones (``backend: crazyflie``, realtime only) are not simulated: the motion-capture
+relay (``world/mocap.py``) publishes their measurements at the capture rate from its own
+thread, PyBullet holds them as kinematic bodies at their measured poses (so contacts are
+still detected), their commands are recorded but not flown (they went to the drones by
+radio), and after the end the relay keeps going until they have landed or
+``time.land_timeout_s`` has passed.
 """
 
 from __future__ import annotations

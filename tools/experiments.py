@@ -23,7 +23,7 @@ DOCS = Path(__file__).resolve().parent.parent / "docs" / "experiments"
 
 SWEEPS = {
     "speed": ["filter=c3bf,hocbf", "obstacle_speed=0.1,0.5,1,1.5,2,3"],
-    "angle": ["filter=c3bf,hocbf", "obstacle_speed=1", "approach_angle_deg=0,45,90,135,180"],
+    "angle": ["filter=c3bf,hocbf", "obstacle_speed=1", "approach_angle_deg=0,45,90,135"],
     "gamma_c3bf": ["filter=c3bf", "obstacle_speed=1", "gamma=0.25,0.5,1,2,4"],
     "gamma_hocbf": ["filter=hocbf", "obstacle_speed=1", "gamma_ho=0.25,0.5,1,2,4"],
 }

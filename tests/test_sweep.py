@@ -58,3 +58,19 @@ def test_filter_and_gains_reach_every_agent():
 def test_an_obstacle_that_would_start_on_the_agent_is_refused():
     with pytest.raises(ConfigError, match="start on the agent"):
         build(BASE, {"obstacle_speed": "1", "approach_angle_deg": "180"})
+
+
+def test_plots_run_against_the_axis_that_varies():
+    from tools.sweep import aggregate
+
+    rows = [
+        {"filter": f, "obstacle_speed": "1", "gamma": g, "success": 1, "time_to_goal_s": 8.0 + float(g)}
+        for f in ("c3bf", "hocbf") for g in ("0.5", "1", "2")
+    ]  # fmt: skip
+    x_axis, table = aggregate(rows, ["filter", "obstacle_speed", "gamma"])
+    assert x_axis == "gamma"  # not obstacle_speed, which has one value
+    assert sorted(table) == [
+        (("filter", "c3bf"), ("obstacle_speed", "1")),
+        (("filter", "hocbf"), ("obstacle_speed", "1")),
+    ]
+    assert table[(("filter", "c3bf"), ("obstacle_speed", "1"))][2.0]["time_to_goal_s"] == 10.0

@@ -336,7 +336,8 @@ def _numeric(values: list[str]) -> bool:
 def aggregate(rows: list[dict[str, Any]], axes: list[str]) -> tuple[str | None, dict[tuple, dict[float, dict]]]:
     """Group rows by the non-x, non-seed axes; average each metric over seeds per x."""
     xs = [a for a in axes if a != "seed" and _numeric([str(r[a]) for r in rows])]
-    x_axis = xs[0] if xs else None
+    varied = [a for a in xs if len({str(r[a]) for r in rows}) > 1]
+    x_axis = (varied or xs or [None])[0]  # the first numeric axis that varies
     group_axes = [a for a in axes if a not in (x_axis, "seed")]
     groups: dict[tuple, dict[float, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:

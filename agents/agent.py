@@ -70,8 +70,24 @@ class Agent:
         hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
         encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
+        self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
+
+    def _warm_up_filter_paths(self) -> None:
+        """Load every compiled path of the filter now (the QP with active rows, the
+        least-violation QP, the landing filter): a first use mid-flight stalls that tick
+        for up to a second on a busy machine, long enough to look like a lost drone."""
+        state = QuadState.hover([0.0, 0.0, 1.0])
+        state.v_w = np.array([2.0, 0.0, 0.0])  # m/s, straight at the obstacles below
+        u_hover = self.att.from_thrust_vector(state, np.array([0.0, 0.0, self.model.params.weight_N]))
+        u = u_hover if self.level is CommandLevel.ROTORS else np.array([0.0, 0.0, self.model.params.weight_N])
+        ahead = ObstacleArrays.build([[1.5, 0.0, 1.0]], [0.2])  # active: the QP
+        wall = ObstacleArrays.build([[0.4, 0.0, 1.0], [0.4, 0.3, 1.0], [0.4, -0.3, 1.0]], [0.25, 0.25, 0.25])
+        for filt in (self.filt, self.filt_land):
+            if filt is not None:
+                for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
+                    filt.filter(state, u, obstacles)
 
     def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
         state_body = dict(
@@ -215,6 +231,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
             token.undeclare()
             return 2
     last_meas = [time.monotonic()]
+    last_tick_end = [0.0]  # our own tick can stall; the silence of the stream counts from its end
     flying = [False]  # a real drone has been sent a setpoint
 
     def safety_stop(reason: str) -> None:
@@ -284,7 +301,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                           file=sys.stderr)  # fmt: skip
                     link.stopped = True
                     break
-                silent_s = time.monotonic() - last_meas[0]
+                silent_s = time.monotonic() - max(last_meas[0], last_tick_end[0])  # while we listened
                 if flying[0] and not link.stopped and silent_s > cf_settings.mocap_timeout_s:
                     safety_stop(f"no motion-capture measurement for {silent_s:.2f} s (body lost)")
                     break
@@ -324,6 +341,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                     link.pose(msg["x"], msg["q"])
                     link.setpoint(*map(float, cmd_body["u"]))
                     flying[0] = True
+                last_tick_end[0] = time.monotonic()
             seq += 1
             pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **state_body))
             seq += 1

@@ -85,13 +85,16 @@ class FlightPlan:
         self.phase = Phase.MISSION
         self._takeoff: PathTracker | None = None
         self._land: PathTracker | None = None
+        self._first = True
 
     def tracker(self, x_w: FloatArray) -> PathTracker | None:
         """The tracker for this tick (None once landed or stopped)."""
         start = np.asarray(self.me.start, dtype=float)
-        if self._takeoff is None and self.phase is Phase.MISSION and x_w[2] < start[2] - 0.1:
-            self.phase = Phase.TAKEOFF
-            self._takeoff = PathTracker([x_w, [x_w[0], x_w[1], start[2]], start], self.cf.takeoff_speed_mps)
+        if self._first:  # only the first measurement decides: on the ground below its start, take off
+            self._first = False
+            if x_w[2] < start[2] - 0.1:
+                self.phase = Phase.TAKEOFF
+                self._takeoff = PathTracker([x_w, [x_w[0], x_w[1], start[2]], start], self.cf.takeoff_speed_mps)
         if self.phase is Phase.TAKEOFF:
             assert self._takeoff is not None
             if np.linalg.norm(x_w - start) < 0.1:

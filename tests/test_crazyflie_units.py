@@ -57,6 +57,7 @@ def test_flight_phases_take_off_fly_and_land():
     assert plan.tracker(on_ground) is not None and plan.phase is Phase.TAKEOFF
     assert plan.tracker(np.array([0.0, 0.0, 0.5])) is not None and plan.phase is Phase.TAKEOFF
     assert plan.tracker(np.array([0.0, 0.0, 0.97])) is plan.mission and plan.phase is Phase.MISSION
+    assert plan.tracker(np.array([0.5, 0.0, 0.6])) is plan.mission  # a dip mid-mission is not a new takeoff
     plan.land()
     assert plan.tracker(np.array([1.0, 0.0, 1.0])) is not None and plan.phase is Phase.LAND
     assert plan.tracker(np.array([1.0, 0.0, 0.05])) is None and plan.phase is Phase.LANDED
@@ -142,3 +143,9 @@ def test_relay_counts_dropped_frames_and_reports_a_lost_body():
     assert lost == ["b"]  # once, about 0.1 s after its last frame
     assert relay.latest("a").v_w[0] == pytest.approx(1.0, rel=1e-3)  # 0.01 m per 10 ms frame
     assert all(np.isfinite(e.v_w).all() for _, e in frames)
+
+
+def test_a_drone_already_in_the_air_starts_its_mission_directly():
+    plan = FlightPlan(_real_agent())
+    assert plan.tracker(np.array([0.0, 0.0, 0.98])) is plan.mission and plan.phase is Phase.MISSION
+    assert plan.tracker(np.array([0.3, 0.0, 0.5])) is plan.mission

@@ -3,7 +3,9 @@
 :class:`PoseDifferentiator` (pure) turns timed poses into a full measurement: linear
 velocity [m/s, world] by differencing positions, body rates [rad/s, body] from the
 relative rotation of consecutive frames, both low-passed with one time constant. It also
-counts dropped frames (a gap longer than 1.5 nominal periods). :class:`MocapRelay` runs
+counts dropped frames (a gap longer than 1.5 nominal periods). Frames are timed by the
+relay's monotonic clock when they arrive, so thread-scheduling jitter shows up as noise
+in the differences; the low-pass (``mocap.velocity_filter_s``) takes most of it out. :class:`MocapRelay` runs
 the capture loop in a thread (``waitForNextFrame`` blocks until the system's next frame),
 keeps one differentiator per tracked body, hands every frame to a callback (the world
 publishes the measurements from it, at the capture rate), and reports a body lost when
@@ -63,8 +65,10 @@ class PoseDifferentiator:
         q = np.asarray(q, dtype=float)
         q = q / np.linalg.norm(q)
         prev = self.last
-        if prev is None or t_s <= prev.t_s:
+        if prev is None:
             est = BodyEstimate(t_s, x_w, q, np.zeros(3), np.zeros(3))
+        elif t_s <= prev.t_s:  # no time has passed: a repeated frame keeps the rates it had
+            return BodyEstimate(prev.t_s, x_w, q, prev.v_w, prev.Omega_b)
         else:
             dt = t_s - prev.t_s
             if dt > 1.5 * self.period_s:

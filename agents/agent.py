@@ -89,13 +89,18 @@ class Agent:
                 for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
                     filt.filter(state, u, obstacles)
 
-    def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
-        state_body = dict(
+    def _state_body(self, x_b: np.ndarray, v_b: np.ndarray, status: str, solve_us: float = 0.0,
+                    row_ids: list[str] | None = None, h_rows: np.ndarray | None = None) -> dict:  # fmt: skip
+        """This agent's state message body: body centre [m] and its velocity [m/s], world."""
+        return dict(
             x=x_b, v=v_b, r=self.model.params.body_radius_m, goal_reached=self.reached,
-            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status="ok", infeasible=self.infeasible,
-            solve_us=0.0, row_ids=[], h_rows=np.zeros(0),
+            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status=status, infeasible=self.infeasible,
+            solve_us=solve_us, row_ids=row_ids or [], h_rows=np.zeros(0) if h_rows is None else h_rows,
         )  # fmt: skip
-        return state_body, dict(level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
+
+    def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
+        off = dict(level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
+        return self._state_body(x_b, v_b, "ok"), off
 
     def on_obstacles(self, m: Message) -> None:
         if m.k >= self.obstacles_k:
@@ -168,12 +173,11 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
-        bias = None
+        v_des = tracker.desired_velocity(state.x_w)
         if me.tiebreak.kind == "right_hand":
             tb = me.tiebreak
-            heading = tracker.desired_velocity(state.x_w)
-            bias = right_hand_bias(x_b, heading, neighbours.c_w, tb.trigger_m, tb.speed_mps, tracker.speed_mps)
-        F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, bias)
+            v_des = v_des + right_hand_bias(x_b, v_des, neighbours.c_w, tb.trigger_m, tb.speed_mps, tracker.speed_mps)
+        F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, v_des)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours])
         row_ids: list[str] = []
@@ -192,11 +196,7 @@ class Agent:
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
         self.reached = self.reached or bool(np.linalg.norm(state.x_w - self.goal) <= self.cfg.goal_tolerance_m)
-        state_body = dict(
-            x=x_b, v=v_b, r=model.params.body_radius_m, goal_reached=self.reached,
-            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status=status.value,
-            infeasible=self.infeasible, solve_us=solve_us, row_ids=row_ids, h_rows=h_rows,
-        )  # fmt: skip
+        state_body = self._state_body(x_b, v_b, status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
             sp = setpoint_from_thrust_vector(u, math.atan2(R[1, 0], R[0, 0]), me.yaw_rad)  # yaw from R
             cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])

@@ -88,13 +88,11 @@ class PathTracker:
         speed = min(self.speed_mps, g.kp_per_s * remaining)
         return speed * tangent + g.kp_per_s * (c - x_w)
 
-    def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_bias_w: FloatArray | None = None) -> FloatArray:
-        """Commanded acceleration [m/s^2, world] (without gravity compensation);
-        ``v_bias_w`` [m/s, world] is added to the commanded velocity (a tie-break)."""
+    def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None) -> FloatArray:
+        """Commanded acceleration [m/s^2, world] (without gravity compensation) towards the
+        commanded velocity ``v_des_w`` [m/s, world] (default: :meth:`desired_velocity`)."""
         g = self.gains
-        v_des = self.desired_velocity(x_w)
-        if v_bias_w is not None:
-            v_des = v_des + v_bias_w
+        v_des = self.desired_velocity(x_w) if v_des_w is None else v_des_w
         a = g.kd_per_s * (v_des - v_w)
         h = math.hypot(a[0], a[1])
         if h > g.max_horizontal_accel_mps2:
@@ -103,11 +101,12 @@ class PathTracker:
         return a
 
     def thrust_vector(
-        self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_bias_w: FloatArray | None = None
+        self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None
     ) -> FloatArray:
-        """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]."""
+        """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]; ``v_des_w`` as in
+        :meth:`desired_accel`."""
         p = model.params
-        return p.mass_kg * (self.desired_accel(x_w, v_w, v_bias_w) + p.g_mps2 * E3)
+        return p.mass_kg * (self.desired_accel(x_w, v_w, v_des_w) + p.g_mps2 * E3)
 
 
 def right_hand_bias(

@@ -228,6 +228,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     k = 0
     done = False
     names = list(slots)
+    flown = [a for a in names if a not in real]  # simulated drones: PyBullet flies them
     phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
     try:
         for k in range(K + 1):
@@ -242,11 +243,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     poll_commands(k - 1, target)
             poll_liveliness()
             # ground truth for metrics and measurements (motion capture for real drones)
-            states = {a: sim.state(a) for a in names}
-            for a in real:
-                est = relay.latest(a) if relay else None
-                if est is not None:
-                    states[a] = QuadState(est.x_w, est.v_w, est.q, est.Omega_b)
+            states = {}
+            for a in names:
+                est = relay.latest(a) if relay and a in real else None
+                states[a] = QuadState(est.x_w, est.v_w, est.q, est.Omega_b) if est else sim.state(a)
             items = obstacle_items(cfg.obstacles, t)
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
@@ -318,7 +318,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     while time.monotonic() < target:
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
-                st_now = states if j == 0 else {a: sim.state(a) for a in names}
+                st_now = states if j == 0 else {a: sim.state(a) for a in flown}
                 for a in real:  # real drones: where motion capture saw them last
                     est = relay.latest(a) if relay else None
                     if est is not None:
@@ -330,7 +330,6 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         if not slots[a].dead and slots[a].command is not None
                         and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
                     }  # fmt: skip
-                flown = [a for a in names if a not in real]
                 att = [
                     a for a in flown if not slots[a].dead and a not in stale and slots[a].level is CommandLevel.ATTITUDE
                 ]

@@ -41,14 +41,16 @@ def test_thrust_calibration_and_setpoint_units():
     assert (r, p, y, t) == pytest.approx((5.0, -3.0, 30.0, 31_000))
 
 
-def _real_agent(**cf):
-    raw = {
-        "version": 1, "name": "real", "duration_s": 5, "time": {"mode": "realtime"},
-        "mocap": {"type": "mock"},
+def _raw(**cf):
+    return {
+        "version": 1, "name": "real", "duration_s": 5, "time": {"mode": "realtime"}, "mocap": {"type": "mock"},
         "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0, 0, 1.0], "goal": [1.0, 0, 1.0],
                     "crazyflie": {"uri": "udp://127.0.0.1:19850", **cf}}],
     }  # fmt: skip
-    return resolve(raw).agents[0]
+
+
+def _real_agent(**cf):
+    return resolve(_raw(**cf)).agents[0]
 
 
 def test_flight_phases_take_off_fly_and_land():
@@ -73,11 +75,7 @@ def test_flight_phases_take_off_fly_and_land():
     ],
 )
 def test_real_drone_configs_are_checked(change, needle):
-    raw = {
-        "version": 1, "name": "real", "duration_s": 5, "time": {"mode": "realtime"}, "mocap": {"type": "mock"},
-        "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0, 0, 1.0],
-                    "crazyflie": {"uri": "udp://127.0.0.1:19850"}}],
-    }  # fmt: skip
+    raw = _raw()
     raw.update(change)
     with pytest.raises(ConfigError, match=needle):
         resolve(raw)

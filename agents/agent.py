@@ -2,12 +2,13 @@
 
     swarm agent CONFIG --id ID [--run RUN] [--port P]
 
-An event loop over one inbox (the agent's measurement, each neighbour's state, the
-obstacles, the clock): nothing polls. On each measurement it builds one row per
-obstacle and per neighbour in range, filters the reference command, and publishes this
-agent's state and then its command. In lockstep it first waits (with a deadline) for
-the world's clock and obstacles of tick k and every live neighbour's state of tick k-1,
-and uses exactly those, so two runs of one config compute the same commands; in
+An event loop over one inbox (the world's clock, which carries this agent's measurement
+and the obstacles; each neighbour's state; a real drone's motion-capture measurement):
+nothing polls. On each measurement it builds one row per obstacle and per neighbour in
+range, filters the reference command, and publishes this agent's state (unless the
+neighbours come from the world's roster) and then its command with the filter's report.
+In lockstep it first waits (with a deadline) for every live neighbour's state of tick
+k-1 and uses exactly those, so two runs of one config compute the same commands; in
 realtime it uses the newest of everything.
 """
 
@@ -26,7 +27,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
 from swarm.filter import FilterStatus, SafetyFilter
-from swarm.messages import Message, encode
+from swarm.messages import Message, clock_measurement, encode
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
@@ -54,7 +55,6 @@ class Agent:
         self.goal = np.asarray(me.final_goal)
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.obstacles = ObstacleArrays.empty()
-        self.obstacles_k = -1
         self.from_world = cfg.neighbours.source == "world"
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
@@ -69,7 +69,8 @@ class Agent:
         # real tick pays for it.
         hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
-        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
+        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
+               dropped=0, **self._report("ok"))  # fmt: skip
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
@@ -89,23 +90,23 @@ class Agent:
                 for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
                     filt.filter(state, u, obstacles)
 
-    def _state_body(self, x_b: np.ndarray, v_b: np.ndarray, status: str, solve_us: float = 0.0,
-                    row_ids: list[str] | None = None, h_rows: np.ndarray | None = None) -> dict:  # fmt: skip
-        """This agent's state message body: body centre [m] and its velocity [m/s], world."""
+    def _report(self, status: str, solve_us: float = 0.0, row_ids: list[str] | None = None,
+                h_rows: np.ndarray | None = None) -> dict:  # fmt: skip
+        """The filter's report of this tick, sent with the command."""
         return dict(
-            x=x_b, v=v_b, r=self.model.params.body_radius_m, goal_reached=self.reached,
-            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, status=status, infeasible=self.infeasible,
-            solve_us=solve_us, row_ids=row_ids or [], h_rows=np.zeros(0) if h_rows is None else h_rows,
+            status=status, solve_us=solve_us, row_ids=row_ids or [], h_rows=np.zeros(0) if h_rows is None else h_rows,
+            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, infeasible=self.infeasible,
+            goal_reached=self.reached,
         )  # fmt: skip
 
     def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
-        off = dict(level=self.level.value, u=np.zeros(4), intervention=0.0, status="ok")
-        return self._state_body(x_b, v_b, "ok"), off
+        off = dict(level=self.level.value, u=np.zeros(4), intervention=0.0, **self._report("ok"))
+        return self._state_body(x_b, v_b), off
 
-    def on_obstacles(self, m: Message) -> None:
-        if m.k >= self.obstacles_k:
-            self.obstacles, self.obstacles_k = items_to_arrays(m["items"]), m.k
-            self.obstacle_ids = [i["id"] for i in m["items"]]
+    def _state_body(self, x_b: np.ndarray, v_b: np.ndarray) -> dict:
+        """This agent's state message body: body centre [m], its velocity [m/s], world,
+        and the bounding radius [m]."""
+        return dict(x=x_b, v=v_b, r=self.model.params.body_radius_m)
 
     def neighbour_ids(self, neighbours: ObstacleArrays) -> list[str]:
         """Names of the neighbour rows, in the order the neighbour sources build them."""
@@ -114,8 +115,12 @@ class Agent:
         return self.table.row_names[: len(neighbours)]
 
     def on_clock(self, m: Message) -> None:
+        """Tick k's live agents and obstacles, and (world source) the roster."""
         self.clock_live[m.k] = m["live"]
-        if self.from_world and m["xvr"].size == 7 * len(m["ids"]):
+        if m.k >= max(self.clock_live):
+            self.obstacles = items_to_arrays(m["items"])
+            self.obstacle_ids = [i["id"] for i in m["items"]]
+        if self.from_world:
             # the world's roster: every other drone's body centre, velocity and radius at tick k
             mine = [i for i, name in enumerate(m["ids"]) if name in self.others]
             self.roster_ids = [m["ids"][i] for i in mine]
@@ -142,9 +147,9 @@ class Agent:
                               arr.axis_w, arr.is_neighbour)  # fmt: skip
 
     def ready(self, k: int) -> bool:
-        """Lockstep: has everything of tick k arrived (clock, obstacles, neighbours k-1)?"""
+        """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
         live = self.clock_live.get(k)
-        if live is None or (self.cfg.obstacles and self.obstacles_k < k):
+        if live is None:
             return False
         if self.from_world:
             return True  # the clock of tick k carried every neighbour's tick-k state
@@ -196,13 +201,13 @@ class Agent:
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
         self.reached = self.reached or bool(np.linalg.norm(state.x_w - self.goal) <= self.cfg.goal_tolerance_m)
-        state_body = self._state_body(x_b, v_b, status.value, solve_us, row_ids, h_rows)
+        report = self._report(status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
             sp = setpoint_from_thrust_vector(u, math.atan2(R[1, 0], R[0, 0]), me.yaw_rad)  # yaw from R
             cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
         else:
             cmd = u
-        return state_body, dict(level=level.value, u=cmd, intervention=intervention, status=status.value)
+        return self._state_body(x_b, v_b), dict(level=level.value, u=cmd, intervention=intervention, **report)
 
 
 def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: ANN001, C901
@@ -215,9 +220,11 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     counter = tp.Counter()
     meas_key = keys.measurement(agent_id)
     neighbour_keys = [] if agent.from_world else [keys.state(n) for n in sorted(agent.others)]
-    inbox = tp.Inbox(session, [meas_key, keys.obstacles, keys.clock, *neighbour_keys], 1 << 14)
+    real_drone = agent.plan is not None  # measured by motion capture on its own key, not in the clock
+    inbox = tp.Inbox(session, [keys.clock, *neighbour_keys, *([meas_key] if real_drone else [])])
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-    pub_state = session.declare_publisher(keys.state(agent_id))
+    # with neighbours from the world's roster nobody needs this agent's own state message
+    pub_state = None if agent.from_world else session.declare_publisher(keys.state(agent_id))
     pub_cmd = session.declare_publisher(keys.command(agent_id))
     token = tp.declare_liveliness(session, keys.alive(agent_id))
     startup_cpu_s = time.process_time()
@@ -259,10 +266,12 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
             msg_seen.setdefault(m.k, time.monotonic())
         elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
-        elif m.kind == "obstacles" and key == keys.obstacles:
-            agent.on_obstacles(m)
         elif m.kind == "clock" and key == keys.clock:
             agent.on_clock(m)
+            mine = None if real_drone or m["done"] else clock_measurement(m, agent_id)
+            if mine is not None:
+                pending.append(mine)
+                msg_seen.setdefault(m.k, time.monotonic())
             if m["done"]:
                 if agent.plan is not None and flying[0] and agent.plan.phase in (Phase.TAKEOFF, Phase.MISSION):
                     agent.plan.land()  # the run is over: a real drone lands on its measurements
@@ -342,10 +351,11 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                     link.setpoint(*map(float, cmd_body["u"]))
                     flying[0] = True
                 last_tick_end[0] = time.monotonic()
+            if pub_state is not None:
+                seq += 1
+                pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, **state_body))
             seq += 1
-            pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **state_body))
-            seq += 1
-            pub_cmd.put(encode("command", run, agent_id, seq, msg.t, msg.k, **cmd_body))
+            pub_cmd.put(encode("command", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **cmd_body))
             tick_s.append(time.perf_counter() - t0)
     finally:
         if link is not None:

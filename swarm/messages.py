@@ -17,25 +17,37 @@ from typing import Any
 import msgpack
 import numpy as np
 
-VERSION = 1
+VERSION = 2  # 2: the clock carries the measurements and obstacles; the command the filter report
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length float list, "ls" list of str, "obs" obstacle list
 SCHEMAS: dict[str, dict[str, Any]] = {
     "measurement": {"x": 3, "v": 3, "q": 4, "w": 3},
-    "state": {
-        "x": 3, "v": 3, "r": "f", "goal_reached": "b", "min_h": "f", "status": "s",
-        "infeasible": "i", "solve_us": "f", "dropped": "i", "row_ids": "ls", "h_rows": "vf",
+    # what a neighbour needs of an agent: its body centre, velocity and bounding radius
+    "state": {"x": 3, "v": 3, "r": "f"},
+    # what the world needs (the command of the agent's level), then the filter's report
+    # of this tick for the record: status, intervention |u - u_ref|, solve time [us],
+    # the names and h of the rows, and the agent's running counts
+    "command": {
+        "level": "s", "u": "vf", "intervention": "f", "status": "s", "solve_us": "f", "row_ids": "ls",
+        "h_rows": "vf", "min_h": "f", "infeasible": "i", "goal_reached": "b", "dropped": "i",
     },
-    "command": {"level": "s", "u": "vf", "intervention": "f", "status": "s"},
-    "obstacles": {"items": "obs"},
-    "clock": {"live": "ls", "done": "b", "ids": "ls", "xvr": "vf"},
+    "clock": {
+        "live": "ls", "done": "b", "ids": "ls", "xvr": "vf", "meas_ids": "ls", "meas": "vf", "items": "obs",
+    },
     "status": {
         "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
-        "dropped": "i", "live": "ls", "done": "b",
+        "dropped": "i", "live": "ls", "done": "b", "infeasible": "i",
     },
     "collision": {"a": "s", "b": "s"},
 }  # fmt: skip
+# The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
+#   live, done       the agents the world expects answers from; the run is over
+#   ids, xvr         the roster: per drone its body centre [m], velocity [m/s] and radius [m]
+#   meas_ids, meas   per simulated drone its measurement x [m], v [m/s], q (x, y, z, w), w [rad/s]
+#   items            the obstacles at tick k
+# Real drones' measurements come from the motion-capture relay on their own key.
+CLOCK_XVR, CLOCK_MEAS = 7, 13
 HEADER = ("ver", "kind", "run", "src", "seq", "t", "k")
 
 
@@ -162,6 +174,11 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
             body[name] = list(x)
         else:
             body[name] = _obstacles(x)
+    if kind == "clock":
+        n, n_meas = len(body["ids"]), len(body["meas_ids"])
+        if body["xvr"].size != CLOCK_XVR * n or body["meas"].size != CLOCK_MEAS * n_meas:
+            raise DecodeError(f"clock: xvr of {body['xvr'].size} for {n} ids, meas of {body['meas'].size} "
+                              f"for {n_meas} meas_ids")  # fmt: skip
     return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
 
 
@@ -178,3 +195,39 @@ def to_json(msg: Message) -> dict[str, Any]:
         return v
 
     return {"kind": msg.kind, "src": msg.src, "seq": msg.seq, "t": msg.t, "k": msg.k, **conv(msg.body)}
+
+
+def clock_measurement(clock: Message, agent_id: str) -> Message | None:
+    """The measurement of ``agent_id`` that ``clock`` carries, as a measurement message
+    of the clock's tick (None when the clock carries none for it)."""
+    try:
+        i = clock["meas_ids"].index(agent_id)
+    except ValueError:
+        return None
+    row = clock["meas"][CLOCK_MEAS * i : CLOCK_MEAS * (i + 1)]
+    body = {"x": row[0:3], "v": row[3:6], "q": row[6:10], "w": row[10:13]}
+    return Message("measurement", clock.run, clock.src, clock.seq, clock.t, clock.k, body)
+
+
+def expand_record(record: dict[str, Any]) -> list[dict[str, Any]]:
+    """A recorded clock (a :func:`to_json` dict) as the records it bundles: a
+    ``measurement`` record per drone it measured (with its ``agent``) and an
+    ``obstacles`` record, after the clock itself; any other record as itself. Readers of
+    a run (metrics, reports) see one measurement per drone and tick, whatever carried it."""
+    if record.get("kind") != "clock" or "meas_ids" not in record:
+        return [record]
+    head = {k: record[k] for k in ("src", "seq", "t", "k") if k in record}
+    out = [record]
+    meas = record["meas"]
+    for i, aid in enumerate(record["meas_ids"]):
+        row = meas[CLOCK_MEAS * i : CLOCK_MEAS * (i + 1)]
+        out.append({**head, "kind": "measurement", "agent": aid, "x": row[0:3], "v": row[3:6], "q": row[6:10],
+                    "w": row[10:13]})  # fmt: skip
+    out.append({**head, "kind": "obstacles", "items": record["items"]})
+    return out
+
+
+def measurement_agent(record: dict[str, Any]) -> str:
+    """Agent id of a measurement record: its ``agent`` (bundled in a clock) or the id in
+    its key ``.../world/<id>/measurement``."""
+    return str(record.get("agent") or record["topic"].split("/")[-2])

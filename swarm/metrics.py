@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from swarm.config import ScenarioConfig
+from swarm.messages import measurement_agent
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
 
@@ -65,7 +66,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, np.ndarray]] = defaultdict(dict)
     obstacles_at: dict[int, Any] = {}
-    last_state: dict[str, dict[str, Any]] = {}
+    last_report: dict[str, dict[str, Any]] = {}
     min_h: dict[str, float] = defaultdict(lambda: math.inf)
     solve_us: dict[str, list[float]] = defaultdict(list)
     statuses: list[dict[str, Any]] = []
@@ -73,14 +74,14 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     for r in records:
         kind = r["kind"]
         if kind == "measurement":
-            aid = _agent_of(r)
+            aid = measurement_agent(r)
             x, q = np.asarray(r["x"]), np.asarray(r["q"])
             meas[aid].append((r["t"], r["k"], x, np.asarray(r["v"])))
             by_tick[r["k"]][aid] = x + l_m.get(aid, 0.0) * quat_to_R(q)[:, 2]
         elif kind == "obstacles":
             obstacles_at[r["k"]] = r["items"]
-        elif kind == "state":
-            last_state[r["src"]] = r
+        elif kind == "command":
+            last_report[r["src"]] = r
             min_h[r["src"]] = min(min_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
         elif kind == "status":
@@ -108,7 +109,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         us = np.asarray(solve_us.get(a.id, []))
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
-        st = last_state.get(a.id, {})
+        st = last_report.get(a.id, {})
         agents[a.id] = {
             "reached_goal": bool(hit.size),
             "time_to_goal_s": float(m[hit[0]][0]) if hit.size else None,
@@ -167,8 +168,3 @@ def _motion(t_s: np.ndarray, v_w: np.ndarray, path_w: np.ndarray) -> dict[str, A
         "backward_time_s": float(dt[along < -0.02].sum()),
         "final_speed_mps": float(np.linalg.norm(v_w[-1])),
     }
-
-
-def _agent_of(record: dict[str, Any]) -> str:
-    """Agent id of a measurement record (its key is .../world/<id>/measurement)."""
-    return str(record.get("agent") or record["topic"].split("/")[-2])

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarm.config import ConfigError, dump, load, resolve
-from swarm.messages import DecodeError, decode, encode
+from swarm.messages import VERSION, DecodeError, clock_measurement, decode, encode, expand_record, to_json
 from swarm.metrics import compute
 from swarm.neighbours import NeighbourTable
 from swarm.scenario import circle_swap
@@ -80,16 +80,41 @@ def test_generated_circle_is_antipodal_and_valid():
 
 
 def test_messages_round_trip():
-    body = dict(
-        x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, goal_reached=True, min_h=-0.1, status="ok", infeasible=2,
-        solve_us=40.0, dropped=0, row_ids=["ball"], h_rows=[0.5],
-    )  # fmt: skip
-    b = encode("state", "r", "cf1", 7, 1.5, 3, **body)
-    m = decode(b, "r", ("state",))
+    m = decode(encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07), "r", ("state",))
     assert (m.kind, m.src, m.seq, m.t, m.k) == ("state", "cf1", 7, 1.5, 3)
     np.testing.assert_array_equal(m["x"], [1, 2, 3])
-    assert m["goal_reached"] is True and m["infeasible"] == 2
+    body = dict(
+        level="rotors", u=[0.1, 0.1, 0.1, 0.1], intervention=0.2, goal_reached=True, min_h=-0.1, status="ok",
+        infeasible=2, solve_us=40.0, dropped=0, row_ids=["ball"], h_rows=[0.5],
+    )  # fmt: skip
+    m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
+    assert m["goal_reached"] is True and m["infeasible"] == 2 and m["u"].tolist() == [0.1] * 4
     assert m["row_ids"] == ["ball"] and m["h_rows"].tolist() == [0.5]
+
+
+def _clock(**over):
+    body = dict(live=["a", "b"], done=False, ids=["a", "b"], xvr=np.arange(14.0), meas_ids=["b"],
+                meas=np.arange(13.0), items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0],
+                                              "r": 0.5, "a": [0, 0, 0]}])  # fmt: skip
+    return encode("clock", "r", "world", 4, 0.5, 50, **{**body, **over})
+
+
+def test_the_clock_carries_each_measured_drone_and_the_obstacles():
+    m = decode(_clock(), "r", ("clock",))
+    mine = clock_measurement(m, "b")
+    assert mine is not None and (mine.kind, mine.k, mine.t) == ("measurement", 50, 0.5)
+    assert [mine[f].tolist() for f in ("x", "v", "q", "w")] == [[0, 1, 2], [3, 4, 5], [6, 7, 8, 9], [10, 11, 12]]
+    assert clock_measurement(m, "a") is None  # in the roster, but not measured by the world (a real drone)
+    recs = expand_record(to_json(m))
+    assert [r["kind"] for r in recs] == ["clock", "measurement", "obstacles"]
+    assert recs[1]["agent"] == "b" and recs[1]["q"] == [6, 7, 8, 9] and recs[1]["k"] == 50
+    assert recs[2]["items"][0]["id"] == "s"
+
+
+@pytest.mark.parametrize("over", [dict(xvr=np.arange(13.0)), dict(meas=np.arange(26.0)), dict(meas_ids=[])])
+def test_a_clock_whose_arrays_do_not_match_its_ids_is_rejected(over):
+    with pytest.raises(DecodeError, match="clock"):
+        decode(_clock(**over), "r")
 
 
 @settings(max_examples=300, deadline=None)
@@ -104,7 +129,7 @@ def test_arbitrary_bytes_never_raise_anything_but_decode_error(data):
 @pytest.mark.parametrize(
     "mutate",
     [
-        lambda m: m.update(ver=2),
+        lambda m: m.update(ver=VERSION + 1),
         lambda m: m.update(run="other"),
         lambda m: m.update(kind="nope"),
         lambda m: m.pop("seq"),

@@ -71,11 +71,8 @@ def run_scenario(
                 st = handle.progress.status
                 if st:
                     sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
-                    infeasible = sum(handle.progress.infeasible.values())
-                    bar.update(
-                        task, completed=min(handle.progress.t_s, cfg.duration_s),
-                        info=f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {infeasible}  coll {st['collisions']}",
-                    )  # fmt: skip
+                    info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
+                    bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
                 if interrupted["now"]:
                     reason = "interrupted"
                 elif reason is None and time.monotonic() > limit:

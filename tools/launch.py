@@ -42,7 +42,6 @@ def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
 class Progress:
     t_s: float = 0.0
     status: dict[str, Any] = field(default_factory=dict)
-    infeasible: dict[str, int] = field(default_factory=dict)
 
 
 class RunHandle:
@@ -71,7 +70,6 @@ class RunHandle:
         h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
         h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
-        h._states = tp.open_channel(h._session, tp.Keys(h.run).all_states, 1 << 15)
         return h
 
     def _spawn(self, name: str, args: list[str]) -> None:
@@ -104,12 +102,6 @@ class RunHandle:
             except DecodeError:
                 continue
             self.progress.t_s, self.progress.status = m.t, m.body
-        for s in tp.drain(self._states):
-            try:
-                m = decode(tp.payload(s), self.run, ("state",))
-            except DecodeError:
-                continue
-            self.progress.infeasible[m.src] = m["infeasible"]
         ex = self.exited()
         if "world" in ex:
             return "completed" if ex["world"] == 0 else f"world exited with {ex['world']}"

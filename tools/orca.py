@@ -95,7 +95,7 @@ def run_orca(
         sim.do_step()
         per_agent_us = (time.perf_counter() - t0) * 1e6 / n
         for aid in ids:
-            records.append({"kind": "state", "src": aid, "t": t, "k": k, "min_h": math.inf, "solve_us": per_agent_us,
+            records.append({"kind": "command", "src": aid, "t": t, "k": k, "min_h": math.inf, "solve_us": per_agent_us,
                             "infeasible": 0, "dropped": 0})  # fmt: skip
     records.append({"kind": "status", "t": k * dt, "k": k, "live": ids, "rtf": 0.0, "late": 0, "dropped": 0})
     metrics = compute(cfg, records)

@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Circle, Polygon  # noqa: E402
 
 from swarm.config import ScenarioConfig  # noqa: E402
+from swarm.messages import measurement_agent  # noqa: E402
 from swarm.rotation import quat_to_R  # noqa: E402
 from swarm.scenario import items_to_arrays, surface_clearance  # noqa: E402
 from tools.runfiles import read_config, read_records, write_metrics  # noqa: E402
@@ -37,16 +38,15 @@ def _series(cfg: ScenarioConfig, records: list[dict[str, Any]]) -> dict[str, Any
     for r in records:
         kind = r["kind"]
         if kind == "measurement":
-            aid = r["topic"].split("/")[-2]
+            aid = measurement_agent(r)
             x, q = np.asarray(r["x"]), np.asarray(r["q"])
             out["t"][aid].append(r["t"])
             out["x"][aid].append(x)
             out["xb"][aid].append(x + l_m.get(aid, 0.0) * quat_to_R(q)[:, 2])
             out["speed"][aid].append(float(np.linalg.norm(r["v"])))
-        elif kind == "state":
+        elif kind == "command":
             for rid, h in zip(r.get("row_ids", []), r.get("h_rows", []), strict=False):
                 out["h"][r["src"]][rid].append((r["t"], h))
-        elif kind == "command":
             out["iv"][r["src"]].append((r["t"], r["intervention"]))
         elif kind == "obstacles":
             out["obstacles"][r["k"]] = (r["t"], r["items"])

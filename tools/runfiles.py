@@ -9,11 +9,13 @@ from typing import Any
 from mcap.reader import make_reader
 
 from swarm.config import ScenarioConfig, load
+from swarm.messages import expand_record
 from swarm.metrics import compute
 
 
 def read_records(path: Path) -> list[dict[str, Any]]:
-    """Every recorded message as a dict (with its ``topic``), in file order."""
+    """Every recorded message as a dict (with its ``topic``), in file order; a clock is
+    followed by the measurements and obstacles it carries (:func:`expand_record`)."""
     out = []
     with open(path, "rb") as f:
         for _schema, channel, message in make_reader(f).iter_messages():
@@ -21,7 +23,7 @@ def read_records(path: Path) -> list[dict[str, Any]]:
                 continue
             rec = json.loads(message.data)
             rec["topic"] = channel.topic
-            out.append(rec)
+            out.extend(expand_record(rec))
     return out
 
 

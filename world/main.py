@@ -2,13 +2,15 @@
 
     swarm world CONFIG [--run RUN] [--port P] [--gui]
 
-Lockstep: publish tick k (obstacles, one measurement per agent, the clock), wait until
+Each tick the world publishes one clock message (``swarm.messages``: the live agents,
+every drone's body centre, velocity and radius, each simulated drone's measurement, the
+obstacles) and a status. Lockstep: publish tick k, wait until
 every live agent answered k or the timeout passed (those are late and keep their last
 command), then step physics. Realtime: physics follows the wall clock and tick k is
 published at wall time k * dt; commands are applied when they arrive and held until
 replaced, but a command older than ``time.command_timeout_s`` is not flown (the drone
-levels out and brakes). The clock message carries the roster of every drone's body
-centre, velocity and radius (used by agents with ``neighbours.source: world``).
+levels out and brakes). Agents with ``neighbours.source: world`` take their neighbours
+from the clock's roster.
 
 Real drones (``backend: crazyflie``, realtime only) are not simulated: the motion-capture
 relay (``world/mocap.py``) publishes their measurements at the capture rate from its own
@@ -62,6 +64,7 @@ class DroneSlot:
     answered: int = 0
     reached_at_s: float | None = None
     yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
+    infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
 
 
 def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
@@ -123,8 +126,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     token = tp.declare_liveliness(session, keys.alive("world"))
     cmd_in = tp.Inbox(session, keys.all_commands, 1 << 16)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-    pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in slots}
-    pub_obs = session.declare_publisher(keys.obstacles)
+    pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in real}  # motion capture
     pub_clock = session.declare_publisher(keys.clock)
     pub_status = session.declare_publisher(keys.status)
     pub_coll = session.declare_publisher(keys.collision)
@@ -180,6 +182,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             if slot is None or slot.dead:
                 counter.drop("command from unknown or dead agent")
                 continue
+            if m["status"] != "ok":
+                slot.infeasible += 1
             if m.src in real:  # a real drone's command went to it by radio: recorded, not flown
                 slot.command_k = max(slot.command_k, m.k)
                 continue
@@ -250,15 +254,19 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             items = obstacle_items(cfg.obstacles, t)
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
-            # body centres [m]; the roster: body centre, its velocity [m/s] and radius [m] of
-            # every drone, in `names` order
-            body, roster = {}, []
+            # the roster: body centre [m], its velocity [m/s] and radius [m] of every drone,
+            # in `names` order; the measurements of the simulated drones
+            body, roster, meas = {}, [], []
             for a in names:
                 st, prm = states[a], slots[a].model.params
                 R = quat_to_R(st.q)
                 body[a] = st.x_w + prm.l_m * R[:, 2]
                 v_b = st.v_w + prm.l_m * (R[:, 0] * st.Omega_b[1] - R[:, 1] * st.Omega_b[0])
                 roster.extend([*body[a], *v_b, prm.body_radius_m])
+            measured = [a for a in flown if slots[a].alive]  # a dead agent's drone is no longer measured
+            for a in measured:
+                s = states[a]
+                meas.extend([*s.x_w, *s.v_w, *s.q, *s.Omega_b])
             flying = np.array([body[a] for a in names if not slots[a].dead])
             if len(flying) >= 2:
                 min_sep = min(min_sep, min_pair_distance(flying))
@@ -274,22 +282,18 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             status = dict(
                 rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
                 collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
+                infeasible=sum(sl.infeasible for sl in slots.values()),
             )  # fmt: skip
-            seq += 1
-            pub_obs.put(encode("obstacles", run, "world", seq, t, k, items=items))
             now = time.monotonic()
-            for a in live:
-                if a in real:
-                    continue  # the relay publishes real drones' measurements at the capture rate
-                s = states[a]
-                seq += 1
-                if not done:
-                    slots[a].sent_at[k] = now
-                pubs[a].put(encode("measurement", run, "world", seq, t, k, x=s.x_w, v=s.v_w, q=s.q, w=s.Omega_b))
+            if not done:
+                for a in live:
+                    if a not in real:  # the relay publishes real drones' measurements at the capture rate
+                        slots[a].sent_at[k] = now
             seq += 1
             pub_status.put(encode("status", run, "world", seq, t, k, **status))
             seq += 1
-            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster))
+            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster,
+                                 meas_ids=measured, meas=meas, items=items))  # fmt: skip
             if done:
                 break
 

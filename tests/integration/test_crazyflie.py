@@ -65,7 +65,7 @@ class FakeWorld:
             t = k * 0.01
             seq += 2
             self.pub_clock.put(encode("clock", self.run, "world", seq, t, k, live=["cf1"], done=False, ids=["cf1"],
-                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07]))  # fmt: skip
+                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07], meas_ids=[], meas=[], items=[]))  # fmt: skip
             if self.measuring.is_set():
                 self.pub_meas.put(encode("measurement", self.run, "world", seq + 1, t, k, x=[0.0, 0.0, 1.0],
                                          v=[0.0, 0.0, 0.0], q=[0.0, 0.0, 0.0, 1.0], w=[0.0, 0.0, 0.0]))  # fmt: skip
@@ -186,9 +186,9 @@ def test_mixed_swarm_with_mock_motion_capture(tmp_path):
         assert m["agents"]["sim1"]["max_path_deviation_m"] > 0.1  # it went around real1
         records = read_records(h.out / "run.mcap")
         # the simulated agents had the real ones as rows, through the same agent-state topics
-        rows = {r["src"]: set() for r in records if r["kind"] == "state"}
+        rows = {r["src"]: set() for r in records if r["kind"] == "command"}
         for r in records:
-            if r["kind"] == "state":
+            if r["kind"] == "command":
                 rows[r["src"]].update(r["row_ids"])
         assert "real1" in rows["sim1"] and "real2" in rows["sim2"] and "sim1" in rows["real1"]
         # the real drone avoids the virtual obstacle: its filter changes its command because of the ball

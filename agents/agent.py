@@ -58,6 +58,8 @@ class Agent:
         self.from_world = cfg.neighbours.source == "world"
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
+        self._roster_key: tuple[str, ...] = ()  # the clock's ids the roster rows were indexed for
+        self._roster_rows: list[int] = []  # indices of the other drones in the clock's ids
         self.obstacle_ids: list[str] = []
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self.infeasible = 0
@@ -122,13 +124,16 @@ class Agent:
             self.obstacle_ids = [i["id"] for i in m["items"]]
         if self.from_world:
             # the world's roster: every other drone's body centre, velocity and radius at tick k
-            mine = [i for i, name in enumerate(m["ids"]) if name in self.others]
-            self.roster_ids = [m["ids"][i] for i in mine]
-            xvr = m["xvr"].reshape(-1, 7)[mine]
-            n = len(mine)
+            ids = tuple(m["ids"])
+            if ids != self._roster_key:  # the roster's drones changed (rarely): index them again
+                self._roster_key = ids
+                self._roster_rows = [i for i, name in enumerate(ids) if name in self.others]
+                self.roster_ids = [ids[i] for i in self._roster_rows]
+            xvr = m["xvr"].reshape(-1, 7)[self._roster_rows]
+            n = len(self._roster_rows)
             self.roster[m.k] = (m.t, ObstacleArrays(
-                np.ascontiguousarray(xvr[:, 0:3]), np.ascontiguousarray(xvr[:, 3:6]), np.zeros((n, 3)),
-                np.ascontiguousarray(xvr[:, 6]), np.zeros((n, 3)), np.ones(n, dtype=bool),
+                xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), np.zeros((n, 3)), xvr[:, 6].copy(), np.zeros((n, 3)),
+                np.ones(n, dtype=bool),
             ))  # fmt: skip
             for old in [kk for kk in self.roster if kk < m.k - 4]:
                 del self.roster[old]
@@ -162,10 +167,12 @@ class Agent:
         me, model, level = self.me, self.model, self.level
         k, t = msg.k, msg.t
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
-        R = quat_to_R(state.q)
-        wx, wy, _wz = state.Omega_b
-        x_b = state.x_w + model.params.l_m * R[:, 2]
-        v_b = state.v_w + model.params.l_m * (R[:, 0] * wy - R[:, 1] * wx)  # l R (Omega x e3)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = quat_to_R(state.q).tolist()
+        wx, wy, _wz = state.Omega_b.tolist()
+        (x, y, z), (vx, vy, vz), lm = state.x_w.tolist(), state.v_w.tolist(), model.params.l_m
+        x_b = np.array([x + lm * r02, y + lm * r12, z + lm * r22])  # x + l R e3
+        v_b = np.array([vx + lm * (r00 * wy - r01 * wx), vy + lm * (r10 * wy - r11 * wx),
+                        vz + lm * (r20 * wy - r21 * wx)])  # v + l R (Omega x e3)  # fmt: skip
         if self.from_world:
             neighbours = self.roster_rows(t, k if lockstep else None)
         else:
@@ -203,7 +210,7 @@ class Agent:
         self.reached = self.reached or bool(np.linalg.norm(state.x_w - self.goal) <= self.cfg.goal_tolerance_m)
         report = self._report(status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
-            sp = setpoint_from_thrust_vector(u, math.atan2(R[1, 0], R[0, 0]), me.yaw_rad)  # yaw from R
+            sp = setpoint_from_thrust_vector(u, math.atan2(r10, r00), me.yaw_rad)  # yaw from R
             cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
         else:
             cmd = u

@@ -61,6 +61,7 @@ class PathTracker:
         seg = np.diff(W, axis=0)
         self._len = np.linalg.norm(seg, axis=1)
         self._tail = np.concatenate([np.cumsum(self._len[::-1])[::-1][1:], [0.0]])
+        self._W_list, self._len_list, self._tail_list = W.tolist(), self._len.tolist(), self._tail.tolist()
         self.segment = 0
 
     @property
@@ -69,36 +70,49 @@ class PathTracker:
 
     def reference(self, x_w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
         """Closest path point [m, world], path tangent, remaining path length [m]."""
-        W, last = self.W, len(self._len) - 1
+        c, tangent, remaining = self._reference(x_w.tolist())
+        return np.array(c), np.array(tangent), remaining
+
+    def _reference(self, x: list[float]) -> tuple[tuple[float, ...], tuple[float, ...], float]:
+        """:meth:`reference` on plain floats (the per-tick path: no small numpy arrays)."""
+        last = len(self._len) - 1
         while True:
             i = self.segment
-            a, L = W[i], self._len[i]
-            d = W[i + 1] - a
-            t = float(np.clip((x_w - a) @ d / (L * L), 0.0, 1.0)) if L > 1e-9 else 1.0
+            ax, ay, az = self._W_list[i]
+            bx, by, bz = self._W_list[i + 1]
+            dx, dy, dz = bx - ax, by - ay, bz - az
+            L = self._len_list[i]
+            if L > 1e-9:
+                t = ((x[0] - ax) * dx + (x[1] - ay) * dy + (x[2] - az) * dz) / (L * L)
+                t = min(max(t, 0.0), 1.0)
+            else:
+                t = 1.0
             if t >= 1.0 and i < last:
                 self.segment += 1
                 continue
-            tangent = d / L if L > 1e-9 else np.zeros(3)
-            return a + t * d, tangent, (1.0 - t) * L + self._tail[i]
+            tangent = (dx / L, dy / L, dz / L) if L > 1e-9 else (0.0, 0.0, 0.0)
+            return (ax + t * dx, ay + t * dy, az + t * dz), tangent, (1.0 - t) * L + self._tail_list[i]
 
     def desired_velocity(self, x_w: FloatArray) -> FloatArray:
         """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
-        g = self.gains
-        c, tangent, remaining = self.reference(x_w)
-        speed = min(self.speed_mps, g.kp_per_s * remaining)
-        return speed * tangent + g.kp_per_s * (c - x_w)
+        kp = self.gains.kp_per_s
+        x = x_w.tolist()
+        c, tangent, remaining = self._reference(x)
+        speed = min(self.speed_mps, kp * remaining)
+        return np.array([speed * tangent[j] + kp * (c[j] - x[j]) for j in range(3)])
 
     def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None) -> FloatArray:
         """Commanded acceleration [m/s^2, world] (without gravity compensation) towards the
         commanded velocity ``v_des_w`` [m/s, world] (default: :meth:`desired_velocity`)."""
         g = self.gains
-        v_des = self.desired_velocity(x_w) if v_des_w is None else v_des_w
-        a = g.kd_per_s * (v_des - v_w)
-        h = math.hypot(a[0], a[1])
+        v_des = (self.desired_velocity(x_w) if v_des_w is None else v_des_w).tolist()
+        v = v_w.tolist()
+        ax, ay, az = (g.kd_per_s * (v_des[j] - v[j]) for j in range(3))
+        h = math.hypot(ax, ay)
         if h > g.max_horizontal_accel_mps2:
-            a[:2] *= g.max_horizontal_accel_mps2 / h
-        a[2] = min(max(a[2], -g.max_vertical_accel_mps2), g.max_vertical_accel_mps2)
-        return a
+            ax, ay = ax * g.max_horizontal_accel_mps2 / h, ay * g.max_horizontal_accel_mps2 / h
+        az = min(max(az, -g.max_vertical_accel_mps2), g.max_vertical_accel_mps2)
+        return np.array([ax, ay, az])
 
     def thrust_vector(
         self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None
@@ -106,7 +120,9 @@ class PathTracker:
         """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]; ``v_des_w`` as in
         :meth:`desired_accel`."""
         p = model.params
-        return p.mass_kg * (self.desired_accel(x_w, v_w, v_des_w) + p.g_mps2 * E3)
+        a = self.desired_accel(x_w, v_w, v_des_w)
+        a[2] += p.g_mps2
+        return p.mass_kg * a
 
 
 def right_hand_bias(

@@ -151,7 +151,8 @@ class FilterResult:
     @property
     def intervention(self) -> float:
         """``|u - u_ref|`` in input units."""
-        return float(np.linalg.norm(self.u - self.u_ref))
+        d = self.u - self.u_ref
+        return math.sqrt(float(d @ d))
 
 
 class SafetyFilter:

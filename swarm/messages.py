@@ -216,7 +216,7 @@ def expand_record(record: dict[str, Any]) -> list[dict[str, Any]]:
     a run (metrics, reports) see one measurement per drone and tick, whatever carried it."""
     if record.get("kind") != "clock" or "meas_ids" not in record:
         return [record]
-    head = {k: record[k] for k in ("src", "seq", "t", "k") if k in record}
+    head: dict[str, Any] = {k: record[k] for k in ("src", "seq", "t", "k") if k in record}
     out = [record]
     meas = record["meas"]
     for i, aid in enumerate(record["meas_ids"]):

@@ -334,16 +334,17 @@ def thrust_vector_accel(params: QuadParams, F_w: FloatArray) -> FloatArray:
 def thrust_vector_to_setpoint(F_w: FloatArray, yaw_rad: float) -> tuple[float, float, float]:
     """Roll, pitch [rad] (ZYX, at the given yaw) and collective thrust [N] that point the
     body z axis along ``F_w``; the inverse of :func:`setpoint_to_thrust_vector`."""
-    thrust = float(np.linalg.norm(F_w))
+    fx, fy, fz = F_w.tolist() if isinstance(F_w, np.ndarray) else F_w
+    thrust = math.sqrt(fx * fx + fy * fy + fz * fz)
     if thrust < 1e-9:
         return 0.0, 0.0, 0.0
-    z_b = F_w / thrust
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
-    # rotate into the yaw frame: z_b = Rz(yaw) Ry(pitch) Rx(roll) e3
-    zx = cy * z_b[0] + sy * z_b[1]
-    zy = -sy * z_b[0] + cy * z_b[1]
-    pitch = math.atan2(zx, z_b[2])
-    roll = math.atan2(-zy, math.hypot(zx, z_b[2]))
+    # rotate into the yaw frame: z_b = F / |F| = Rz(yaw) Ry(pitch) Rx(roll) e3
+    zx = (cy * fx + sy * fy) / thrust
+    zy = (-sy * fx + cy * fy) / thrust
+    zz = fz / thrust
+    pitch = math.atan2(zx, zz)
+    roll = math.atan2(-zy, math.hypot(zx, zz))
     return roll, pitch, thrust
 
 

@@ -233,6 +233,11 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     done = False
     names = list(slots)
     flown = [a for a in names if a not in real]  # simulated drones: PyBullet flies them
+    index = {a: i for i, a in enumerate(names)}
+    l_m = np.array([slots[a].model.params.l_m for a in names])  # body-centre offsets [m]
+    radius_m = np.array([slots[a].model.params.body_radius_m for a in names])  # bounding radii [m]
+    goals = np.array([slots[a].goal for a in names])  # (n, 3) m, world
+    onboard_consts: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}  # drones -> stacked gains
     phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
     try:
         for k in range(K + 1):
@@ -247,37 +252,34 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     poll_commands(k - 1, target)
             poll_liveliness()
             # ground truth for metrics and measurements (motion capture for real drones)
-            states = {}
-            for a in names:
+            ds = sim.read_states(names)
+            for i, a in enumerate(names):
                 est = relay.latest(a) if relay and a in real else None
-                states[a] = QuadState(est.x_w, est.v_w, est.q, est.Omega_b) if est else sim.state(a)
+                if est is not None:
+                    ds.x_w[i], ds.v_w[i], ds.q[i], ds.Omega_b[i] = est.x_w, est.v_w, est.q, est.Omega_b
+                    ds.R[i] = quat_to_R(est.q)
             items = obstacle_items(cfg.obstacles, t)
             obs = items_to_arrays(items)
             live = [a for a in names if slots[a].alive]
             # the roster: body centre [m], its velocity [m/s] and radius [m] of every drone,
             # in `names` order; the measurements of the simulated drones
-            body, roster, meas = {}, [], []
-            for a in names:
-                st, prm = states[a], slots[a].model.params
-                R = quat_to_R(st.q)
-                body[a] = st.x_w + prm.l_m * R[:, 2]
-                v_b = st.v_w + prm.l_m * (R[:, 0] * st.Omega_b[1] - R[:, 1] * st.Omega_b[0])
-                roster.extend([*body[a], *v_b, prm.body_radius_m])
+            x_b = ds.x_w + l_m[:, None] * ds.R[:, :, 2]
+            v_b = ds.v_w + l_m[:, None] * (ds.R[:, :, 0] * ds.Omega_b[:, 1:2] - ds.R[:, :, 1] * ds.Omega_b[:, 0:1])
+            roster = np.hstack([x_b, v_b, radius_m[:, None]]).ravel()
             measured = [a for a in flown if slots[a].alive]  # a dead agent's drone is no longer measured
-            for a in measured:
-                s = states[a]
-                meas.extend([*s.x_w, *s.v_w, *s.q, *s.Omega_b])
-            flying = np.array([body[a] for a in names if not slots[a].dead])
+            rows = [index[a] for a in measured]
+            meas = np.hstack([ds.x_w[rows], ds.v_w[rows], ds.q[rows], ds.Omega_b[rows]]).ravel()
+            flying = x_b[[not slots[a].dead for a in names]]
             if len(flying) >= 2:
                 min_sep = min(min_sep, min_pair_distance(flying))
             if len(obs) and len(flying):
                 min_clear = min(min_clear, float(surface_clearance(flying, obs).min()))
-            for a in names:
-                sl = slots[a]
-                if sl.reached_at_s is None and np.linalg.norm(states[a].x_w - sl.goal) <= cfg.goal_tolerance_m:
-                    sl.reached_at_s = t
+            at_goal = np.linalg.norm(ds.x_w - goals, axis=1) <= cfg.goal_tolerance_m
+            for a, there in zip(names, at_goal.tolist(), strict=True):
+                if there and slots[a].reached_at_s is None:
+                    slots[a].reached_at_s = t
             all_reached = all(slots[a].reached_at_s is not None for a in names if not slots[a].dead)
-            done = k == K or (cfg.stop_when_all_reached and all_reached) or stop or not live
+            done = bool(k == K or (cfg.stop_when_all_reached and all_reached) or stop or not live)
             wall = time.monotonic() - wall0
             status = dict(
                 rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
@@ -322,7 +324,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     while time.monotonic() < target:
                         time.sleep(min(0.0005, max(0.0, target - time.monotonic())))
                     poll_commands(k)
-                st_now = states if j == 0 else {a: sim.state(a) for a in flown}
+                fs = ds if j == 0 and not real else sim.read_states(flown)  # simulated drones, `flown` order
                 for a in real:  # real drones: where motion capture saw them last
                     est = relay.latest(a) if relay else None
                     if est is not None:
@@ -334,37 +336,42 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         if not slots[a].dead and slots[a].command is not None
                         and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
                     }  # fmt: skip
+                f_all = np.zeros((len(flown), 4))  # rotor thrusts [N]
                 att = [
-                    a for a in flown if not slots[a].dead and a not in stale and slots[a].level is CommandLevel.ATTITUDE
-                ]
-                att += [a for a in flown if not slots[a].dead and slots[a].command is None and a not in att]
+                    i for i, a in enumerate(flown) if not slots[a].dead and a not in stale
+                    and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
+                ]  # fmt: skip
                 if att:
-                    for a in att:
+                    att_names = tuple(flown[i] for i in att)
+                    consts = onboard_consts.get(att_names)
+                    if consts is None:
+                        consts = onboard_consts[att_names] = (
+                            *(np.stack([slots[a].onboard.consts[c][0] for a in att_names]) for c in range(4)),
+                            np.array([slots[a].onboard.consts[4][0] for a in att_names]),
+                        )  # fmt: skip
+                    for a in att_names:
                         slots[a].yaw_sp_rad += (slots[a].command[2] if slots[a].command is not None else 0.0) * sim.dt_s
-                    sp = np.array([_setpoint(slots[a]) for a in att])
-                    f_att = onboard_rotor_thrusts(
-                        np.array([st_now[a].q for a in att]), np.array([st_now[a].Omega_b for a in att]),
-                        sp[:, 0], sp[:, 1], np.array([slots[a].yaw_sp_rad for a in att]), sp[:, 3],
-                        *(np.stack([slots[a].onboard.consts[i][0] for a in att]) for i in range(4)),
-                        np.array([slots[a].onboard.consts[4][0] for a in att]),
+                    sp = np.array([_setpoint(slots[a]) for a in att_names])
+                    f_all[att] = onboard_rotor_thrusts(
+                        fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1],
+                        np.array([slots[a].yaw_sp_rad for a in att_names]), sp[:, 3], *consts,
                     )  # fmt: skip
-                    for a, f in zip(att, f_att, strict=True):
-                        sim.apply_rotors(a, f, st_now[a])
-                for a in flown:
+                attitude = set(att)
+                for i, a in enumerate(flown):
                     sl = slots[a]
-                    if a in att:
+                    if i in attitude:
                         continue
                     if sl.dead:
-                        st = st_now[a]
-                        landed = cfg.failure.on_agent_death == "motors_off" or st.x_w[2] < 0.05
-                        f = np.zeros(4) if landed else _velocity_hold(sl, st, _DESCEND)
+                        landed = cfg.failure.on_agent_death == "motors_off" or fs.x_w[i, 2] < 0.05
+                        if not landed:
+                            f_all[i] = _velocity_hold(sl, fs.state(i), _DESCEND)
                     elif a in stale:
-                        f = _velocity_hold(sl, st_now[a], _STOP)
+                        f_all[i] = _velocity_hold(sl, fs.state(i), _STOP)
                         if j == 0:
                             sl.braking_ticks += 1
                     else:  # rotor level: the agent's thrusts, held
-                        f = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
-                    sim.apply_rotors(a, f, st_now[a])
+                        f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
+                sim.apply_rotors_all(flown, f_all, fs)
                 pairs = set(sim.step())
                 for pair in pairs - touching:
                     collisions += 1

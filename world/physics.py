@@ -17,7 +17,7 @@ import numpy as np
 import pybullet as pb
 
 from swarm.model import QuadModel, QuadState
-from swarm.rotation import E3, FloatArray, quat_to_R
+from swarm.rotation import E3, FloatArray, quat_to_R, quats_to_R
 
 
 @dataclass
@@ -40,6 +40,20 @@ def _quat_z_to(axis: FloatArray) -> list[float]:
     return [v[0] / s, v[1] / s, v[2] / s, s / 2]
 
 
+@dataclass
+class DroneStates:
+    """Ground truth of several drones at once, stacked in the order they were asked for."""
+
+    x_w: FloatArray  # (n, 3) m, world: centre of mass
+    v_w: FloatArray  # (n, 3) m/s, world
+    q: FloatArray  # (n, 4) scalar-last, body to world
+    Omega_b: FloatArray  # (n, 3) rad/s, body
+    R: FloatArray  # (n, 3, 3) body to world
+
+    def state(self, i: int) -> QuadState:
+        return QuadState(self.x_w[i], self.v_w[i], self.q[i], self.Omega_b[i])
+
+
 class PhysicsWorld:
     """One PyBullet client. Not thread-safe; owned by the world process."""
 
@@ -54,6 +68,7 @@ class PhysicsWorld:
         self.bodies: dict[int, Body] = {ground: Body("ground", ground, "ground")}
         self.drones: dict[str, int] = {}
         self._mixer: dict[str, FloatArray] = {}  # per drone: B, [T, tau] = B f
+        self._mixer_stacks: dict[tuple[str, ...], FloatArray] = {}  # drone names -> (n, 4, 4)
         self.obstacles: dict[str, tuple[int, FloatArray, FloatArray]] = {}  # id -> uid, c0, velocity
         self.kinematic: set[str] = set()  # drones placed from motion capture
         self.t_s = 0.0
@@ -148,6 +163,43 @@ class PhysicsWorld:
             uid, -1, (wrench[0] * R[:, 2]).tolist(), st.x_w.tolist(), pb.WORLD_FRAME, physicsClientId=self.client
         )
         pb.applyExternalTorque(uid, -1, (R @ wrench[1:]).tolist(), pb.WORLD_FRAME, physicsClientId=self.client)
+
+    def read_states(self, names: list[str]) -> DroneStates:
+        """Ground truth of the drones ``names``, one PyBullet query pair per drone and
+        the frame conversions for all of them at once."""
+        pos, quat, lin, ang = [], [], [], []
+        for name in names:
+            uid = self.drones[name]
+            p, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
+            v, w = pb.getBaseVelocity(uid, physicsClientId=self.client)
+            pos.append(p)
+            quat.append(q)
+            lin.append(v)
+            ang.append(w)
+        if not names:
+            z = np.zeros((0, 3))
+            return DroneStates(z, z, np.zeros((0, 4)), z, np.zeros((0, 3, 3)))
+        q_all = np.array(quat)
+        R = quats_to_R(q_all)
+        Omega_b = np.einsum("nji,nj->ni", R, np.array(ang))  # R^T omega_w
+        return DroneStates(np.array(pos), np.array(lin), q_all, Omega_b, R)
+
+    def apply_rotors_all(self, names: list[str], f_N: FloatArray, states: DroneStates) -> None:
+        """:meth:`apply_rotors` for the drones ``names`` with thrusts ``f_N`` (n, 4) [N] at
+        ``states`` (in the same order)."""
+        if not names:
+            return
+        key = tuple(names)
+        B = self._mixer_stacks.get(key)
+        if B is None:
+            B = self._mixer_stacks[key] = np.stack([self._mixer[n] for n in names])
+        wrench = np.einsum("nij,nj->ni", B, f_N)
+        force_w = wrench[:, 0:1] * states.R[:, :, 2]
+        torque_w = np.einsum("nij,nj->ni", states.R, wrench[:, 1:])
+        for name, F, x, tau in zip(names, force_w.tolist(), states.x_w.tolist(), torque_w.tolist(), strict=True):
+            uid = self.drones[name]
+            pb.applyExternalForce(uid, -1, F, x, pb.WORLD_FRAME, physicsClientId=self.client)
+            pb.applyExternalTorque(uid, -1, tau, pb.WORLD_FRAME, physicsClientId=self.client)
 
     def step(self) -> list[tuple[str, str]]:
         """Advance one physics step; returns the pairs of bodies in contact (ground

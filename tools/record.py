@@ -2,8 +2,9 @@
 
     swarm record CONFIG --out DIR [--run RUN] [--port P]
 
-Messages are decoded and written as JSON (one MCAP channel per key expression, JSON
-schema encoding), so Foxglove can open and plot the file. Undecodable messages are
+Messages are decoded (checked) and written as JSON (one MCAP channel per key expression,
+JSON schema encoding), so Foxglove can open and plot the file; orjson writes it (the
+clock's few hundred floats cost 190 us per tick with the standard library, 15 us here). Undecodable messages are
 counted and written raw to ``/dropped``. The file is flushed every ``FLUSH_S`` seconds:
 a crash loses at most that much. Stops when the world reports done or disappears.
 """
@@ -15,10 +16,11 @@ import math
 import time
 from pathlib import Path
 
+import orjson
 from mcap.writer import CompressionType, Writer
 
 from swarm import transport as tp
-from swarm.messages import DecodeError, decode, to_json
+from swarm.messages import DecodeError, decode
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
@@ -66,7 +68,9 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
                 if ch is None:
                     ch = channels[key] = writer.register_channel("/" + key, "json", schema)
                 log_ns = int(m.t * 1e9)
-                writer.add_message(ch, log_ns, json.dumps(to_json(m)).encode(), now_ns, sequence=m.seq & 0xFFFFFFFF)
+                rec = {"kind": m.kind, "src": m.src, "seq": m.seq, "t": m.t, "k": m.k, **m.body}
+                writer.add_message(ch, log_ns, orjson.dumps(rec, option=orjson.OPT_SERIALIZE_NUMPY), now_ns,
+                                   sequence=m.seq & 0xFFFFFFFF)  # fmt: skip
                 count += 1
                 if m.kind == "status" and m["done"] and done_at is None:
                     done_at = time.monotonic() + linger_s

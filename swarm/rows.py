@@ -95,7 +95,9 @@ class OwnDynamics:
 
     def __call__(self, state: QuadState) -> OwnAffine:
         if self.level is CommandLevel.ATTITUDE:
-            return OwnAffine(np.stack([state.x_w, state.v_w]), self._Aa_att)
+            xv_b = np.empty((2, 3))
+            xv_b[0], xv_b[1] = state.x_w, state.v_w
+            return OwnAffine(xv_b, self._Aa_att)
         return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, *self._consts))
 
 

@@ -1,6 +1,6 @@
 """Benchmark of whole swarms as real processes, printed as JSON lines.
 
-    python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 5]
+    python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 10]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
@@ -67,7 +67,7 @@ def main() -> None:
     ap.add_argument("--agents", default="2,4,8,16")
     ap.add_argument("--modes", default="lockstep,realtime")
     ap.add_argument("--rate", type=float, default=100.0)
-    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--seconds", type=float, default=10.0, help="sim time: 10 s covers the crossing at the centre")
     ap.add_argument("--sources", default="agents,world", help="neighbour sources (see NeighbourSettings)")
     ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
     args = ap.parse_args()

@@ -74,8 +74,7 @@ class QPProblem:
         kernel built from a validated state: the backends still reject a non-finite
         solution, and the filter then falls back, so a bad row cannot become a NaN command."""
         obj = object.__new__(cls)
-        for name, value in (("H", H), ("q", q), ("lb", lb), ("ub", ub), ("A", A), ("b", b)):
-            object.__setattr__(obj, name, value)
+        obj.__dict__.update(H=H, q=q, lb=lb, ub=ub, A=A, b=b)  # frozen: no __setattr__
         return obj
 
     @property

@@ -6,7 +6,7 @@ One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz 
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
 (commands for tick k that reached the world before it published tick k+1),
 ``cpu_percent_per_agent`` (steady-state CPU of one agent process, start-up excluded,
-averaged over agents, as a percentage of one core), ``p99_tick_latency_ms`` (world
+averaged over agents, as a percentage of one core; ``world_cpu_percent`` likewise), ``p99_tick_latency_ms`` (world
 sends a measurement -> receives that tick's command), plus collisions, late ticks and
 the minimum separation. Each run's folder is kept under ``--out``.
 """
@@ -57,7 +57,7 @@ def bench_one(n: int, mode: str, rate_hz: float, seconds: float, out: Path, sour
         "p99_tick_latency_ms": round(world["p99_tick_latency_ms"], 2) if world.get("p99_tick_latency_ms") else None,
         "late_ticks": world.get("late"), "collisions": metrics.get("collisions"),
         "min_separation_m": metrics.get("min_separation_m"),
-        "world_cpu_percent": round(world.get("cpu_s", 0) / wall * 100, 1),
+        "world_cpu_percent": round((world.get("cpu_s", 0) - world.get("startup_cpu_s", 0)) / wall * 100, 1),
         "stop_reason": reason,
     }  # fmt: skip
 

@@ -228,6 +228,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     touching: set[tuple[str, str]] = set()
     min_sep, min_clear, late = math.inf, math.inf, 0
     wall0 = time.monotonic()
+    startup_cpu_s = time.process_time()  # imports, PyBullet, compiled code, waiting for everyone
     running.set()
     k = 0
     done = False
@@ -405,6 +406,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
         "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
         "real_time_factor": k * dt_ctrl / (time.monotonic() - wall0), "cpu_s": time.process_time(),
+        "startup_cpu_s": startup_cpu_s,
         "phase_wall_s": {n: round(v, 3) for n, v in phase.items()}, "dropped": counter.dropped,
         "braking_ticks": sum(s.braking_ticks for s in slots.values()),
         "mocap": None if relay is None else {"frames": relay.frames, "dropped_frames": relay.dropped_frames,

@@ -180,6 +180,7 @@ class SafetyFilter:
         self._H = 2.0 * np.eye(self.m)
         # a numerically failed solve is retried once with the exact active-set solver
         self._fallback = None if cfg.backend == "daqp" else make_backend("daqp", self.m, 0)
+        self._slack_cache: dict[tuple[int, int], tuple[FloatArray, ...]] = {}  # (rows, input set) -> arrays
         self._own = OwnDynamics(cfg.level, model)
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
@@ -278,16 +279,12 @@ class SafetyFilter:
             return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b, ins=ins)
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
-        m, W = self.m, self.config.slack_weight
-        H = np.diag(np.concatenate([np.full(m, 2.0), np.full(n, 2.0 * W)]))
-        q = np.concatenate([-2.0 * u_ref, np.zeros(n)])
-        A_s = np.zeros((ins.d.size + n, m + n))
-        A_s[: ins.d.size, :m] = ins.C
+        m = self.m
+        H, q, lb, ub, A_s = self._slack_arrays(n, ins)
+        q[:m] = -2.0 * u_ref
+        A_s[: ins.d.size, :m] = ins.C  # (the floor row changes every call)
         A_s[ins.d.size :, :m] = G
-        A_s[ins.d.size :, m:] = -np.eye(n)
-        lb = np.concatenate([ins.lb, np.zeros(n)])
-        ub = np.concatenate([ins.ub, np.full(n, np.inf)])
-        sol_s = self._qp_slack_solve(QPProblem(H, q, lb, ub, A_s, bb))
+        sol_s = self._qp_slack_solve(QPProblem.trusted(H, q, lb, ub, A_s, bb))
         if sol_s is not None:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)
@@ -295,6 +292,22 @@ class SafetyFilter:
             return self._result(u, u_ref, st, idx, rows, slack, t0, G, b, ins=ins)
         u = np.clip(u_ref, ins.lb, ins.ub)
         return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b, ins=ins)
+
+    def _slack_arrays(self, n: int, ins: LinearInputSet) -> tuple[FloatArray, ...]:
+        """The least-violation QP's arrays for ``n`` rows under ``ins``: H, q, lb, ub and
+        A = [[C, 0]; [., -I]], built once per (n, input set) and refilled per call (the
+        parts that change: q[:m], A[:, :m])."""
+        key = (n, id(ins))
+        arrays = self._slack_cache.get(key)
+        if arrays is None:
+            m, k, W = self.m, ins.d.size, self.config.slack_weight
+            A_s = np.zeros((k + n, m + n))
+            A_s[k:, m:] = -np.eye(n)
+            arrays = self._slack_cache[key] = (
+                np.diag(np.concatenate([np.full(m, 2.0), np.full(n, 2.0 * W)])), np.zeros(m + n),
+                np.concatenate([ins.lb, np.zeros(n)]), np.concatenate([ins.ub, np.full(n, np.inf)]), A_s,
+            )  # fmt: skip
+        return arrays
 
     def _qp_slack_solve(self, problem: QPProblem) -> FloatArray | None:
         sol = self._qp_slack.solve(problem)

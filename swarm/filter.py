@@ -240,7 +240,7 @@ class SafetyFilter:
         also their residuals at it (against ``input_set``, default the filter's)."""
         cfg = self.config
         return assemble(
-            cfg.barrier, self._own(state), obstacles, obstacles.radius_m + self.r_own_m, gamma=cfg.gamma,
+            cfg.barrier, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
             rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
             input_set=input_set or self.input_set,
         )  # fmt: skip
@@ -274,7 +274,7 @@ class SafetyFilter:
         sol = self._qp.solve(problem)
         if sol.status is QPStatus.FAILED and self._fallback is not None:
             sol = self._fallback.solve(problem)
-        status = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.OK
+        status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
         if sol.status is QPStatus.OPTIMAL:
             return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b, ins=ins)
 
@@ -288,7 +288,7 @@ class SafetyFilter:
         if sol_s is not None:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)
-            st = FilterStatus.COLLISION if rows.inside.any() else FilterStatus.INFEASIBLE
+            st = FilterStatus.COLLISION if rows.any_inside else FilterStatus.INFEASIBLE
             return self._result(u, u_ref, st, idx, rows, slack, t0, G, b, ins=ins)
         u = np.clip(u_ref, ins.lb, ins.ub)
         return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b, ins=ins)

@@ -34,14 +34,6 @@ class ObstacleArrays:
     def has_neighbours(self) -> bool:
         return bool(self.is_neighbour.any())
 
-    def share(self, rho: float) -> FloatArray:
-        """(n,) responsibility share per row: ``rho`` for neighbours, 1 otherwise (cached)."""
-        cache = self.__dict__.setdefault("_share", {})
-        out = cache.get(rho)
-        if out is None:
-            out = cache[rho] = np.where(self.is_neighbour, rho, 1.0)
-        return out
-
     def __len__(self) -> int:
         return len(self.radius_m)
 

@@ -102,13 +102,17 @@ class OwnDynamics:
 
 
 @njit(cache=True)
-def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d):  # noqa: ANN001
-    """All rows at once, stacked under the input rows ``C u <= d`` as one QP constraint
+def rows_kernel(
+    kind, c, cd, r, r_own, axis, cdd, is_nb, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
+):  # noqa: ANN001, E501
+    """All rows at once (safety radius ``r + r_own``; responsibility share ``rho`` for the
+    rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as one QP constraint
     set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals
     ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips them).
 
     Returns (Y_used (n,2,3), coef (n,7), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
-    c_ref (k+n,), ref_ok) where ``ref_ok`` says ``u_ref`` satisfies every row and bound."""
+    c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
+    bound and ``any_inside`` that some row is already inside its safety radius."""
     n = c.shape[0]
     k_in = C.shape[0]
     m = Aa.shape[1] - 1
@@ -127,11 +131,13 @@ def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho
     w = np.empty(3)
     dp = np.empty(3)
     dw = np.empty(3)
+    any_inside = False
     for i in range(n):
         for k in range(3):
             p[k] = c[i, k] - xv_b[0, k]
             w[k] = cd[i, k] - xv_b[1, k]
-        inside[i] = barrier_row(kind, p, w, r[i], axis[i], eps, gamma_ho, v_esc, Y[i], coef[i])
+        inside[i] = barrier_row(kind, p, w, r[i] + r_own, axis[i], eps, gamma_ho, v_esc, Y[i], coef[i])
+        any_inside = any_inside or inside[i]
         co = coef[i]
         rel = 0.0
         own = 0.0
@@ -144,7 +150,8 @@ def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho
         for j in range(m):
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
-        b[row] = own + share[i] * (rel + gamma * co[H])
+        share = rho if is_nb[i] else 1.0
+        b[row] = own + share * (rel + gamma * co[H])
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]
@@ -156,7 +163,7 @@ def rows_kernel(kind, c, cd, r, axis, cdd, share, xv_b, Aa, gamma, eps, gamma_ho
         for j in range(m):
             if not lb[j] <= u_ref[j] <= ub[j]:
                 ref_ok = False
-    return Y, coef, inside, Lf, A, b, c_ref, ref_ok
+    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside
 
 
 @dataclass(slots=True)
@@ -171,6 +178,7 @@ class Rows:
     c_ref: FloatArray  # (k + n,) b_all - A u_ref of the reference given to assemble (or empty)
     ref_ok: bool  # that reference satisfies every row and input bound
     k_in: int  # number of input rows on top
+    any_inside: bool  # some row is already inside its safety radius
 
     @property
     def G(self) -> FloatArray:
@@ -204,7 +212,7 @@ def assemble(
     kind: BarrierKind,
     own: OwnAffine,
     obstacles: ObstacleArrays,
-    r_total_m: FloatArray,
+    r_own_m: float,
     *,
     gamma: float,
     rho: float = 1.0,
@@ -214,7 +222,8 @@ def assemble(
     u_ref: FloatArray | None = None,
     input_set: LinearInputSet | None = None,
 ) -> Rows:
-    """Build every row at once. ``r_total_m`` (n,) is the full safety radius per row.
+    """Build every row at once. ``r_own_m`` [m] is added to each obstacle's radius for the
+    full safety radius of its row (the agent's own bounding radius and margin).
     With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
     ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``)."""
     m = own.Aa.shape[1] - 1
@@ -223,12 +232,12 @@ def assemble(
         C, d = np.zeros((0, m)), _NO_REF
     else:
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok = rows_kernel(
-        kind.code, obstacles.c_w, obstacles.c_dot_w, r_total_m, obstacles.axis_w, obstacles.c_ddot_w,
-        obstacles.share(rho), own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
+        kind.code, obstacles.c_w, obstacles.c_dot_w, obstacles.radius_m, r_own_m, obstacles.axis_w, obstacles.c_ddot_w,
+        obstacles.is_neighbour, rho, own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
         _NO_REF if u_ref is None else u_ref, lb, ub, C, d,
     )  # fmt: skip
-    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0])
+    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside))
 
 
 __all__ = [

@@ -22,20 +22,20 @@ class DaqpBackend:
 
     def solve(self, problem: QPProblem) -> QPSolution:
         t0 = time.perf_counter()
-        k = problem.b.shape[0]
-        n = problem.n
+        n, k = problem.q.shape[0], problem.b.shape[0]
         bufs = self._bufs.get((n, k))
         if bufs is None:
             lower = np.full(n + k, -np.inf)
             bufs = self._bufs[(n, k)] = (np.empty(n + k), lower, np.zeros(n + k, dtype=np.int32))
         upper, lower, sense = bufs
-        sense[:] = 0  # daqp leaves its active set in here: start each solve cold
+        sense.fill(0)  # daqp leaves its active set in here: start each solve cold
         upper[:n] = problem.ub
         upper[n:] = problem.b
         lower[:n] = problem.lb
         x, _fval, flag, info = daqp.solve(problem.H, problem.q, problem.A, upper, lower, sense, **self._settings)
         dt = time.perf_counter() - t0
-        if flag == 1 and math.isfinite(x @ x):
+        # (a sum of floats is finite only if every one is: inf - inf is nan)
+        if flag == 1 and math.isfinite(sum(x.tolist())):
             return QPSolution(problem, x, QPStatus.OPTIMAL, dt, int(info["iterations"]))
         status = QPStatus.INFEASIBLE if flag == -1 else QPStatus.FAILED
-        return QPSolution(problem, np.zeros(problem.n), status, dt, int(info.get("iterations", 0)))
+        return QPSolution(problem, np.zeros(n), status, dt, int(info.get("iterations", 0)))

@@ -51,7 +51,9 @@ class OwnAffine:
 
 
 @njit(cache=True)
-def _own_rotor(x, v, q, Om, K, l, g, Jx, Jy, Jz):  # noqa: ANN001, E741
+def _own_rotor(x, v, q, Om, K, consts):  # noqa: ANN001
+    """Body-centre state and [A | a0_own] at the rotor level; ``consts`` = (l, g, Jx, Jy, Jz)."""
+    l, g, Jx, Jy, Jz = consts[0], consts[1], consts[2], consts[3], consts[4]  # noqa: E741
     qx, qy, qz, qw = q[0], q[1], q[2], q[3]
     R = np.empty((3, 3))
     R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
@@ -90,7 +92,7 @@ class OwnDynamics:
         self.level = level
         M = model.J_inv @ model.B[1:]
         self._K = np.ascontiguousarray(np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg]))
-        self._consts = (p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2)
+        self._consts = np.array([p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2])
         self._Aa_att = np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]])
 
     def __call__(self, state: QuadState) -> OwnAffine:
@@ -98,7 +100,7 @@ class OwnDynamics:
             xv_b = np.empty((2, 3))
             xv_b[0], xv_b[1] = state.x_w, state.v_w
             return OwnAffine(xv_b, self._Aa_att)
-        return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, *self._consts))
+        return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, self._consts))
 
 
 @njit(cache=True)

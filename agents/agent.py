@@ -113,7 +113,7 @@ class Agent:
     def neighbour_ids(self, neighbours: ObstacleArrays) -> list[str]:
         """Names of the neighbour rows, in the order the neighbour sources build them."""
         if self.from_world:
-            return [n for n in self.roster_ids if n in self.others][: len(neighbours)]
+            return self.roster_ids[: len(neighbours)]  # (the roster rows are the other drones)
         return self.table.row_names[: len(neighbours)]
 
     def on_clock(self, m: Message) -> None:
@@ -197,7 +197,7 @@ class Agent:
         if me.filter.enabled:
             res = filt.filter(state, u_ref, rows)
             names = self.obstacle_ids + self.neighbour_ids(neighbours)
-            row_ids = [names[i] for i in res.row_index]
+            row_ids = [names[i] for i in res.row_index.tolist()]
             h_rows = res.h
             u, status = res.u, res.status
             if status is not FilterStatus.OK:
@@ -207,7 +207,9 @@ class Agent:
             intervention, solve_us = res.intervention, res.solve_time_s * 1e6
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
-        self.reached = self.reached or bool(np.linalg.norm(state.x_w - self.goal) <= self.cfg.goal_tolerance_m)
+        if not self.reached:
+            gx, gy, gz = self.goal.tolist()
+            self.reached = math.dist((x, y, z), (gx, gy, gz)) <= self.cfg.goal_tolerance_m
         report = self._report(status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
             sp = setpoint_from_thrust_vector(u, math.atan2(r10, r00), me.yaw_rad)  # yaw from R

@@ -4,7 +4,7 @@
 
 Each tick the world publishes one clock message (``swarm.messages``: the live agents,
 every drone's body centre, velocity and radius, each simulated drone's measurement, the
-obstacles) and a status. Lockstep: publish tick k, wait until
+obstacles) and, at ``STATUS_HZ``, a status. Lockstep: publish tick k, wait until
 every live agent answered k or the timeout passed (those are late and keep their last
 command), then step physics. Realtime: physics follows the wall clock and tick k is
 published at wall time k * dt; commands are applied when they arrive and held until
@@ -75,6 +75,7 @@ def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
     return slot.command
 
 
+STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
 _STOP = np.zeros(3)
 _DESCEND = np.array([0.0, 0.0, -0.3])  # m/s, landing
 
@@ -222,6 +223,9 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         time.sleep(0.005)
 
     K = round(cfg.duration_s * cfg.time.control_hz)
+    # the status (progress, running metrics) at about STATUS_HZ, and always the last one: a
+    # message every tick would wake the launcher and the recorder 100 times a second
+    status_every = max(1, round(cfg.time.control_hz / STATUS_HZ))
     sub = cfg.time.substeps
     lockstep = cfg.time.mode is TimeMode.LOCKSTEP
     collisions = 0
@@ -282,18 +286,19 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             all_reached = all(slots[a].reached_at_s is not None for a in names if not slots[a].dead)
             done = bool(k == K or (cfg.stop_when_all_reached and all_reached) or stop or not live)
             wall = time.monotonic() - wall0
-            status = dict(
-                rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
-                collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
-                infeasible=sum(sl.infeasible for sl in slots.values()),
-            )  # fmt: skip
             now = time.monotonic()
             if not done:
                 for a in live:
                     if a not in real:  # the relay publishes real drones' measurements at the capture rate
                         slots[a].sent_at[k] = now
-            seq += 1
-            pub_status.put(encode("status", run, "world", seq, t, k, **status))
+            if done or k % status_every == 0:
+                status = dict(
+                    rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
+                    collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
+                    infeasible=sum(sl.infeasible for sl in slots.values()),
+                )  # fmt: skip
+                seq += 1
+                pub_status.put(encode("status", run, "world", seq, t, k, **status))
             seq += 1
             pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster,
                                  meas_ids=measured, meas=meas, items=items))  # fmt: skip

@@ -39,16 +39,6 @@ def quat_to_R(q: FloatArray) -> FloatArray:
     )
 
 
-def quats_to_R(q: FloatArray) -> FloatArray:
-    """(n, 3, 3) rotations body to world of (n, 4) scalar-last unit quaternions."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    R = np.empty((q.shape[0], 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
-    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
-    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
-    return R
-
-
 def R_to_quat(R: FloatArray) -> FloatArray:
     """Scalar-last unit quaternion (x, y, z, w) of a (3, 3) rotation, qw >= 0."""
     tr = R[0, 0] + R[1, 1] + R[2, 2]

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarm.config import ObstacleConfig
 from swarm.obstacles import ObstacleArrays
@@ -47,11 +48,19 @@ def surface_clearance(points_w: FloatArray, obs: ObstacleArrays) -> FloatArray:
 
 def min_pair_distance(points_w: FloatArray) -> float:
     """Smallest distance [m] between any two points, inf with fewer than two."""
-    n = len(points_w)
-    if n < 2:
-        return float("inf")
-    i, j = np.triu_indices(n, 1)
-    return float(np.linalg.norm(points_w[i] - points_w[j], axis=1).min())
+    return float(math.sqrt(_min_pair_d2(np.asarray(points_w, dtype=np.float64))))
+
+
+@njit(cache=True)
+def _min_pair_d2(p):  # noqa: ANN001, ANN202
+    """Smallest squared distance between two rows of ``p`` (n, 3); inf with n < 2."""
+    best = np.inf
+    n = p.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            d0, d1, d2 = p[i, 0] - p[j, 0], p[i, 1] - p[j, 1], p[i, 2] - p[j, 2]
+            best = min(best, d0 * d0 + d1 * d1 + d2 * d2)
+    return best
 
 
 @dataclass(frozen=True)

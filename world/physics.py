@@ -15,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
+from numba import njit
 
 from swarm.model import QuadModel, QuadState
-from swarm.rotation import E3, FloatArray, quat_to_R, quats_to_R
+from swarm.rotation import E3, FloatArray, quat_to_R
 
 
 @dataclass
@@ -38,6 +39,23 @@ def _quat_z_to(axis: FloatArray) -> list[float]:
     v = np.cross(E3, a)
     s = math.sqrt((1 + c) * 2)
     return [v[0] / s, v[1] / s, v[2] / s, s / 2]
+
+
+@njit(cache=True)
+def _frames(a):  # noqa: ANN001, ANN202
+    """Rotations body to world (n, 3, 3) and body rates (n, 3) [rad/s, body] of rows
+    ``a`` = (position, scalar-last quaternion, velocity, angular velocity [world])."""
+    n = a.shape[0]
+    R = np.empty((n, 3, 3))
+    Om = np.empty((n, 3))
+    for i in range(n):
+        x, y, z, w = a[i, 3], a[i, 4], a[i, 5], a[i, 6]
+        R[i, 0, 0], R[i, 0, 1], R[i, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+        R[i, 1, 0], R[i, 1, 1], R[i, 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+        R[i, 2, 0], R[i, 2, 1], R[i, 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+        for k in range(3):  # R^T omega_w
+            Om[i, k] = R[i, 0, k] * a[i, 10] + R[i, 1, k] * a[i, 11] + R[i, 2, k] * a[i, 12]
+    return R, Om
 
 
 @dataclass
@@ -167,22 +185,22 @@ class PhysicsWorld:
     def read_states(self, names: list[str]) -> DroneStates:
         """Ground truth of the drones ``names``, one PyBullet query pair per drone and
         the frame conversions for all of them at once."""
-        pos, quat, lin, ang = [], [], [], []
-        for name in names:
-            uid = self.drones[name]
-            p, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
-            v, w = pb.getBaseVelocity(uid, physicsClientId=self.client)
-            pos.append(p)
-            quat.append(q)
-            lin.append(v)
-            ang.append(w)
         if not names:
             z = np.zeros((0, 3))
             return DroneStates(z, z, np.zeros((0, 4)), z, np.zeros((0, 3, 3)))
-        q_all = np.array(quat)
-        R = quats_to_R(q_all)
-        Omega_b = np.einsum("nji,nj->ni", R, np.array(ang))  # R^T omega_w
-        return DroneStates(np.array(pos), np.array(lin), q_all, Omega_b, R)
+        flat: list[float] = []  # per drone: position (3), quaternion (4), velocity (3), angular velocity (3)
+        get_pose, get_vel, client = pb.getBasePositionAndOrientation, pb.getBaseVelocity, self.client
+        for name in names:
+            uid = self.drones[name]
+            p, q = get_pose(uid, physicsClientId=client)
+            v, w = get_vel(uid, physicsClientId=client)
+            flat += p
+            flat += q
+            flat += v
+            flat += w
+        a = np.array(flat).reshape(-1, 13)
+        R, Omega_b = _frames(a)
+        return DroneStates(a[:, 0:3], a[:, 7:10], a[:, 3:7], Omega_b, R)
 
     def apply_rotors_all(self, names: list[str], f_N: FloatArray, states: DroneStates) -> None:
         """:meth:`apply_rotors` for the drones ``names`` with thrusts ``f_N`` (n, 4) [N] at

@@ -151,16 +151,20 @@ class Agent:
         return ObstacleArrays(arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m,
                               arr.axis_w, arr.is_neighbour)  # fmt: skip
 
-    def ready(self, k: int) -> bool:
-        """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
+    def missing(self, k: int) -> int:
+        """Lockstep: how many messages tick k still waits for: its clock, then (agents
+        source) each live neighbour's state of tick k-1."""
         live = self.clock_live.get(k)
         if live is None:
-            return False
-        if self.from_world:
-            return True  # the clock of tick k carried every neighbour's tick-k state
-        return k == 0 or all(
-            n not in self.others or n in self.table.gone or self.table.latest_k(n) >= k - 1 for n in live
-        )
+            return 1
+        if self.from_world or k == 0:
+            return 0  # the clock of tick k carried every neighbour's tick-k state
+        table = self.table
+        return sum(1 for n in live if n in self.others and n not in table.gone and table.latest_k(n) < k - 1)
+
+    def ready(self, k: int) -> bool:
+        """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
+        return self.missing(k) == 0
 
     def tick(self, msg: Message, lockstep: bool) -> tuple[dict, dict]:
         """One control step on a measurement: (state message body, command message body)."""
@@ -292,9 +296,10 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     wake_s = 0.02 if link is not None else 0.1
     try:
         while not stop:
-            s = inbox.get(time.monotonic() + wake_s)
-            if s is not None:
-                handle(s)
+            # wake when what the oldest pending tick still needs can all be here (one
+            # wake for a neighbour mesh's states, not one per state), or after wake_s
+            need = max(1, agent.missing(min(m.k for m in pending))) if lockstep and pending else 1
+            inbox.wait_for(need, time.monotonic() + wake_s)
             for s in inbox.drain():
                 handle(s)
             for name, up in tp.liveliness_events(live_sub):

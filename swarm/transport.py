@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import queue
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -159,20 +160,27 @@ class Inbox:
     """Samples of one or more subscribers in one queue, waited on with a deadline and
     without polling.
 
-    Zenoh's own receive thread hands each sample to one :class:`queue.SimpleQueue`
-    (a callback that only enqueues: no Python thread of ours per key, one thread hop
-    less per message than a channel drained by a pump thread); :meth:`get` wakes as
-    soon as any arrives. A process with a callback subscriber can hang in
-    ``session.close()`` or at interpreter exit, so processes that own an Inbox end
-    with ``os._exit`` and never close the session."""
+    Zenoh's receive thread hands each sample to a callback that only enqueues it (no
+    pump thread of ours per key); :meth:`get` wakes as soon as any arrives, and
+    :meth:`wait_for` only once a given number has (a lockstep world waiting for 16
+    commands wakes once, not 16 times). A process with a callback subscriber can hang in
+    ``session.close()`` or at interpreter exit, so processes that own an Inbox end with
+    ``os._exit`` and never close the session."""
 
-    def __init__(self, session: zenoh.Session, keys: str | list[str], capacity: int = 4096) -> None:
-        # ``capacity`` is kept for callers; a SimpleQueue is unbounded and the consumer
-        # drains it every tick
+    def __init__(self, session: zenoh.Session, keys: str | list[str]) -> None:
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._want = 1 << 62  # wake wait_for when the queue holds this many samples
+        self._enough = threading.Event()
         self.subs = [
-            session.declare_subscriber(key, self._q.put) for key in ([keys] if isinstance(keys, str) else keys)
+            session.declare_subscriber(key, self._on_sample) for key in ([keys] if isinstance(keys, str) else keys)
         ]
+
+    def _on_sample(self, sample: Any) -> None:
+        with self._lock:
+            self._q.put(sample)
+            if self._q.qsize() >= self._want:
+                self._enough.set()
 
     def get(self, deadline: float) -> Any | None:
         """Next sample, or None at the wall-clock ``deadline`` (``time.monotonic``)."""
@@ -180,6 +188,18 @@ class Inbox:
             return self._q.get(timeout=max(0.0, deadline - time.monotonic()))
         except queue.Empty:
             return None
+
+    def wait_for(self, count: int, deadline: float) -> None:
+        """Block until at least ``count`` samples are queued, or the wall-clock
+        ``deadline`` (``time.monotonic``); then :meth:`drain` them."""
+        with self._lock:
+            if self._q.qsize() >= count:
+                return
+            self._want = count
+            self._enough.clear()
+        self._enough.wait(max(0.0, deadline - time.monotonic()))
+        with self._lock:
+            self._want = 1 << 62
 
     def drain(self) -> Iterator[Any]:
         """Every sample queued right now, without blocking."""

@@ -42,7 +42,7 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
     dropped_channel = writer.register_channel("/dropped", "json", raw_schema)
 
     session = tp.open_session(conf)
-    inbox = tp.Inbox(session, keys.everything, 1 << 18)
+    inbox = tp.Inbox(session, keys.everything)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
     counter = tp.Counter()

@@ -125,7 +125,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     counter = tp.Counter()
     seq = 0
     token = tp.declare_liveliness(session, keys.alive("world"))
-    cmd_in = tp.Inbox(session, keys.all_commands, 1 << 16)
+    cmd_in = tp.Inbox(session, keys.all_commands)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in real}  # motion capture
     pub_clock = session.declare_publisher(keys.clock)
@@ -319,8 +319,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                         for a in waiting:
                             slots[a].sent_at.pop(k, None)
                         break
-                    # wake on the next command, at the latest after 20 ms to look at liveliness
-                    poll_commands(k, min(wait_until, time.monotonic() + 0.02))
+                    # wake once the missing commands can all be here (not on each one), at the
+                    # latest after 20 ms to look at liveliness
+                    cmd_in.wait_for(len(waiting), min(wait_until, time.monotonic() + 0.02))
+                    poll_commands(k)
             t_wait_end = time.perf_counter()
             phase["wait"] += t_wait_end - t_pub_end
             for j in range(sub):

@@ -1,0 +1,42 @@
+"""The inbox over a real Zenoh session on loopback (multicast scouting off, an explicit
+port): it wakes on the first sample, or only once a given number has arrived."""
+
+from __future__ import annotations
+
+import time
+
+from swarm import transport as tp
+from tools.launch import free_port
+
+
+def test_inbox_wakes_once_enough_samples_are_queued_or_at_the_deadline():
+    endpoint = tp.world_endpoint("127.0.0.1", free_port())
+    listener = tp.open_session(tp.session_config(listen=[endpoint]))
+    sender = tp.open_session(tp.session_config(listen=["tcp/127.0.0.1:0"], connect=[endpoint]))
+    inbox = tp.Inbox(listener, "test/inbox/*")
+    hello = tp.Inbox(listener, "test/hello")  # declared after the inbox: once it hears, so does the inbox
+    pub, pub_hello = sender.declare_publisher("test/inbox/a"), sender.declare_publisher("test/hello")
+    deadline = time.monotonic() + 10.0
+    while hello.get(time.monotonic() + 0.05) is None:
+        pub_hello.put(b"hello")
+        assert time.monotonic() < deadline, "no sample got through"
+
+    # fewer than asked: returns at the deadline, with what came
+    pub.put(b"1")
+    t0 = time.monotonic()
+    inbox.wait_for(3, t0 + 0.3)
+    assert time.monotonic() - t0 >= 0.29
+    # enough: returns as soon as the third is queued, well before the deadline
+    pub.put(b"2")
+    pub.put(b"3")
+    t0 = time.monotonic()
+    inbox.wait_for(3, t0 + 10.0)
+    assert time.monotonic() - t0 < 5.0
+    assert [tp.payload(s) for s in inbox.drain()] == [b"1", b"2", b"3"]
+    # already queued: no wait at all
+    pub.put(b"4")
+    inbox.wait_for(1, time.monotonic() + 10.0)
+    t0 = time.monotonic()
+    inbox.wait_for(1, t0 + 10.0)
+    assert time.monotonic() - t0 < 0.1
+    assert [tp.payload(s) for s in inbox.drain()] == [b"4"]

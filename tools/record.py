@@ -24,6 +24,7 @@ from swarm.messages import DecodeError, decode
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
+BATCH, BATCH_S = 32, 0.02  # messages, s: the recorder handles what arrived when either is reached
 TAIL_S = 0.3  # keep listening this long after the world says done
 
 
@@ -52,8 +53,10 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
     count = 0
     try:
         while not stop:
-            first = inbox.get(time.monotonic() + 0.05)
-            for s in ([first] if first is not None else []) + list(inbox.drain()):
+            # wake for a batch (or every BATCH_S), not for each message: a wake per command
+            # would take the CPU from the agents just when they compute their next one
+            inbox.wait_for(BATCH, time.monotonic() + BATCH_S)
+            for s in inbox.drain():
                 key = str(s.key_expr)
                 data = tp.payload(s)
                 now_ns = time.time_ns()

@@ -17,7 +17,7 @@ from numba import njit
 
 from swarm.errors import InputError
 from swarm.model import QuadModel, QuadState, check_finite, thrust_vector_to_setpoint
-from swarm.rotation import E3, FloatArray, R_to_euler, quat_to_R, vee
+from swarm.rotation import E3, FloatArray, R_to_euler, quat_to_R, quat_to_R_into, vee
 
 
 @dataclass(frozen=True)
@@ -59,9 +59,11 @@ class PathTracker:
         self.speed_mps = float(speed_mps)
         self.gains = gains or TrackingGains()
         seg = np.diff(W, axis=0)
-        self._len = np.linalg.norm(seg, axis=1)
-        self._tail = np.concatenate([np.cumsum(self._len[::-1])[::-1][1:], [0.0]])
-        self._W_list, self._len_list, self._tail_list = W.tolist(), self._len.tolist(), self._tail.tolist()
+        seg_len = np.linalg.norm(seg, axis=1)
+        # the per-tick path reads plain floats: waypoints, segment lengths, path left after each
+        self._W_list: list[list[float]] = W.tolist()
+        self._len_list: list[float] = seg_len.tolist()
+        self._tail_list: list[float] = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]]).tolist()
         self.segment = 0
 
     @property
@@ -75,7 +77,7 @@ class PathTracker:
 
     def _reference(self, x: list[float]) -> tuple[tuple[float, ...], tuple[float, ...], float]:
         """:meth:`reference` on plain floats (the per-tick path: no small numpy arrays)."""
-        last = len(self._len) - 1
+        last = len(self._len_list) - 1
         while True:
             i = self.segment
             ax, ay, az = self._W_list[i]
@@ -235,10 +237,7 @@ def onboard_rotor_thrusts(q, Omega_b, roll, pitch, yaw, thrust, kR, kOm, J, B_in
     Rd = np.empty((3, 3))
     w = np.empty(4)
     for i in range(n):
-        x, y, z, s = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
-        R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)
-        R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)
-        R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * s), 2 * (y * z + x * s), 1 - 2 * (x * x + y * y)
+        quat_to_R_into(q[i], R)
         cr, sr = math.cos(roll[i]), math.sin(roll[i])
         cp, sp = math.cos(pitch[i]), math.sin(pitch[i])
         cy, sy = math.cos(yaw[i]), math.sin(yaw[i])

@@ -182,8 +182,13 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
     return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
 
 
+def record_of(msg: Message) -> dict[str, Any]:
+    """The header and body of a decoded message as one dict (vectors stay numpy arrays)."""
+    return {"kind": msg.kind, "src": msg.src, "seq": msg.seq, "t": msg.t, "k": msg.k, **msg.body}
+
+
 def to_json(msg: Message) -> dict[str, Any]:
-    """A JSON-ready dict of a decoded message (for the recorder)."""
+    """A JSON-ready dict of a decoded message (:func:`record_of` with lists for arrays)."""
 
     def conv(v: Any) -> Any:
         if isinstance(v, np.ndarray):
@@ -194,7 +199,13 @@ def to_json(msg: Message) -> dict[str, Any]:
             return {k: conv(e) for k, e in v.items()}
         return v
 
-    return {"kind": msg.kind, "src": msg.src, "seq": msg.seq, "t": msg.t, "k": msg.k, **conv(msg.body)}
+    return conv(record_of(msg))
+
+
+def _measured(meas: Any, i: int) -> dict[str, Any]:
+    """Row ``i`` of a clock's ``meas`` (array or list) as measurement fields."""
+    row = meas[CLOCK_MEAS * i : CLOCK_MEAS * (i + 1)]
+    return {"x": row[0:3], "v": row[3:6], "q": row[6:10], "w": row[10:13]}
 
 
 def clock_measurement(clock: Message, agent_id: str) -> Message | None:
@@ -204,9 +215,7 @@ def clock_measurement(clock: Message, agent_id: str) -> Message | None:
         i = clock["meas_ids"].index(agent_id)
     except ValueError:
         return None
-    row = clock["meas"][CLOCK_MEAS * i : CLOCK_MEAS * (i + 1)]
-    body = {"x": row[0:3], "v": row[3:6], "q": row[6:10], "w": row[10:13]}
-    return Message("measurement", clock.run, clock.src, clock.seq, clock.t, clock.k, body)
+    return Message("measurement", clock.run, clock.src, clock.seq, clock.t, clock.k, _measured(clock["meas"], i))
 
 
 def expand_record(record: dict[str, Any]) -> list[dict[str, Any]]:
@@ -218,11 +227,8 @@ def expand_record(record: dict[str, Any]) -> list[dict[str, Any]]:
         return [record]
     head: dict[str, Any] = {k: record[k] for k in ("src", "seq", "t", "k") if k in record}
     out = [record]
-    meas = record["meas"]
     for i, aid in enumerate(record["meas_ids"]):
-        row = meas[CLOCK_MEAS * i : CLOCK_MEAS * (i + 1)]
-        out.append({**head, "kind": "measurement", "agent": aid, "x": row[0:3], "v": row[3:6], "q": row[6:10],
-                    "w": row[10:13]})  # fmt: skip
+        out.append({**head, "kind": "measurement", "agent": aid, **_measured(record["meas"], i)})
     out.append({**head, "kind": "obstacles", "items": record["items"]})
     return out
 

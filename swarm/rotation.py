@@ -8,6 +8,7 @@ uses, unit norm, rotating body-frame vectors into the world frame
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
@@ -37,6 +38,16 @@ def quat_to_R(q: FloatArray) -> FloatArray:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+@njit(cache=True)
+def quat_to_R_into(q, R):  # noqa: ANN001, ANN201
+    """:func:`quat_to_R` for compiled code: writes the rotation of the scalar-last unit
+    quaternion ``q`` (4,) into ``R`` (3, 3) (no allocation per call)."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
 
 
 def R_to_quat(R: FloatArray) -> FloatArray:

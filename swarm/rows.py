@@ -31,7 +31,7 @@ from numba import njit
 from swarm.barriers import A_P, A_W, B_P, B_W, BarrierKind, BarrierRows, H, barrier_row
 from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import BoolArray, FloatArray
+from swarm.rotation import BoolArray, FloatArray, quat_to_R_into
 
 
 @dataclass(slots=True)
@@ -54,17 +54,8 @@ class OwnAffine:
 def _own_rotor(x, v, q, Om, K, consts):  # noqa: ANN001
     """Body-centre state and [A | a0_own] at the rotor level; ``consts`` = (l, g, Jx, Jy, Jz)."""
     l, g, Jx, Jy, Jz = consts[0], consts[1], consts[2], consts[3], consts[4]  # noqa: E741
-    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
     R = np.empty((3, 3))
-    R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
-    R[0, 1] = 2 * (qx * qy - qz * qw)
-    R[0, 2] = 2 * (qx * qz + qy * qw)
-    R[1, 0] = 2 * (qx * qy + qz * qw)
-    R[1, 1] = 1 - 2 * (qx * qx + qz * qz)
-    R[1, 2] = 2 * (qy * qz - qx * qw)
-    R[2, 0] = 2 * (qx * qz - qy * qw)
-    R[2, 1] = 2 * (qy * qz + qx * qw)
-    R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
+    quat_to_R_into(q, R)
     wx, wy, wz = Om[0], Om[1], Om[2]
     dx = -(Jz - Jy) * wy * wz / Jx  # Omega'_drift
     dy = -(Jx - Jz) * wz * wx / Jy

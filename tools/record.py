@@ -20,7 +20,7 @@ import orjson
 from mcap.writer import CompressionType, Writer
 
 from swarm import transport as tp
-from swarm.messages import DecodeError, decode
+from swarm.messages import DecodeError, decode, record_of
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
@@ -71,9 +71,8 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
                 if ch is None:
                     ch = channels[key] = writer.register_channel("/" + key, "json", schema)
                 log_ns = int(m.t * 1e9)
-                rec = {"kind": m.kind, "src": m.src, "seq": m.seq, "t": m.t, "k": m.k, **m.body}
-                writer.add_message(ch, log_ns, orjson.dumps(rec, option=orjson.OPT_SERIALIZE_NUMPY), now_ns,
-                                   sequence=m.seq & 0xFFFFFFFF)  # fmt: skip
+                rec = orjson.dumps(record_of(m), option=orjson.OPT_SERIALIZE_NUMPY)
+                writer.add_message(ch, log_ns, rec, now_ns, sequence=m.seq & 0xFFFFFFFF)
                 count += 1
                 if m.kind == "status" and m["done"] and done_at is None:
                     done_at = time.monotonic() + linger_s

@@ -18,7 +18,7 @@ import pybullet as pb
 from numba import njit
 
 from swarm.model import QuadModel, QuadState
-from swarm.rotation import E3, FloatArray, quat_to_R
+from swarm.rotation import E3, FloatArray, quat_to_R_into
 
 
 @dataclass
@@ -49,10 +49,7 @@ def _frames(a):  # noqa: ANN001, ANN202
     R = np.empty((n, 3, 3))
     Om = np.empty((n, 3))
     for i in range(n):
-        x, y, z, w = a[i, 3], a[i, 4], a[i, 5], a[i, 6]
-        R[i, 0, 0], R[i, 0, 1], R[i, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
-        R[i, 1, 0], R[i, 1, 1], R[i, 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
-        R[i, 2, 0], R[i, 2, 1], R[i, 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+        quat_to_R_into(a[i, 3:7], R[i])
         for k in range(3):  # R^T omega_w
             Om[i, k] = R[i, 0, k] * a[i, 10] + R[i, 1, k] * a[i, 11] + R[i, 2, k] * a[i, 12]
     return R, Om
@@ -167,21 +164,6 @@ class PhysicsWorld:
         _uid, c0, vel = self.obstacles[name]
         return c0 + vel * self.t_s
 
-    def apply_rotors(self, name: str, f_N: FloatArray, state: QuadState | None = None) -> None:
-        """Rotor thrusts (4,) [N] for the next step (PyBullet clears forces every step).
-
-        Applied as the exact equivalent wrench: the collective ``T = B[0] f`` along body z
-        at the centre of mass, and the torque ``B[1:4] f`` (roll and pitch from the rotor
-        offsets, yaw from the rotors' drag); ``state`` saves a query if already read."""
-        uid = self.drones[name]
-        st = state if state is not None else self.state(name)
-        R = quat_to_R(st.q)
-        wrench = self._mixer[name] @ f_N
-        pb.applyExternalForce(
-            uid, -1, (wrench[0] * R[:, 2]).tolist(), st.x_w.tolist(), pb.WORLD_FRAME, physicsClientId=self.client
-        )
-        pb.applyExternalTorque(uid, -1, (R @ wrench[1:]).tolist(), pb.WORLD_FRAME, physicsClientId=self.client)
-
     def read_states(self, names: list[str]) -> DroneStates:
         """Ground truth of the drones ``names``, one PyBullet query pair per drone and
         the frame conversions for all of them at once."""
@@ -203,8 +185,12 @@ class PhysicsWorld:
         return DroneStates(a[:, 0:3], a[:, 7:10], a[:, 3:7], Omega_b, R)
 
     def apply_rotors_all(self, names: list[str], f_N: FloatArray, states: DroneStates) -> None:
-        """:meth:`apply_rotors` for the drones ``names`` with thrusts ``f_N`` (n, 4) [N] at
-        ``states`` (in the same order)."""
+        """Rotor thrusts ``f_N`` (n, 4) [N] of the drones ``names`` for the next step
+        (PyBullet clears forces every step), at ``states`` (in the same order).
+
+        Applied as the exact equivalent wrench: the collective ``T = B[0] f`` along body z
+        at the centre of mass, and the torque ``B[1:4] f`` (roll and pitch from the rotor
+        offsets, yaw from the rotors' drag)."""
         if not names:
             return
         key = tuple(names)
@@ -250,14 +236,6 @@ class PhysicsWorld:
     def set_pose(self, name: str, x_w: FloatArray, q: FloatArray) -> None:
         """Place a kinematic drone where motion capture saw it (``q`` scalar-last)."""
         pb.resetBasePositionAndOrientation(self.drones[name], list(x_w), list(q), physicsClientId=self.client)
-
-    def state(self, name: str) -> QuadState:
-        uid = self.drones[name]
-        pos, q = pb.getBasePositionAndOrientation(uid, physicsClientId=self.client)
-        lin, ang = pb.getBaseVelocity(uid, physicsClientId=self.client)
-        qa = np.array(q)
-        Omega_b = quat_to_R(qa).T @ np.array(ang)
-        return QuadState(np.array(pos), np.array(lin), qa, Omega_b)
 
     def close(self) -> None:
         if pb.isConnected(self.client):

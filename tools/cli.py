@@ -56,7 +56,10 @@ def run_scenario(
 
     handle = RunHandle.start(cfg, out, gui=gui, run_id=run_id)
     interrupted = {"now": False}
-    old = signal.signal(signal.SIGINT, lambda s, f: interrupted.__setitem__("now", True))
+    # Ctrl-C, `kill` and a closed terminal all stop the run the same way: the children run
+    # in their own process groups, so a launcher that just died would leave them flying
+    stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    old = {sig: signal.signal(sig, lambda s, f: interrupted.__setitem__("now", True)) for sig in stop_signals}
     bar = Progress(
         TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
         TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,
@@ -79,7 +82,8 @@ def run_scenario(
                     reason = "wall-clock limit"
     finally:
         handle.finish(reason or "interrupted")
-        signal.signal(signal.SIGINT, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
     return (0 if handle.reason == "completed" else 1), handle.metrics()
 
 

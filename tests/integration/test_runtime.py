@@ -161,7 +161,8 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-def test_ctrl_c_stops_every_process_and_keeps_the_recording(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
     from swarm import transport as tp
     from swarm.config import dump, load
     from tools.launch import free_port
@@ -179,7 +180,7 @@ def test_ctrl_c_stops_every_process_and_keeps_the_recording(tmp_path):
     try:
         first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking
         assert first is not None
-        cli.send_signal(signal.SIGINT)
+        cli.send_signal(sig)
         cli.wait(timeout=60)
         assert cli.returncode == 1  # interrupted, not completed
         assert _processes_mentioning(run_id) == []

@@ -59,7 +59,8 @@ class Agent:
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
         self._roster_key: tuple[str, ...] = ()  # the clock's ids the roster rows were indexed for
-        self._roster_rows: list[int] = []  # indices of the other drones in the clock's ids
+        self._roster_rows = np.zeros(0, dtype=np.intp)  # indices of the other drones in the clock's ids
+        self._roster_const = (np.zeros((0, 3)), np.zeros(0, dtype=bool))  # shared by each tick's roster rows
         self.obstacle_ids: list[str] = []
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self.infeasible = 0
@@ -127,13 +128,14 @@ class Agent:
             ids = tuple(m["ids"])
             if ids != self._roster_key:  # the roster's drones changed (rarely): index them again
                 self._roster_key = ids
-                self._roster_rows = [i for i, name in enumerate(ids) if name in self.others]
-                self.roster_ids = [ids[i] for i in self._roster_rows]
+                self._roster_rows = np.array([i for i, name in enumerate(ids) if name in self.others], dtype=np.intp)
+                self.roster_ids = [ids[i] for i in self._roster_rows.tolist()]
+                n = len(self._roster_rows)
+                self._roster_const = (np.zeros((n, 3)), np.ones(n, dtype=bool))  # no acceleration, spheres
             xvr = m["xvr"].reshape(-1, 7)[self._roster_rows]
-            n = len(self._roster_rows)
+            zeros, ones = self._roster_const
             self.roster[m.k] = (m.t, ObstacleArrays(
-                xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), np.zeros((n, 3)), xvr[:, 6].copy(), np.zeros((n, 3)),
-                np.ones(n, dtype=bool),
+                xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), zeros, xvr[:, 6].copy(), zeros, ones,
             ))  # fmt: skip
             for old in [kk for kk in self.roster if kk < m.k - 4]:
                 del self.roster[old]

@@ -64,6 +64,32 @@ def _residuals(G, b, u, lb, ub, C, d, tol):  # noqa: ANN001, ANN202
     return c, active, v
 
 
+@njit(cache=True)
+def _select(c, is_nb, x, r2, max_rows):  # noqa: ANN001, ANN202
+    """(indices of the rows, ascending; number of non-neighbours): every non-neighbour,
+    and the neighbours with ``|c - x|^2 <= r2``, nearest first (stable) while fewer than
+    ``max_rows`` rows. The caller raises when the non-neighbours alone are too many."""
+    n = c.shape[0]
+    d2 = np.empty(n)
+    keep = np.empty(n, dtype=np.bool_)
+    fixed = 0
+    near = 0
+    for i in range(n):
+        d2[i] = (c[i, 0] - x[0]) ** 2 + (c[i, 1] - x[1]) ** 2 + (c[i, 2] - x[2]) ** 2
+        if not is_nb[i]:
+            keep[i] = True
+            fixed += 1
+        else:
+            keep[i] = d2[i] <= r2
+            near += keep[i]
+    if fixed + near > max_rows and fixed <= max_rows:  # too many neighbours: the nearest ones
+        cand = np.flatnonzero(keep & is_nb)
+        order = np.argsort(d2[cand], kind="mergesort")
+        for j in order[max_rows - fixed :]:
+            keep[cand[j]] = False
+    return np.flatnonzero(keep), fixed
+
+
 ACTIVE_TOL = 1e-8
 """A row whose constraint value ``Lg_h u - lower`` is at most this is reported active."""
 
@@ -187,25 +213,10 @@ class SafetyFilter:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
         within the sensing radius (nearest first while rows remain). More obstacles than
         ``max_rows`` raise :class:`InputError`: an obstacle is never silently dropped."""
-        n = len(obstacles)
-        if not obstacles.has_neighbours:
-            if n > self.config.max_rows:
-                raise InputError(f"obstacles: {n} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}")
-            return np.arange(n)
-        diff = obstacles.c_w - state.x_w
-        d2 = np.einsum("nj,nj->n", diff, diff)
-        keep = ~obstacles.is_neighbour | (d2 <= self.config.sensing_radius_m**2)
-        idx = np.flatnonzero(keep)
-        if idx.size > self.config.max_rows:
-            fixed = np.flatnonzero(~obstacles.is_neighbour)
-            room = self.config.max_rows - fixed.size
-            if room < 0:
-                raise InputError(
-                    f"obstacles: {fixed.size} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}"
-                )
-            near = np.flatnonzero(keep & obstacles.is_neighbour)
-            near = near[np.argsort(d2[near], kind="stable")[:room]]
-            idx = np.sort(np.concatenate([fixed, near]))
+        idx, fixed = _select(obstacles.c_w, obstacles.is_neighbour, state.x_w, self.config.sensing_radius_m**2,
+                             self.config.max_rows)  # fmt: skip
+        if fixed > self.config.max_rows:
+            raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}")
         return idx
 
     def with_floor(self, state: QuadState) -> LinearInputSet:
@@ -234,15 +245,15 @@ class SafetyFilter:
 
     def rows(
         self, state: QuadState, obstacles: ObstacleArrays, u_ref: FloatArray | None = None,
-        input_set: LinearInputSet | None = None,
+        input_set: LinearInputSet | None = None, sel: IntArray | None = None,
     ) -> Rows:  # fmt: skip
-        """The barrier rows for ``obstacles`` (all of them, no selection); with ``u_ref``
-        also their residuals at it (against ``input_set``, default the filter's)."""
+        """The barrier rows for ``obstacles`` (all of them, or those ``sel`` indexes); with
+        ``u_ref`` also their residuals at it (against ``input_set``, default the filter's)."""
         cfg = self.config
         return assemble(
             cfg.barrier, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
             rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
-            input_set=input_set or self.input_set,
+            input_set=input_set or self.input_set, sel=sel,
         )  # fmt: skip
 
     def filter(
@@ -259,9 +270,8 @@ class SafetyFilter:
             ):  # fmt: skip
                 u_ref = check_finite("u_ref", u_ref, (self.m,))
         idx = self.select(state, obstacles)
-        obs = obstacles if idx.size == len(obstacles) else obstacles.subset(idx)
         ins = self.with_floor(state)
-        rows = self.rows(state, obs, u_ref, ins)
+        rows = self.rows(state, obstacles, u_ref, ins, idx)
         G, b = rows.G, rows.b  # barrier rows as G u <= b
         n = b.shape[0]
 

@@ -2,25 +2,29 @@
 
 Every message carries ``ver`` (schema version), ``kind``, ``run`` (run id), ``src``
 (sender id), ``seq`` (per-sender sequence number), ``t`` (sim time [s]) and ``k``
-(control tick). Vectors travel as lists of floats: positions [m, world], velocities
-[m/s, world], quaternions scalar-last (see :mod:`swarm.rotation`), body rates [rad/s,
-body], forces [N]. :func:`decode` checks types, shapes and finiteness and raises
-:class:`DecodeError`; receivers drop and count such messages, never crash.
+(control tick). Vectors travel as msgpack binaries of little-endian float64 (a list of
+floats costs about 14 us to decode per hundred; these cost 2): positions [m, world],
+velocities [m/s, world], quaternions scalar-last (see :mod:`swarm.rotation`), body rates
+[rad/s, body], forces [N]. Obstacle items keep plain lists (few, and read as records).
+:func:`decode` checks types, shapes and finiteness and raises :class:`DecodeError`;
+receivers drop and count such messages, never crash.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from itertools import repeat
 from typing import Any
 
 import msgpack
 import numpy as np
 
-VERSION = 2  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 3  # 2: the clock carries the measurements and obstacles; the command the filter report
+# 3: vectors as float64 binaries
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
-# "vf" variable-length float list, "ls" list of str, "obs" obstacle list
+# "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
 SCHEMAS: dict[str, dict[str, Any]] = {
     "measurement": {"x": 3, "v": 3, "q": 4, "w": 3},
     # what a neighbour needs of an agent: its body centre, velocity and bounding radius
@@ -72,12 +76,16 @@ class Message:
 
 
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
-    """msgpack bytes of a message; numpy arrays become lists of floats."""
-    if kind not in SCHEMAS:
+    """msgpack bytes of a message; vector fields (arrays or lists) become float64 binaries."""
+    schema = SCHEMAS.get(kind)
+    if schema is None:
         raise ValueError(f"unknown message kind {kind!r}")
     out: dict[str, Any] = {"ver": VERSION, "kind": kind, "run": run, "src": src, "seq": seq, "t": float(t), "k": k}
     for name, value in body.items():
-        if isinstance(value, np.ndarray):
+        spec = schema.get(name)
+        if type(spec) is int or spec == "vf":
+            value = np.asarray(value, dtype=_F8).tobytes()
+        elif isinstance(value, np.ndarray):
             value = value.tolist()
         out[name] = value
     return msgpack.packb(out, use_bin_type=True)
@@ -90,6 +98,17 @@ def _float(name: str, x: Any) -> float:
 
 
 _NUMBER = (float, int)
+_F8 = np.dtype("<f8")
+
+
+def _floats(name: str, x: Any, n: int | None) -> np.ndarray:
+    """A vector field: a binary of ``n`` (any number if None) little-endian float64, all finite."""
+    if type(x) is not bytes or len(x) % 8 or (n is not None and len(x) != 8 * n):
+        raise DecodeError(f"{name}: expected {n if n is not None else 'some'} float64 as a binary")
+    arr = np.frombuffer(x, _F8).astype(float)  # a writable copy in native order
+    if not np.isfinite(arr).all():
+        raise DecodeError(f"{name}: expected finite numbers")
+    return arr
 
 
 def _vector(name: str, x: Any, n: int | None) -> np.ndarray:
@@ -150,8 +169,8 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
         if name not in m:
             raise DecodeError(f"{kind}: missing field {name!r}")
         x = m[name]
-        if isinstance(spec, int):
-            body[name] = _vector(name, x, spec)
+        if type(spec) is int:
+            body[name] = _floats(name, x, spec)
         elif spec == "f":
             body[name] = _float(name, x)
         elif spec == "i":
@@ -167,11 +186,11 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
                 raise DecodeError(f"{name}: expected a boolean")
             body[name] = x
         elif spec == "vf":
-            body[name] = _vector(name, x, None)
+            body[name] = _floats(name, x, None)
         elif spec == "ls":
-            if not isinstance(x, list) or not all(isinstance(e, str) for e in x):
+            if type(x) is not list or not all(map(isinstance, x, repeat(str))):
                 raise DecodeError(f"{name}: expected a list of strings")
-            body[name] = list(x)
+            body[name] = x  # (unpackb built it: nobody else holds it)
         else:
             body[name] = _obstacles(x)
     if kind == "clock":

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -29,10 +28,6 @@ class ObstacleArrays:
     radius_m: FloatArray  # (n,) m
     axis_w: FloatArray  # (n, 3) unit axis of a cylinder [world], zeros for a sphere
     is_neighbour: BoolArray  # (n,)
-
-    @cached_property
-    def has_neighbours(self) -> bool:
-        return bool(self.is_neighbour.any())
 
     def __len__(self) -> int:
         return len(self.radius_m)

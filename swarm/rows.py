@@ -31,7 +31,7 @@ from numba import njit
 from swarm.barriers import A_P, A_W, B_P, B_W, BarrierKind, BarrierRows, H, barrier_row
 from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import BoolArray, FloatArray, quat_to_R_into
+from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
 
 
 @dataclass(slots=True)
@@ -96,9 +96,10 @@ class OwnDynamics:
 
 @njit(cache=True)
 def rows_kernel(
-    kind, c, cd, r, r_own, axis, cdd, is_nb, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
+    kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
 ):  # noqa: ANN001, E501
-    """All rows at once (safety radius ``r + r_own``; responsibility share ``rho`` for the
+    """All rows at once, row i for obstacle ``sel[i]`` (a selection indexes the obstacle
+    arrays, no copy; safety radius ``r + r_own``; responsibility share ``rho`` for the
     rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as one QP constraint
     set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals
     ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips them).
@@ -106,7 +107,7 @@ def rows_kernel(
     Returns (Y_used (n,2,3), coef (n,7), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
     bound and ``any_inside`` that some row is already inside its safety radius."""
-    n = c.shape[0]
+    n = sel.shape[0]
     k_in = C.shape[0]
     m = Aa.shape[1] - 1
     Y = np.empty((n, 2, 3))
@@ -126,10 +127,11 @@ def rows_kernel(
     dw = np.empty(3)
     any_inside = False
     for i in range(n):
+        o = sel[i]
         for k in range(3):
-            p[k] = c[i, k] - xv_b[0, k]
-            w[k] = cd[i, k] - xv_b[1, k]
-        inside[i] = barrier_row(kind, p, w, r[i] + r_own, axis[i], eps, gamma_ho, v_esc, Y[i], coef[i])
+            p[k] = c[o, k] - xv_b[0, k]
+            w[k] = cd[o, k] - xv_b[1, k]
+        inside[i] = barrier_row(kind, p, w, r[o] + r_own, axis[o], eps, gamma_ho, v_esc, Y[i], coef[i])
         any_inside = any_inside or inside[i]
         co = coef[i]
         rel = 0.0
@@ -138,12 +140,12 @@ def rows_kernel(
             dp[k] = co[A_P] * Y[i, 0, k] + co[B_P] * Y[i, 1, k]
             dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k]
             rel += dp[k] * Y[i, 1, k]
-            own += dw[k] * (cdd[i, k] + Aa[k, m])
+            own += dw[k] * (cdd[o, k] + Aa[k, m])
         row = k_in + i
         for j in range(m):
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
-        share = rho if is_nb[i] else 1.0
+        share = rho if is_nb[o] else 1.0
         b[row] = own + share * (rel + gamma * co[H])
     if with_ref:
         for row in range(k_in + n):
@@ -214,9 +216,11 @@ def assemble(
     escape_speed: float = 0.3,
     u_ref: FloatArray | None = None,
     input_set: LinearInputSet | None = None,
+    sel: IntArray | None = None,
 ) -> Rows:
-    """Build every row at once. ``r_own_m`` [m] is added to each obstacle's radius for the
-    full safety radius of its row (the agent's own bounding radius and margin).
+    """Build every row at once: one per obstacle, or row i for obstacle ``sel[i]``.
+    ``r_own_m`` [m] is added to each obstacle's radius for the full safety radius of its
+    row (the agent's own bounding radius and margin).
     With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
     ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``)."""
     m = own.Aa.shape[1] - 1
@@ -227,8 +231,8 @@ def assemble(
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
         kind.code, obstacles.c_w, obstacles.c_dot_w, obstacles.radius_m, r_own_m, obstacles.axis_w, obstacles.c_ddot_w,
-        obstacles.is_neighbour, rho, own.xv_b, own.Aa, gamma, eps, gamma_ho, escape_speed,
-        _NO_REF if u_ref is None else u_ref, lb, ub, C, d,
+        obstacles.is_neighbour, np.arange(len(obstacles)) if sel is None else sel, rho, own.xv_b, own.Aa, gamma,
+        eps, gamma_ho, escape_speed, _NO_REF if u_ref is None else u_ref, lb, ub, C, d,
     )  # fmt: skip
     return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside))
 

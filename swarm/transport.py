@@ -160,8 +160,8 @@ class Inbox:
     """Samples of one or more subscribers in one queue, waited on with a deadline and
     without polling.
 
-    Zenoh's receive thread hands each sample to a callback that only enqueues it (no
-    pump thread of ours per key); :meth:`get` wakes as soon as any arrives, and
+    Zenoh's receive thread runs a callback that only enqueues each sample (no pump
+    thread per key); :meth:`get` wakes as soon as any arrives, and
     :meth:`wait_for` only once a given number has (a lockstep world waiting for 16
     commands wakes once, not 16 times). A process with a callback subscriber can hang in
     ``session.close()`` or at interpreter exit, so processes that own an Inbox end with
@@ -172,9 +172,11 @@ class Inbox:
         self._lock = threading.Lock()
         self._want = 1 << 62  # wake wait_for when the queue holds this many samples
         self._enough = threading.Event()
-        self.subs = [
-            session.declare_subscriber(key, self._on_sample) for key in ([keys] if isinstance(keys, str) else keys)
-        ]
+        # indirect=False: Zenoh's receive thread runs the callback itself, instead of handing
+        # each sample to a Python thread of its own first (one thread wake-up less per sample;
+        # measured on 16 agents: the recorder's context switches per tick 75 -> 52)
+        on_sample = zenoh.handlers.Callback(self._on_sample, indirect=False)
+        self.subs = [session.declare_subscriber(key, on_sample) for key in ([keys] if isinstance(keys, str) else keys)]
 
     def _on_sample(self, sample: Any) -> None:
         with self._lock:

@@ -127,6 +127,41 @@ def test_sensing_radius_and_row_limit():
         filt.filter(state, np.full(4, 0.066), static)
 
 
+def _select_by_definition(c, is_nb, x, radius, max_rows):
+    """The row selection as the docs state it, in plain numpy: every non-neighbour, the
+    neighbours within ``radius``, and of those only the nearest (stable) while rows remain."""
+    d2 = ((c - x) ** 2).sum(axis=1)
+    keep = ~is_nb | (d2 <= radius**2)
+    idx = np.flatnonzero(keep)
+    if idx.size <= max_rows:
+        return idx
+    fixed = np.flatnonzero(~is_nb)
+    near = np.flatnonzero(keep & is_nb)
+    near = near[np.argsort(d2[near], kind="stable")[: max_rows - fixed.size]]
+    return np.sort(np.concatenate([fixed, near]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 12), st.integers(1, 6), st.floats(0.5, 3.0), st.integers(0, 2**32 - 1), st.booleans(),
+)  # fmt: skip
+def test_row_selection_matches_its_definition(n, max_rows, radius, seed, ties):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-3, 3, (n, 3))
+    if ties and n:  # equal distances: the earlier index must win
+        c[:] = c[0]
+    is_nb = rng.random(n) < 0.7
+    filt = SafetyFilter(MODEL, FilterConfig(sensing_radius_m=radius, max_rows=max_rows))
+    state = QuadState.hover([0.1, -0.2, 0.3])
+    obs = ObstacleArrays.build(c.reshape(-1, 3), [0.1] * n, is_neighbour=is_nb)
+    if (~is_nb).sum() > max_rows:
+        with pytest.raises(InputError, match="max_rows"):
+            filt.select(state, obs)
+    else:
+        want = _select_by_definition(c, is_nb, state.x_w, radius, max_rows)
+        np.testing.assert_array_equal(filt.select(state, obs), want)
+
+
 @pytest.mark.parametrize(
     "make",
     [

@@ -117,6 +117,12 @@ def test_a_clock_whose_arrays_do_not_match_its_ids_is_rejected(over):
         decode(_clock(**over), "r")
 
 
+@pytest.mark.parametrize("over", [dict(live=["a", 2]), dict(ids="ab"), dict(meas_ids=[b"b"])])
+def test_a_clock_with_a_bad_name_list_is_rejected(over):
+    with pytest.raises(DecodeError, match="list of strings"):
+        decode(_clock(**over), "r")
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=200))
 def test_arbitrary_bytes_never_raise_anything_but_decode_error(data):
@@ -133,10 +139,12 @@ def test_arbitrary_bytes_never_raise_anything_but_decode_error(data):
         lambda m: m.update(run="other"),
         lambda m: m.update(kind="nope"),
         lambda m: m.pop("seq"),
-        lambda m: m.update(x=[1.0, 2.0]),
-        lambda m: m.update(x=[1.0, float("nan"), 0.0]),
-        lambda m: m.update(x=[1.0, True, 0.0]),
-        lambda m: m.update(q=["a", 0, 0, 1]),
+        lambda m: m.update(x=np.array([1.0, 2.0]).tobytes()),  # too short
+        lambda m: m.update(x=np.array([1.0, np.nan, 0.0]).tobytes()),
+        lambda m: m.update(x=np.array([1.0, np.inf, 0.0]).tobytes()),
+        lambda m: m.update(x=np.zeros(3).tobytes()[:-1]),  # not whole float64s
+        lambda m: m.update(x=[1.0, 2.0, 3.0]),  # a list, not a float64 binary
+        lambda m: m.update(q=np.zeros(4, dtype=np.float32).tobytes()),  # float32
         lambda m: m.update(t=float("inf")),
     ],
 )

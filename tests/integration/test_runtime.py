@@ -112,7 +112,8 @@ def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
         encode("state", "another-run", "cf9", 1, 0.0, 0, x=[0, 0, 0], v=[0, 0, 0], r=0.1),
         msgpack.packb({"ver": 99, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 0}),
         msgpack.packb({"ver": VERSION, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 5,
-                       "level": "attitude", "u": [0.0, float("nan"), 0.0, 0.3], "intervention": 0.0, "status": "ok"}),
+                       "level": "attitude", "u": np.array([0.0, np.nan, 0.0, 0.3]).tobytes(), "intervention": 0.0,
+                       "status": "ok"}),
     ]  # fmt: skip
     pubs = [h.session.declare_publisher(k) for k in keys]
     sent = 0

@@ -20,6 +20,8 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from swarm.model import all_finite
+
 VERSION = 3  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries
 
@@ -105,8 +107,8 @@ def _floats(name: str, x: Any, n: int | None) -> np.ndarray:
     """A vector field: a binary of ``n`` (any number if None) little-endian float64, all finite."""
     if type(x) is not bytes or len(x) % 8 or (n is not None and len(x) != 8 * n):
         raise DecodeError(f"{name}: expected {n if n is not None else 'some'} float64 as a binary")
-    arr = np.frombuffer(x, _F8).astype(float)  # a writable copy in native order
-    if not np.isfinite(arr).all():
+    arr = np.frombuffer(bytearray(x), _F8)  # writable (its own buffer)
+    if not all_finite(arr):
         raise DecodeError(f"{name}: expected finite numbers")
     return arr
 
@@ -143,13 +145,49 @@ def _obstacles(x: Any) -> list[dict[str, Any]]:
     return out
 
 
+def _int(name: str, x: Any) -> int:
+    if type(x) is not int:  # (a bool is not an integer here)
+        raise DecodeError(f"{name}: expected an integer")
+    return x
+
+
+def _str(name: str, x: Any) -> str:
+    if type(x) is not str:
+        raise DecodeError(f"{name}: expected a string")
+    return x
+
+
+def _bool(name: str, x: Any) -> bool:
+    if type(x) is not bool:
+        raise DecodeError(f"{name}: expected a boolean")
+    return x
+
+
+def _strs(name: str, x: Any) -> list[str]:
+    if type(x) is not list or not all(map(isinstance, x, repeat(str))):
+        raise DecodeError(f"{name}: expected a list of strings")
+    return x  # (unpackb built it: nobody else holds it)
+
+
+def _checker(spec: Any) -> Any:
+    """The function that checks and converts one field of ``spec``: (name, value) -> value."""
+    if type(spec) is int:
+        return lambda name, x: _floats(name, x, spec)
+    simple = {"f": _float, "i": _int, "s": _str, "b": _bool, "ls": _strs, "obs": lambda name, x: _obstacles(x)}
+    return simple.get(spec, lambda name, x: _floats(name, x, None))  # "vf"
+
+
+# kind -> ((field, checker), ...): decode looks each field's check up once, not per message
+_CHECKS = {kind: tuple((name, _checker(spec)) for name, spec in fields.items()) for kind, fields in SCHEMAS.items()}
+
+
 def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Message:
     """Decode and check a message of this ``run`` (and one of ``kinds`` if given)."""
     try:
         m = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several types on garbage
         raise DecodeError(f"not msgpack ({type(exc).__name__})") from None
-    if not isinstance(m, dict):
+    if type(m) is not dict:
         raise DecodeError("not a map")
     for h in HEADER:
         if h not in m:
@@ -159,40 +197,16 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
     if m["run"] != run:
         raise DecodeError(f"run {m['run']!r}, expected {run!r}")
     kind = m["kind"]
-    if kind not in SCHEMAS or (kinds is not None and kind not in kinds):
+    checks = _CHECKS.get(kind) if type(kind) is str else None
+    if checks is None or (kinds is not None and kind not in kinds):
         raise DecodeError(f"unexpected kind {kind!r}")
-    if not isinstance(m["src"], str) or not isinstance(m["seq"], int) or not isinstance(m["k"], int):
+    if type(m["src"]) is not str or type(m["seq"]) is not int or type(m["k"]) is not int:
         raise DecodeError("header: src must be str, seq and k int")
     t = _float("t", m["t"])
-    body: dict[str, Any] = {}
-    for name, spec in SCHEMAS[kind].items():
-        if name not in m:
-            raise DecodeError(f"{kind}: missing field {name!r}")
-        x = m[name]
-        if type(spec) is int:
-            body[name] = _floats(name, x, spec)
-        elif spec == "f":
-            body[name] = _float(name, x)
-        elif spec == "i":
-            if isinstance(x, bool) or not isinstance(x, int):
-                raise DecodeError(f"{name}: expected an integer")
-            body[name] = x
-        elif spec == "s":
-            if not isinstance(x, str):
-                raise DecodeError(f"{name}: expected a string")
-            body[name] = x
-        elif spec == "b":
-            if not isinstance(x, bool):
-                raise DecodeError(f"{name}: expected a boolean")
-            body[name] = x
-        elif spec == "vf":
-            body[name] = _floats(name, x, None)
-        elif spec == "ls":
-            if type(x) is not list or not all(map(isinstance, x, repeat(str))):
-                raise DecodeError(f"{name}: expected a list of strings")
-            body[name] = x  # (unpackb built it: nobody else holds it)
-        else:
-            body[name] = _obstacles(x)
+    try:
+        body = {name: check(name, m[name]) for name, check in checks}
+    except KeyError as exc:
+        raise DecodeError(f"{kind}: missing field {exc.args[0]!r}") from None
     if kind == "clock":
         n, n_meas = len(body["ids"]), len(body["meas_ids"])
         if body["xvr"].size != CLOCK_XVR * n or body["meas"].size != CLOCK_MEAS * n_meas:

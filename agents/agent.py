@@ -27,7 +27,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
 from swarm.filter import FilterStatus, SafetyFilter
-from swarm.messages import Message, clock_measurement, encode
+from swarm.messages import Message, clock_measurement, decode, encode
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
@@ -63,6 +63,7 @@ class Agent:
         self._roster_const = (np.zeros((0, 3)), np.zeros(0, dtype=bool))  # shared by each tick's roster rows
         self.obstacle_ids: list[str] = []
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
+        self._newest_k = -1  # newest tick whose clock arrived
         self.infeasible = 0
         self.min_h = math.inf
         self.reached = False
@@ -72,8 +73,8 @@ class Agent:
         # real tick pays for it.
         hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
-        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
-               dropped=0, **self._report("ok"))  # fmt: skip
+        decode(encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
+                      dropped=0, **self._report("ok")), "")  # fmt: skip
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
@@ -120,7 +121,8 @@ class Agent:
     def on_clock(self, m: Message) -> None:
         """Tick k's live agents and obstacles, and (world source) the roster."""
         self.clock_live[m.k] = m["live"]
-        if m.k >= max(self.clock_live):
+        if m.k >= self._newest_k:
+            self._newest_k = m.k
             self.obstacles = items_to_arrays(m["items"])
             self.obstacle_ids = [i["id"] for i in m["items"]]
         if self.from_world:
@@ -137,10 +139,12 @@ class Agent:
             self.roster[m.k] = (m.t, ObstacleArrays(
                 xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), zeros, xvr[:, 6].copy(), zeros, ones,
             ))  # fmt: skip
-            for old in [kk for kk in self.roster if kk < m.k - 4]:
-                del self.roster[old]
-        for old in [kk for kk in self.clock_live if kk < m.k - 4]:
-            del self.clock_live[old]
+            if len(self.roster) > 5:  # keep the last five ticks
+                for old in [kk for kk in self.roster if kk < m.k - 4]:
+                    del self.roster[old]
+        if len(self.clock_live) > 5:
+            for old in [kk for kk in self.clock_live if kk < m.k - 4]:
+                del self.clock_live[old]
 
     def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
         """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""

@@ -204,6 +204,11 @@ class TimeSettings(_Strict):
     command_timeout_s: float = Field(0.05, gt=0)  # realtime: an older command is replaced by braking
     start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
     land_timeout_s: float = Field(15.0, gt=0)  # after the end: how long real drones get to land
+    # swarm run: pin each process to one CPU (the world to the first, the recorder to the
+    # last, agents round-robin). With more processes than cores, a process that stays on
+    # one core keeps its caches and is not moved around by the scheduler: at 16 agents on
+    # 2 cores it is what brings realtime to 99 % of ticks on time (see the README)
+    pin_cpus: bool = True
 
     @model_validator(mode="after")
     def _ratio(self) -> TimeSettings:

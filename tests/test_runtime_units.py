@@ -224,3 +224,13 @@ def test_path_deviation_is_the_distance_to_the_polyline():
 def test_every_shipped_config_validates(path):
     cfg = load(path)
     assert cfg.agents
+
+
+def test_the_cpu_plan_spreads_agents_round_robin_around_world_and_recorder():
+    from tools.launch import cpu_plan
+
+    assert cpu_plan(3, [0]) == {}  # one CPU: nothing to choose
+    assert cpu_plan(4, [0, 1]) == {"world": 0, "recorder": 1, 0: 1, 1: 0, 2: 1, 3: 0}
+    plan = cpu_plan(16, [2, 3, 5, 7])  # the CPUs this process may use, whatever their numbers
+    assert plan["world"] == 2 and plan["recorder"] == 7
+    assert [plan[i] for i in range(16)].count(3) == 4 and set(plan.values()) == {2, 3, 5, 7}

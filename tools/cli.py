@@ -87,6 +87,18 @@ def run_scenario(
     return (0 if handle.reason == "completed" else 1), handle.metrics()
 
 
+def _pin_cpu() -> None:
+    """Pin this process to the CPU ``swarm run`` chose for it (``time.pin_cpus``): every
+    thread it has now (numpy's BLAS threads start at import) and, through inheritance,
+    the ones it starts later (Zenoh's)."""
+    from tools.launch import CPU_ENV
+
+    cpu = os.environ.get(CPU_ENV)
+    if cpu:
+        for task in Path("/proc/self/task").iterdir():
+            os.sched_setaffinity(int(task.name), {int(cpu)})
+
+
 @click.group()
 def cli() -> None:
     """c3swarm: one process per quadrotor, Zenoh between them, C3BF-QP safety filters."""
@@ -145,6 +157,7 @@ def world(
     config: str, run_id: str | None, port: int | None, mode: str | None, gui: bool, expect: tuple[str, ...]
 ) -> None:
     """Start the world process alone (runs spread over machines)."""
+    _pin_cpu()
     from swarm import transport as tp
     from world.main import main as world_main
 
@@ -160,6 +173,7 @@ def world(
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
 def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode: str | None) -> None:
     """Start one agent process alone."""
+    _pin_cpu()
     from agents.agent import main as agent_main
     from swarm import transport as tp
 
@@ -179,6 +193,7 @@ def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode
 @click.option("--port", type=int)
 def record(config: str, out: Path, run_id: str | None, port: int | None) -> None:
     """Start the recorder alone."""
+    _pin_cpu()
     from swarm import transport as tp
     from tools.record import main as record_main
 

@@ -38,6 +38,28 @@ def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
         pass
 
 
+CPU_ENV = "SWARM_CPU"  # the CPU a child of swarm run pins itself to (tools.cli)
+
+
+def cpu_plan(n_agents: int, cpus: list[int] | None = None) -> dict[str | int, int]:
+    """The CPU of each process of a run: the world on the first of ``cpus`` (default: the
+    CPUs this process may use), the recorder on the last, agent i round-robin from the
+    second. Empty on a single CPU (nothing to choose)."""
+    cpus = sorted(os.sched_getaffinity(0)) if cpus is None else cpus
+    if len(cpus) < 2:
+        return {}
+    plan: dict[str | int, int] = {"world": cpus[0], "recorder": cpus[-1]}
+    for i in range(n_agents):
+        plan[i] = cpus[(i + 1) % len(cpus)]
+    return plan
+
+
+def unpinned(cfg: ScenarioConfig) -> ScenarioConfig:
+    """``cfg`` with ``time.pin_cpus`` off: for runs that share the machine with other runs
+    (``--jobs``), which would otherwise all pin their worlds to the same CPU."""
+    return cfg.model_copy(update={"time": cfg.time.model_copy(update={"pin_cpus": False})})
+
+
 @dataclass
 class Progress:
     t_s: float = 0.0
@@ -64,17 +86,22 @@ class RunHandle:
         cfg_path = out / "config.yaml"
         cfg_path.write_text(dump(cfg))
         common = [str(cfg_path), "--run", h.run]
-        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)])
-        for a in cfg.agents:
-            h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id])
-        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])])
+        cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
+        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
+        for i, a in enumerate(cfg.agents):
+            h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id], cpus.get(i))
+        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
+                 cpus.get("world"))  # fmt: skip
         h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         return h
 
-    def _spawn(self, name: str, args: list[str]) -> None:
+    def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
         log = open(self.out / "logs" / f"{name}.log", "wb")  # noqa: SIM115 - owned by the child
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env.pop(CPU_ENV, None)
+        if cpu is not None:
+            env[CPU_ENV] = str(cpu)  # the child pins itself before it starts any thread
         self.procs[name] = subprocess.Popen(
             [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
         )

@@ -40,7 +40,7 @@ import numpy as np
 from swarm.config import ConfigError, ScenarioConfig, resolve
 from swarm.model import QuadParams
 from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
-from tools.launch import RunHandle
+from tools.launch import RunHandle, unpinned
 from tools.orca import run_orca
 
 Raw = dict[str, Any]
@@ -282,6 +282,8 @@ def sweep(
     """Run every grid point; write ``results.csv`` and the plots; return the rows."""
     points = grid(axes)
     built = [build(base, p, knobs) for p in points]  # every point validated before any run
+    if jobs > 1:  # runs side by side: no two worlds pinned to one CPU
+        built = [(unpinned(cfg), method) for cfg, method in built]
     out.mkdir(parents=True, exist_ok=True)
 
     def one(i: int) -> dict[str, Any]:

@@ -58,8 +58,23 @@ def test_swap_2_lockstep_reaches_goals_safely_and_repeats_exactly(start_run, sou
             np.testing.assert_array_equal(a[agent][k], b[agent][k])
 
 
-def test_circle_8_realtime_completes_without_collision(start_run):
-    h = start_run(scenario("circle_8.yaml", time={"mode": "realtime"}))
+def _cpus_of(pid: int) -> set[frozenset[int]]:
+    """The CPU sets of every thread of a process (Zenoh's threads included)."""
+    return {frozenset(os.sched_getaffinity(int(t.name))) for t in Path(f"/proc/{pid}/task").iterdir()}
+
+
+def test_circle_8_realtime_completes_without_collision_with_each_process_on_its_cpu(start_run):
+    from tools.launch import cpu_plan
+
+    cfg = scenario("circle_8.yaml", time={"mode": "realtime"})
+    assert cfg.time.pin_cpus  # the default
+    h = start_run(cfg)
+    h.wait_sim_time(0.0)  # every process is up and running its loop
+    plan = cpu_plan(len(cfg.agents))
+    if plan:  # (more than one CPU)
+        names = {"world": "world", "recorder": "recorder"} | {i: f"agent-{a.id}" for i, a in enumerate(cfg.agents)}
+        for key, name in names.items():
+            assert _cpus_of(h.procs[name].pid) == {frozenset({plan[key]})}, name
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["mode"] == "realtime"

@@ -55,6 +55,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 # Real drones' measurements come from the motion-capture relay on their own key.
 CLOCK_XVR, CLOCK_MEAS = 7, 13
 HEADER = ("ver", "kind", "run", "src", "seq", "t", "k")
+_NUMBER = (float, int)
+_F8 = np.dtype("<f8")  # the vectors' wire type
 
 
 class DecodeError(ValueError):
@@ -99,10 +101,6 @@ def _float(name: str, x: Any) -> float:
     return float(x)
 
 
-_NUMBER = (float, int)
-_F8 = np.dtype("<f8")
-
-
 def _floats(name: str, x: Any, n: int | None) -> np.ndarray:
     """A vector field: a binary of ``n`` (any number if None) little-endian float64, all finite."""
     if type(x) is not bytes or len(x) % 8 or (n is not None and len(x) != 8 * n):
@@ -113,14 +111,10 @@ def _floats(name: str, x: Any, n: int | None) -> np.ndarray:
     return arr
 
 
-def _vector(name: str, x: Any, n: int | None) -> np.ndarray:
-    if type(x) is not list or (n is not None and len(x) != n):
-        raise DecodeError(f"{name}: expected a list of {n if n is not None else 'some'} numbers")
-    if len(x) > 16:  # long lists: let numpy check (bools and strings give another dtype kind)
-        arr = np.asarray(x)
-        if arr.ndim != 1 or arr.dtype.kind not in "if" or not np.isfinite(arr).all():
-            raise DecodeError(f"{name}: expected finite numbers")
-        return arr.astype(float, copy=False)
+def _vector(name: str, x: Any, n: int) -> np.ndarray:
+    """A short vector given as a list (obstacle items): ``n`` finite numbers."""
+    if type(x) is not list or len(x) != n:
+        raise DecodeError(f"{name}: expected a list of {n} numbers")
     for e in x:  # exact types: a bool is not a number here
         if type(e) not in _NUMBER or not math.isfinite(e):
             raise DecodeError(f"{name}: expected finite numbers")

@@ -101,7 +101,7 @@ class RunHandle:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         env.pop(CPU_ENV, None)
         if cpu is not None:
-            env[CPU_ENV] = str(cpu)  # the child pins itself before it starts any thread
+            env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (tools.cli)
         self.procs[name] = subprocess.Popen(
             [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
         )

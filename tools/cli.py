@@ -66,6 +66,7 @@ def run_scenario(
     )  # fmt: skip
     limit = time.monotonic() + handle.wall_limit_s
     reason: str | None = None
+    info = ""
     try:
         with bar:
             task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
@@ -80,6 +81,9 @@ def run_scenario(
                     reason = "interrupted"
                 elif reason is None and time.monotonic() > limit:
                     reason = "wall-clock limit"
+            t_end = handle.progress.t_s
+            if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached
+                bar.update(task, total=t_end, completed=t_end, info=f"{info}  (all goals reached)")
     finally:
         handle.finish(reason or "interrupted")
         for sig, handler in old.items():

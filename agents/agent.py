@@ -27,7 +27,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
 from swarm.filter import FilterStatus, SafetyFilter
-from swarm.messages import Message, clock_measurement, decode, encode
+from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
@@ -73,8 +73,9 @@ class Agent:
         # real tick pays for it.
         hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
-        decode(encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
-                      dropped=0, **self._report("ok")), "")  # fmt: skip
+        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
+               dropped=0, **self._report("ok"))  # fmt: skip
+        warm_up()
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases

@@ -209,6 +209,12 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
     return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
 
 
+def warm_up() -> None:
+    """Decode one message now: the first decode loads the compiled finiteness check of the
+    vectors, which a process should pay before its first tick, not in it."""
+    decode(encode("state", "", "warm-up", 0, 0.0, 0, x=np.zeros(3), v=np.zeros(3), r=0.0), "")
+
+
 def record_of(msg: Message) -> dict[str, Any]:
     """The header and body of a decoded message as one dict (vectors stay numpy arrays)."""
     return {"kind": msg.kind, "src": msg.src, "seq": msg.seq, "t": msg.t, "k": msg.k, **msg.body}

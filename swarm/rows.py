@@ -97,12 +97,13 @@ class OwnDynamics:
 @njit(cache=True)
 def rows_kernel(
     kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
-):  # noqa: ANN001, E501
+):  # noqa: ANN001
     """All rows at once, row i for obstacle ``sel[i]`` (a selection indexes the obstacle
     arrays, no copy; safety radius ``r + r_own``; responsibility share ``rho`` for the
-    rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as one QP constraint
-    set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals
-    ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips them).
+    rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as
+    one QP constraint set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``),
+    and the residuals ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips
+    them).
 
     Returns (Y_used (n,2,3), coef (n,7), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and

@@ -34,7 +34,7 @@ import numpy as np
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, onboard_rotor_thrusts
-from swarm.messages import decode, encode
+from swarm.messages import encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
@@ -210,9 +210,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
         sl.onboard.rotor_thrusts(st0, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), sim.dt_s)
         sl.att.from_thrust_vector(st0, np.array([0.0, 0.0, sl.model.params.weight_N]))
         sl.onboard.yaw_sp_rad = sl.yaw_sp_rad
-    decode(encode("command", "", "warm-up", 0, 0.0, 0, level="attitude", u=np.zeros(4), intervention=0.0, status="ok",
-                  solve_us=0.0, row_ids=[], h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False,
-                  dropped=0), "")  # fmt: skip
+    warm_up()
 
     # --- wait for everyone ----------------------------------------------------------
     deadline = time.monotonic() + cfg.time.start_timeout_s

@@ -54,12 +54,17 @@ def run_scenario(
 
     from tools.launch import RunHandle
 
-    handle = RunHandle.start(cfg, out, gui=gui, run_id=run_id)
     interrupted = {"now": False}
     # Ctrl-C, `kill` and a closed terminal all stop the run the same way: the children run
     # in their own process groups, so a launcher that just died would leave them flying
     stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     old = {sig: signal.signal(sig, lambda s, f: interrupted.__setitem__("now", True)) for sig in stop_signals}
+    try:
+        handle = RunHandle.start(cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted["now"])
+    except BaseException:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+        raise
     bar = Progress(
         TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
         TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,

@@ -16,9 +16,12 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import zenoh
 
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
@@ -77,7 +80,13 @@ class RunHandle:
         self._session: Any = None
 
     @classmethod
-    def start(cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None) -> RunHandle:
+    def start(
+        cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None,
+        cancelled: Callable[[], bool] = lambda: False,
+    ) -> RunHandle:  # fmt: skip
+        """Start the recorder, the world and the first agent, wait for that agent's
+        liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
+        the other agents. An exception while starting stops what was started."""
         port = cfg.network.port or free_port(cfg.network.host)
         cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
         h = cls(cfg, out, run_id or f"{cfg.name}-{secrets.token_hex(3)}")
@@ -87,14 +96,39 @@ class RunHandle:
         cfg_path.write_text(dump(cfg))
         common = [str(cfg_path), "--run", h.run]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
-        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
-        for i, a in enumerate(cfg.agents):
-            h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id], cpus.get(i))
-        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
-                 cpus.get("world"))  # fmt: skip
         h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
+        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
+        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
+                 cpus.get("world"))  # fmt: skip
+        try:
+            for i, a in enumerate(cfg.agents):
+                h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id], cpus.get(i))
+                if i == 0:
+                    h._wait_alive(a.id, cancelled)
+        except BaseException:
+            h._stop_all()
+            raise
         return h
+
+    def _wait_alive(self, agent_id: str, cancelled: Callable[[], bool]) -> None:
+        """Wait until ``agent_id`` declares its liveliness (its warm-up tick is done), or
+        its process exits, or the start timeout passes.
+
+        The first agent compiles numba's kernels into the on-disk cache when it is cold
+        (after an install or a code change: about 9 s of CPU); the others then load them
+        in well under a second. Started together, N agents would each compile, N times
+        the CPU on two cores, and 16 of them miss the world's start timeout."""
+        sub = tp.liveliness_subscriber(self._session, tp.Keys(self.run).alive(agent_id))
+        try:
+            deadline = time.monotonic() + self.cfg.time.start_timeout_s
+            proc = self.procs[f"agent-{agent_id}"]
+            while time.monotonic() < deadline and proc.poll() is None and not cancelled():
+                s = tp.wait_sample(sub, min(deadline, time.monotonic() + 0.1))
+                if s is not None and s.kind == zenoh.SampleKind.PUT:
+                    return
+        finally:
+            sub.undeclare()
 
     def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
         log = open(self.out / "logs" / f"{name}.log", "wb")  # noqa: SIM115 - owned by the child
@@ -180,6 +214,14 @@ class RunHandle:
         if reason == "completed":
             self._wait_procs(["recorder"], 15.0)
             self._wait_procs([n for n in self.procs if n.startswith("agent-")], 5.0)
+        self._stop_all()
+        self.reason = reason
+        self.metrics()
+        return reason
+
+    def _stop_all(self) -> None:
+        """SIGTERM to every child's group, SIGKILL after a grace period, and then to each
+        group anyway (nothing left behind)."""
         for p in self.procs.values():
             if p.poll() is None:
                 _signal_group(p, signal.SIGTERM)
@@ -190,9 +232,6 @@ class RunHandle:
             self._wait_procs(list(self.procs), 2.0)
         for p in self.procs.values():  # reap anything left in the groups
             _signal_group(p, signal.SIGKILL)
-        self.reason = reason
-        self.metrics()
-        return reason
 
     def metrics(self) -> dict[str, Any]:
         from tools.runfiles import write_metrics

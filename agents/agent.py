@@ -31,9 +31,16 @@ from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.neighbours import NeighbourTable
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import quat_to_R
+from swarm.rotation import quat_to_R_rows
 from swarm.scenario import items_to_arrays
 from swarm.shutdown import StopFlag
+
+
+def _keep_newest(by_tick: dict, n: int) -> None:
+    """Drop the oldest entries of a dict keyed by tick until ``n`` remain (clocks arrive in
+    tick order over one TCP link, so the first inserted is the oldest)."""
+    while len(by_tick) > n:
+        del by_tick[next(iter(by_tick))]
 
 
 class Agent:
@@ -140,19 +147,20 @@ class Agent:
             self.roster[m.k] = (m.t, ObstacleArrays(
                 xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), zeros, xvr[:, 6].copy(), zeros, ones,
             ))  # fmt: skip
-            if len(self.roster) > 5:  # keep the last five ticks
-                for old in [kk for kk in self.roster if kk < m.k - 4]:
-                    del self.roster[old]
-        if len(self.clock_live) > 5:
-            for old in [kk for kk in self.clock_live if kk < m.k - 4]:
-                del self.clock_live[old]
+            _keep_newest(self.roster, 5)
+        _keep_newest(self.clock_live, 5)
 
     def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
         """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""
-        ks = [kk for kk in self.roster if k is None or kk <= k]
-        if not ks:
-            return ObstacleArrays.empty()
-        t_r, arr = self.roster[max(ks)]
+        if k is None:  # the newest (inserted last: clocks come in tick order)
+            if not self.roster:
+                return ObstacleArrays.empty()
+            t_r, arr = self.roster[next(reversed(self.roster))]
+        else:
+            ks = [kk for kk in self.roster if kk <= k]
+            if not ks:
+                return ObstacleArrays.empty()
+            t_r, arr = self.roster[max(ks)]
         if t == t_r:
             return arr
         return ObstacleArrays(arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m,
@@ -178,7 +186,7 @@ class Agent:
         me, model, level = self.me, self.model, self.level
         k, t = msg.k, msg.t
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = quat_to_R(state.q).tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = quat_to_R_rows(state.q)
         wx, wy, _wz = state.Omega_b.tolist()
         (x, y, z), (vx, vy, vz), lm = state.x_w.tolist(), state.v_w.tolist(), model.params.l_m
         x_b = np.array([x + lm * r02, y + lm * r12, z + lm * r22])  # x + l R e3
@@ -214,7 +222,7 @@ class Agent:
             if status is not FilterStatus.OK:
                 self.infeasible += 1
             if res.h.size:
-                self.min_h = min(self.min_h, res.min_h)
+                self.min_h = min(self.min_h, *res.h.tolist())
             intervention, solve_us = res.intervention, res.solve_time_s * 1e6
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0

@@ -177,8 +177,7 @@ class FilterResult:
     @property
     def intervention(self) -> float:
         """``|u - u_ref|`` in input units."""
-        d = self.u - self.u_ref
-        return math.sqrt(float(d @ d))
+        return math.dist(self.u.tolist(), self.u_ref.tolist())
 
 
 class SafetyFilter:

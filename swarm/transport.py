@@ -9,6 +9,7 @@ never Python callbacks (a process with a callback subscriber can hang in
 from __future__ import annotations
 
 import json
+import os
 import queue
 import threading
 import time
@@ -228,4 +229,25 @@ def liveliness_subscriber(session: zenoh.Session, key: str) -> Any:
 
 
 def open_session(conf: zenoh.Config) -> zenoh.Session:
-    return zenoh.open(conf)
+    """Open a session whose own threads (receive, transmit, timers) run under Linux's
+    ``SCHED_BATCH`` policy: a Zenoh thread that wakes then waits for the running thread's
+    time slice instead of preempting it. The calling thread keeps its policy.
+
+    With more processes than cores, the transmit thread woken by each command preempted its
+    agent's main thread (its ``put`` took 2 to 3 ms of wall time for 45 us of CPU), costing
+    context switches and the main thread's caches. In 5 A/B pairs at 16 agents on 2 cores
+    this raised the ticks on time from 98.7 % to 99.3 % on average (better or equal in each
+    pair) and lowered the agents' CPU by up to 15 % (README). The threads inherit the policy
+    from the thread that starts them; where it cannot be set the session opens as usual."""
+    set_policy = getattr(os, "sched_setscheduler", None)
+    if set_policy is None:
+        return zenoh.open(conf)
+    own = os.sched_getscheduler(0)
+    try:
+        set_policy(0, os.SCHED_BATCH, os.sched_param(0))
+    except OSError:
+        return zenoh.open(conf)
+    try:
+        return zenoh.open(conf)
+    finally:
+        set_policy(0, own, os.sched_param(0))

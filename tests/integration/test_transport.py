@@ -3,7 +3,13 @@ port): it wakes on the first sample, or only once a given number has arrived."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
+
+import pytest
 
 from swarm import transport as tp
 from tools.launch import free_port
@@ -40,3 +46,33 @@ def test_inbox_wakes_once_enough_samples_are_queued_or_at_the_deadline():
     inbox.wait_for(1, t0 + 10.0)
     assert time.monotonic() - t0 < 0.1
     assert [tp.payload(s) for s in inbox.drain()] == [b"4"]
+
+
+_BATCH_CHECK = """
+import json, os, time
+from swarm import transport as tp
+from tools.launch import free_port
+before = set(os.listdir("/proc/self/task"))
+endpoint = tp.world_endpoint("127.0.0.1", free_port())
+listener = tp.open_session(tp.session_config(listen=[endpoint]))
+sender = tp.open_session(tp.session_config(listen=["tcp/127.0.0.1:0"], connect=[endpoint]))
+inbox = tp.Inbox(listener, "test/batch")
+pub = sender.declare_publisher("test/batch")
+deadline = time.monotonic() + 10.0
+while inbox.get(time.monotonic() + 0.05) is None and time.monotonic() < deadline:
+    pub.put(b"x")  # until the link is up, with its threads
+new = set(os.listdir("/proc/self/task")) - before
+print(json.dumps({"new": [os.sched_getscheduler(int(t)) for t in new], "caller": os.sched_getscheduler(0)}))
+os._exit(0)
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="Linux scheduling policies")
+def test_zenoh_threads_run_as_batch_and_the_caller_keeps_its_policy():
+    """In a fresh process (Zenoh starts its threads once per process): every thread the
+    sessions started runs under SCHED_BATCH, the caller's policy is unchanged."""
+    out = subprocess.run([sys.executable, "-c", _BATCH_CHECK], capture_output=True, text=True, timeout=60, check=True)
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert seen["new"], "Zenoh started no thread"
+    assert set(seen["new"]) == {os.SCHED_BATCH}
+    assert seen["caller"] == os.SCHED_OTHER

@@ -103,6 +103,8 @@ class RunHandle:
                  cpus.get("world"))  # fmt: skip
         try:
             for i, a in enumerate(cfg.agents):
+                if cancelled():  # stopped while the first agent came up: start no more
+                    break
                 h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id], cpus.get(i))
                 if i == 0:
                     h._wait_alive(a.id, cancelled)

@@ -221,8 +221,7 @@ class Agent:
             u, status = res.u, res.status
             if status is not FilterStatus.OK:
                 self.infeasible += 1
-            if res.h.size:
-                self.min_h = min(self.min_h, *res.h.tolist())
+            self.min_h = min(self.min_h, res.min_h)
             intervention, solve_us = res.intervention, res.solve_time_s * 1e6
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0

@@ -172,7 +172,7 @@ class FilterResult:
 
     @property
     def min_h(self) -> float:
-        return float(self.h.min()) if self.h.size else math.inf
+        return min(self.h.tolist(), default=math.inf)
 
     @property
     def intervention(self) -> float:

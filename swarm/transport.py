@@ -213,10 +213,15 @@ class Inbox:
                 return
 
 
+def liveliness_change(sample: Any) -> tuple[str, bool]:
+    """(name, alive) of one liveliness sample: a token declared, or gone."""
+    return Keys.last(str(sample.key_expr)), sample.kind == zenoh.SampleKind.PUT
+
+
 def liveliness_events(sub: Any) -> Iterator[tuple[str, bool]]:
     """(name, alive) for every queued liveliness change."""
     for s in drain(sub):
-        yield Keys.last(str(s.key_expr)), s.kind == zenoh.SampleKind.PUT
+        yield liveliness_change(s)
 
 
 def declare_liveliness(session: zenoh.Session, key: str) -> Any:

@@ -21,8 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
 from swarm.messages import DecodeError, decode
@@ -127,7 +125,7 @@ class RunHandle:
             proc = self.procs[f"agent-{agent_id}"]
             while time.monotonic() < deadline and proc.poll() is None and not cancelled():
                 s = tp.wait_sample(sub, min(deadline, time.monotonic() + 0.1))
-                if s is not None and s.kind == zenoh.SampleKind.PUT:
+                if s is not None and tp.liveliness_change(s)[1]:
                     return
         finally:
             sub.undeclare()

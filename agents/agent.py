@@ -25,11 +25,11 @@ import numpy as np
 from agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import AttitudeController, PathTracker, right_hand_bias, setpoint_from_thrust_vector
+from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, right_hand_bias, setpoint_vector
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.neighbours import NeighbourTable
+from swarm.neighbours import NeighbourTable, roster_arrays
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import quat_to_R_rows
 from swarm.scenario import items_to_arrays
@@ -142,11 +142,7 @@ class Agent:
                 self.roster_ids = [ids[i] for i in self._roster_rows.tolist()]
                 n = len(self._roster_rows)
                 self._roster_const = (np.zeros((n, 3)), np.ones(n, dtype=bool))  # no acceleration, spheres
-            xvr = m["xvr"].reshape(-1, 7)[self._roster_rows]
-            zeros, ones = self._roster_const
-            self.roster[m.k] = (m.t, ObstacleArrays(
-                xvr[:, 0:3].copy(), xvr[:, 3:6].copy(), zeros, xvr[:, 6].copy(), zeros, ones,
-            ))  # fmt: skip
+            self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, *self._roster_const))
             _keep_newest(self.roster, 5)
         _keep_newest(self.clock_live, 5)
 
@@ -204,11 +200,13 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
-        v_des = tracker.desired_velocity(state.x_w)
         if me.tiebreak.kind == "right_hand":
             tb = me.tiebreak
+            v_des = tracker.desired_velocity(state.x_w)
             v_des = v_des + right_hand_bias(x_b, v_des, neighbours.c_w, tb.trigger_m, tb.speed_mps, tracker.speed_mps)
-        F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, v_des)
+            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, v_des)
+        else:
+            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w)  # (the whole tracker in one call)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours])
         row_ids: list[str] = []
@@ -230,8 +228,7 @@ class Agent:
             self.reached = math.dist((x, y, z), (gx, gy, gz)) <= self.cfg.goal_tolerance_m
         report = self._report(status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
-            sp = setpoint_from_thrust_vector(u, math.atan2(r10, r00), me.yaw_rad)  # yaw from R
-            cmd = np.array([sp.roll_rad, sp.pitch_rad, sp.yaw_rate_radps, sp.thrust_N])
+            cmd = setpoint_vector(u, math.atan2(r10, r00), me.yaw_rad, YAW_GAIN_PER_S)  # yaw from R
         else:
             cmd = u
         return self._state_body(x_b, v_b), dict(level=level.value, u=cmd, intervention=intervention, **report)

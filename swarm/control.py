@@ -58,12 +58,12 @@ class PathTracker:
         self.W = W
         self.speed_mps = float(speed_mps)
         self.gains = gains or TrackingGains()
-        seg = np.diff(W, axis=0)
-        seg_len = np.linalg.norm(seg, axis=1)
-        # the per-tick path reads plain floats: waypoints, segment lengths, path left after each
-        self._W_list: list[list[float]] = W.tolist()
-        self._len_list: list[float] = seg_len.tolist()
-        self._tail_list: list[float] = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]]).tolist()
+        seg_len = np.linalg.norm(np.diff(W, axis=0), axis=1)
+        self._seg_len = seg_len  # (k-1,) m
+        self._tail = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]])  # (k-1,) m of path after each
+        g = self.gains
+        # (kp [1/s], kd [1/s], max horizontal, max vertical acceleration [m/s^2]) for the compiled kernels
+        self._gains = np.array([g.kp_per_s, g.kd_per_s, g.max_horizontal_accel_mps2, g.max_vertical_accel_mps2])
         self.segment = 0
 
     @property
@@ -72,59 +72,104 @@ class PathTracker:
 
     def reference(self, x_w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
         """Closest path point [m, world], path tangent, remaining path length [m]."""
-        c, tangent, remaining = self._reference(x_w.tolist())
-        return np.array(c), np.array(tangent), remaining
-
-    def _reference(self, x: list[float]) -> tuple[tuple[float, ...], tuple[float, ...], float]:
-        """:meth:`reference` on plain floats (the per-tick path: no small numpy arrays)."""
-        last = len(self._len_list) - 1
-        while True:
-            i = self.segment
-            ax, ay, az = self._W_list[i]
-            bx, by, bz = self._W_list[i + 1]
-            dx, dy, dz = bx - ax, by - ay, bz - az
-            L = self._len_list[i]
-            if L > 1e-9:
-                t = ((x[0] - ax) * dx + (x[1] - ay) * dy + (x[2] - az) * dz) / (L * L)
-                t = min(max(t, 0.0), 1.0)
-            else:
-                t = 1.0
-            if t >= 1.0 and i < last:
-                self.segment += 1
-                continue
-            tangent = (dx / L, dy / L, dz / L) if L > 1e-9 else (0.0, 0.0, 0.0)
-            return (ax + t * dx, ay + t * dy, az + t * dz), tangent, (1.0 - t) * L + self._tail_list[i]
+        self.segment, c, tangent, remaining = _path_point(self.W, self._seg_len, self._tail, self.segment,
+                                                          np.asarray(x_w, dtype=float))  # fmt: skip
+        return c, tangent, remaining
 
     def desired_velocity(self, x_w: FloatArray) -> FloatArray:
         """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
-        kp = self.gains.kp_per_s
-        x = x_w.tolist()
-        c, tangent, remaining = self._reference(x)
-        speed = min(self.speed_mps, kp * remaining)
-        return np.array([speed * tangent[j] + kp * (c[j] - x[j]) for j in range(3)])
+        self.segment, v_des = _desired_velocity(self.W, self._seg_len, self._tail, self.segment,
+                                                np.asarray(x_w, dtype=float), self.speed_mps, self._gains)  # fmt: skip
+        return v_des
 
     def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None) -> FloatArray:
         """Commanded acceleration [m/s^2, world] (without gravity compensation) towards the
         commanded velocity ``v_des_w`` [m/s, world] (default: :meth:`desired_velocity`)."""
-        g = self.gains
-        v_des = (self.desired_velocity(x_w) if v_des_w is None else v_des_w).tolist()
-        v = v_w.tolist()
-        ax, ay, az = (g.kd_per_s * (v_des[j] - v[j]) for j in range(3))
-        h = math.hypot(ax, ay)
-        if h > g.max_horizontal_accel_mps2:
-            ax, ay = ax * g.max_horizontal_accel_mps2 / h, ay * g.max_horizontal_accel_mps2 / h
-        az = min(max(az, -g.max_vertical_accel_mps2), g.max_vertical_accel_mps2)
-        return np.array([ax, ay, az])
+        v_des = self.desired_velocity(x_w) if v_des_w is None else np.asarray(v_des_w, dtype=float)
+        return _desired_accel(v_des, np.asarray(v_w, dtype=float), self._gains)
 
     def thrust_vector(
         self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None
     ) -> FloatArray:
         """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]; ``v_des_w`` as in
-        :meth:`desired_accel`."""
+        :meth:`desired_accel`. Without ``v_des_w``, one compiled call does the whole tracker."""
         p = model.params
+        if v_des_w is None:
+            self.segment, F = _tracker_thrust(self.W, self._seg_len, self._tail, self.segment,
+                                              np.asarray(x_w, dtype=float), np.asarray(v_w, dtype=float),
+                                              self.speed_mps, self._gains, p.mass_kg, p.g_mps2)  # fmt: skip
+            return F
         a = self.desired_accel(x_w, v_w, v_des_w)
         a[2] += p.g_mps2
         return p.mass_kg * a
+
+
+@njit(cache=True)
+def _path_point(W, seg_len, tail, segment, x):  # noqa: ANN001, ANN202
+    """(segment, closest path point (3,) [m, world], tangent (3,), remaining path [m]) of
+    :class:`PathTracker`, starting the search at ``segment`` (it only moves forward)."""
+    last = seg_len.shape[0] - 1
+    c = np.empty(3)
+    tangent = np.zeros(3)
+    while True:
+        i = segment
+        L = seg_len[i]
+        if L > 1e-9:
+            t = 0.0
+            for j in range(3):
+                t += (x[j] - W[i, j]) * (W[i + 1, j] - W[i, j])
+            t = min(max(t / (L * L), 0.0), 1.0)
+        else:
+            t = 1.0
+        if t >= 1.0 and i < last:
+            segment += 1
+            continue
+        for j in range(3):
+            d = W[i + 1, j] - W[i, j]
+            c[j] = W[i, j] + t * d
+            if L > 1e-9:
+                tangent[j] = d / L
+        return segment, c, tangent, (1.0 - t) * L + tail[i]
+
+
+@njit(cache=True)
+def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):  # noqa: ANN001, ANN202
+    """(segment, v_des (3,) [m/s, world]): the target speed along the path (tapering as
+    ``kp * remaining`` near the end) plus ``kp`` times the cross-track error."""
+    segment, c, tangent, remaining = _path_point(W, seg_len, tail, segment, x)
+    kp = gains[0]
+    s = min(speed, kp * remaining)
+    v_des = np.empty(3)
+    for j in range(3):
+        v_des[j] = s * tangent[j] + kp * (c[j] - x[j])
+    return segment, v_des
+
+
+@njit(cache=True)
+def _desired_accel(v_des, v, gains):  # noqa: ANN001, ANN202
+    """``kd (v_des - v)`` [m/s^2, world], horizontal part clipped to its norm limit and
+    vertical part to its limit (``gains`` = kp, kd, max horizontal, max vertical)."""
+    kd, a_h, a_v = gains[1], gains[2], gains[3]
+    a = np.empty(3)
+    for j in range(3):
+        a[j] = kd * (v_des[j] - v[j])
+    h = math.hypot(a[0], a[1])
+    if h > a_h:
+        a[0] *= a_h / h
+        a[1] *= a_h / h
+    a[2] = min(max(a[2], -a_v), a_v)
+    return a
+
+
+@njit(cache=True)
+def _tracker_thrust(W, seg_len, tail, segment, x, v, speed, gains, mass, g):  # noqa: ANN001, ANN202
+    """(segment, F_ref (3,) [N, world]) of :meth:`PathTracker.thrust_vector` in one call."""
+    segment, v_des = _desired_velocity(W, seg_len, tail, segment, x, speed, gains)
+    a = _desired_accel(v_des, v, gains)
+    a[2] += g
+    for j in range(3):
+        a[j] *= mass
+    return segment, a
 
 
 def right_hand_bias(
@@ -213,14 +258,27 @@ class AttitudeSetpoint:
     thrust_N: float
 
 
+YAW_GAIN_PER_S = 2.0
+"""Yaw-rate setpoint per radian of yaw error [1/s] of :func:`setpoint_from_thrust_vector`."""
+
+
 def setpoint_from_thrust_vector(
-    F_w: FloatArray, yaw_rad: float, yaw_des_rad: float = 0.0, k_yaw_per_s: float = 2.0
+    F_w: FloatArray, yaw_rad: float, yaw_des_rad: float = 0.0, k_yaw_per_s: float = YAW_GAIN_PER_S
 ) -> AttitudeSetpoint:
     """Setpoint that points the body z axis along ``F_w`` at the current yaw and turns
     toward ``yaw_des_rad`` at ``k_yaw_per_s`` times the (wrapped) yaw error."""
+    return AttitudeSetpoint(*setpoint_vector(np.asarray(F_w, dtype=float), yaw_rad, yaw_des_rad, k_yaw_per_s).tolist())
+
+
+@njit(cache=True)
+def setpoint_vector(F_w, yaw_rad, yaw_des_rad, k_yaw_per_s):  # noqa: ANN001, ANN201
+    """:func:`setpoint_from_thrust_vector` as an array: (roll [rad], pitch [rad], yaw
+    rate [rad/s], thrust [N]), the order a command at the attitude level carries."""
     roll, pitch, thrust = thrust_vector_to_setpoint(F_w, yaw_rad)
     err = (yaw_des_rad - yaw_rad + math.pi) % (2 * math.pi) - math.pi
-    return AttitudeSetpoint(roll, pitch, k_yaw_per_s * err, thrust)
+    out = np.empty(4)
+    out[0], out[1], out[2], out[3] = roll, pitch, k_yaw_per_s * err, thrust
+    return out
 
 
 @njit(cache=True)

@@ -18,7 +18,7 @@ from enum import StrEnum
 import numpy as np
 from numba import njit
 
-from swarm.barriers import BarrierKind
+from swarm.barriers import BarrierKind, BarrierRows
 from swarm.errors import InputError
 from swarm.model import (
     CommandLevel,
@@ -28,12 +28,13 @@ from swarm.model import (
     all_finite,
     check_finite,
     rotor_input_set,
+    state_check,
     thrust_vector_input_set,
 )
 from swarm.obstacles import ObstacleArrays
 from swarm.qp import QPProblem, QPStatus, make_backend
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.rows import OwnDynamics, Rows, assemble
+from swarm.rows import OwnDynamics, Rows, assemble, own_affine, rows_kernel
 
 DEFAULT_BACKEND = "daqp"
 """Chosen by ``tools/bench_filter.py``: daqp is exact and several times faster here."""
@@ -88,6 +89,80 @@ def _select(c, is_nb, x, r2, max_rows):  # noqa: ANN001, ANN202
         for j in order[max_rows - fixed :]:
             keep[cand[j]] = False
     return np.flatnonzero(keep), fixed
+
+
+@njit(cache=True)
+def _floor_row(attitude, C_row, d, j, z, vz, q, floor_z, k, mass, g, ub):  # noqa: ANN001
+    """Fill the floor row ``C_row u <= d[j]`` (see ``FilterConfig.floor_z_m``) for the
+    centre-of-mass height ``z`` [m] and vertical speed ``vz`` [m/s]: ``-F_z <= -need`` at
+    the attitude level, ``-R33 sum f <= -need`` at the rotor level (no row when upside
+    down or on edge, ``R33 < 0.1``); ``need`` is capped at 95 % of what the inputs give."""
+    a_min = -2.0 * k * vz - k * k * (z - floor_z)  # m/s^2
+    need = mass * (g + a_min)  # N of vertical thrust
+    if attitude:
+        C_row[0], C_row[1], C_row[2] = 0.0, 0.0, -1.0
+        d[j] = -min(need, 0.95 * ub[2])
+        return
+    r33 = 1.0 - 2.0 * (q[0] * q[0] + q[1] * q[1])  # scalar-last (swarm.rotation)
+    if r33 < 0.1:
+        C_row[:] = 0.0
+        d[j] = 0.0
+    else:
+        C_row[:] = -r33
+        d[j] = -min(need, 0.95 * r33 * ub.sum())
+
+
+# codes of _prepare's first result: which input failed its check
+_BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
+
+
+@njit(cache=True)
+def _prepare(
+    check, x, v, q, Om, u_ref, rotor, K, consts, Aa_att, c, cd, cdd, r, axis, is_nb, r2, max_rows,
+    floor, floor_z, floor_k, mass, lb, ub, C, d, kind, r_own, rho, gamma, eps, gamma_ho, v_esc,
+):  # noqa: ANN001, ANN202  # fmt: skip
+    """One filter call's work before the QP, in one compiled call: with ``check`` the
+    state's finiteness, shapes and quaternion norm and ``u_ref``'s finiteness (a failure
+    returns its ``_BAD_*`` code at once; the caller raises the named error) and the
+    quaternion normalised; then :func:`_select`, the floor row (``floor``), the own
+    dynamics (:func:`swarm.rows.own_affine`) and :func:`swarm.rows.rows_kernel` at
+    ``u_ref``. Returns (bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok,
+    any_inside); ``fixed`` as :func:`_select` gives it."""
+    m = lb.shape[0]
+    qn = np.empty(4)
+    for i in range(4):
+        qn[i] = q[i]
+    if check:
+        if x.shape[0] != 3 or v.shape[0] != 3 or q.shape[0] != 4 or Om.shape[0] != 3:
+            bad = _BAD_STATE
+        else:
+            bad, nq2 = state_check(x, v, q, Om)
+            if bad == 0 and not 0.25 < nq2 < 2.25:
+                bad = _BAD_QUAT
+            elif bad == 0 and abs(nq2 - 1.0) > 1e-12:
+                s = 1.0 / math.sqrt(nq2)
+                for i in range(4):
+                    qn[i] *= s
+        if bad == 0 and (u_ref.shape[0] != m or not all_finite(u_ref)):
+            bad = _BAD_UREF
+        if bad != 0:
+            z1 = np.zeros(0)
+            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 2, 3)), np.zeros((0, 7)),
+                    np.zeros(0, dtype=np.bool_), z1, np.zeros((0, m)), z1, z1, False, False)  # fmt: skip
+    idx, fixed = _select(c, is_nb, x, r2, max_rows)
+    if floor:
+        j = C.shape[0] - 1
+        _floor_row(not rotor, C[j], d, j, x[2], v[2], qn, floor_z, floor_k, mass, consts[1], ub)
+    xv_b, Aa = own_affine(rotor, x, v, qn, Om, K, consts, Aa_att)
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
+        kind, c, cd, r, r_own, axis, cdd, is_nb, idx, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
+    )
+    return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside
+
+
+def _is_vector(a: object) -> bool:
+    """A 1-D float64 numpy array (what the compiled checks take as they are)."""
+    return type(a) is np.ndarray and a.dtype == np.float64 and a.ndim == 1
 
 
 ACTIVE_TOL = 1e-8
@@ -223,23 +298,9 @@ class SafetyFilter:
         cfg = self.config
         if cfg.floor_z_m is None:
             return self.input_set
-        p, k = self.model.params, cfg.floor_gain_per_s
-        a_min = -2.0 * k * state.v_w[2] - k * k * (state.x_w[2] - cfg.floor_z_m)  # m/s^2
-        need = p.mass_kg * (p.g_mps2 + a_min)  # N of vertical thrust
-        ins = self._floor_set
-        row = ins.C[-1]
-        if cfg.level is CommandLevel.ATTITUDE:
-            row[:] = (0.0, 0.0, -1.0)
-            ins.d[-1] = -min(need, 0.95 * self.input_set.ub[2])
-        else:
-            qx, qy = state.q[0], state.q[1]  # scalar-last (swarm.rotation)
-            r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
-            if r33 < 0.1:  # upside down or on edge: no useful vertical thrust; no row
-                row[:] = 0.0
-                ins.d[-1] = 0.0
-            else:
-                row[:] = -r33
-                ins.d[-1] = -min(need, 0.95 * r33 * float(self.input_set.ub.sum()))
+        p, ins = self.model.params, self._floor_set
+        _floor_row(cfg.level is CommandLevel.ATTITUDE, ins.C[-1], ins.d, ins.d.size - 1, state.x_w[2], state.v_w[2],
+                   state.q, cfg.floor_z_m, cfg.floor_gain_per_s, p.mass_kg, p.g_mps2, self.input_set.ub)  # fmt: skip
         return ins
 
     def rows(
@@ -261,16 +322,27 @@ class SafetyFilter:
         """Filter ``u_ref`` against ``obstacles``. With ``validate`` the state and
         reference are checked and a bad one raises :class:`InputError`."""
         t0 = time.perf_counter()
-        if validate:
-            state = state.validated()
-            if not (
-                isinstance(u_ref, np.ndarray) and u_ref.dtype == np.float64 and u_ref.shape == (self.m,)
-                and all_finite(u_ref)
-            ):  # fmt: skip
-                u_ref = check_finite("u_ref", u_ref, (self.m,))
-        idx = self.select(state, obstacles)
-        ins = self.with_floor(state)
-        rows = self.rows(state, obstacles, u_ref, ins, idx)
+        cfg, own, m = self.config, self._own, self.m
+        if validate and not (_is_vector(state.x_w) and _is_vector(state.v_w) and _is_vector(state.q)
+                             and _is_vector(state.Omega_b) and _is_vector(u_ref)):  # fmt: skip
+            state = state.validated()  # not float64 vectors: checked and converted, or the field named
+            u_ref = check_finite("u_ref", u_ref, (m,))
+        ins = self.input_set if cfg.floor_z_m is None else self._floor_set
+        obs = obstacles
+        bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = _prepare(
+            validate, state.x_w, state.v_w, state.q, state.Omega_b, u_ref, cfg.level is CommandLevel.ROTORS, own.K,
+            own.consts, own.Aa_att, obs.c_w, obs.c_dot_w, obs.c_ddot_w, obs.radius_m, obs.axis_w, obs.is_neighbour,
+            cfg.sensing_radius_m**2, cfg.max_rows, cfg.floor_z_m is not None, cfg.floor_z_m or 0.0,
+            cfg.floor_gain_per_s, self.model.params.mass_kg, ins.lb, ins.ub, ins.C, ins.d, cfg.barrier.code,
+            self.r_own_m, cfg.rho, cfg.gamma, cfg.eps_w_mps, cfg.gamma_ho, cfg.escape_speed_mps,
+        )  # fmt: skip
+        if bad != _BAD_NONE:  # the checking path raises, naming the field
+            state.validated()
+            check_finite("u_ref", u_ref, (m,))
+            raise InputError(f"filter inputs: check {bad} failed")  # (not reached: one of the above raises)
+        if fixed > cfg.max_rows:
+            raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
+        rows = Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), ins.d.size, bool(any_inside))
         G, b = rows.G, rows.b  # barrier rows as G u <= b
         n = b.shape[0]
 

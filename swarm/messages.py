@@ -175,8 +175,28 @@ def _checker(spec: Any) -> Any:
 _CHECKS = {kind: tuple((name, _checker(spec)) for name, spec in fields.items()) for kind, fields in SCHEMAS.items()}
 
 
-def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Message:
-    """Decode and check a message of this ``run`` (and one of ``kinds`` if given)."""
+def _checks(kind: str, fields: tuple[str, ...] | None) -> tuple[tuple[str, Any], ...] | None:
+    """The (field, checker) pairs of ``kind``, or of its ``fields`` only."""
+    checks = _CHECKS.get(kind)
+    if checks is None or fields is None:
+        return checks
+    key = (kind, fields)
+    some = _SOME_CHECKS.get(key)
+    if some is None:
+        some = _SOME_CHECKS[key] = tuple((name, check) for name, check in checks if name in fields)
+    return some
+
+
+_SOME_CHECKS: dict[tuple[str, tuple[str, ...]], tuple[tuple[str, Any], ...]] = {}
+
+
+def decode(
+    payload: bytes, run: str, kinds: tuple[str, ...] | None = None, fields: tuple[str, ...] | None = None
+) -> Message:
+    """Decode and check a message of this ``run`` (and one of ``kinds`` if given). With
+    ``fields`` only those body fields are checked and kept (a receiver that reads only
+    them: the world reads a command's level, input and status, not the filter's report,
+    which the recorder checks); the header is always checked."""
     try:
         m = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several types on garbage
@@ -191,7 +211,7 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
     if m["run"] != run:
         raise DecodeError(f"run {m['run']!r}, expected {run!r}")
     kind = m["kind"]
-    checks = _CHECKS.get(kind) if type(kind) is str else None
+    checks = _checks(kind, fields) if type(kind) is str else None
     if checks is None or (kinds is not None and kind not in kinds):
         raise DecodeError(f"unexpected kind {kind!r}")
     if type(m["src"]) is not str or type(m["seq"]) is not int or type(m["k"]) is not int:
@@ -201,7 +221,7 @@ def decode(payload: bytes, run: str, kinds: tuple[str, ...] | None = None) -> Me
         body = {name: check(name, m[name]) for name, check in checks}
     except KeyError as exc:
         raise DecodeError(f"{kind}: missing field {exc.args[0]!r}") from None
-    if kind == "clock":
+    if kind == "clock" and len(body) == len(_CHECKS["clock"]):  # (a whole clock: its sizes agree)
         n, n_meas = len(body["ids"]), len(body["meas_ids"])
         if body["xvr"].size != CLOCK_XVR * n or body["meas"].size != CLOCK_MEAS * n_meas:
             raise DecodeError(f"clock: xvr of {body['xvr'].size} for {n} ids, meas of {body['meas'].size} "

@@ -64,7 +64,7 @@ def all_finite(a):  # noqa: ANN001, ANN201
 
 
 @njit(cache=True)
-def _state_check(x, v, q, Om):  # noqa: ANN001, ANN202
+def state_check(x, v, q, Om):  # noqa: ANN001, ANN202
     """0 if all finite, else 1 + index of the first bad field; and |q|^2."""
     for i, a in enumerate((x, v, q, Om)):
         for e in a:
@@ -203,7 +203,7 @@ class QuadState:
         naming the field on NaN, infinity, a bad shape or a degenerate quaternion."""
         x, v, q, Om = self.x_w, self.v_w, self.q, self.Omega_b
         try:
-            bad, nq2 = _state_check(x, v, q, Om)
+            bad, nq2 = state_check(x, v, q, Om)
             ok = x.shape == (3,) and v.shape == (3,) and q.shape == (4,) and Om.shape == (3,)
         except Exception:  # wrong types: let check_finite name the field
             bad, nq2, ok = -1, 0.0, False
@@ -331,10 +331,11 @@ def thrust_vector_accel(params: QuadParams, F_w: FloatArray) -> FloatArray:
     return -params.g_mps2 * E3 + F_w / params.mass_kg
 
 
-def thrust_vector_to_setpoint(F_w: FloatArray, yaw_rad: float) -> tuple[float, float, float]:
+@njit(cache=True)
+def thrust_vector_to_setpoint(F_w, yaw_rad):  # noqa: ANN001, ANN201
     """Roll, pitch [rad] (ZYX, at the given yaw) and collective thrust [N] that point the
-    body z axis along ``F_w``; the inverse of :func:`setpoint_to_thrust_vector`."""
-    fx, fy, fz = F_w.tolist() if isinstance(F_w, np.ndarray) else F_w
+    body z axis along ``F_w`` (3,) [N, world]; the inverse of :func:`setpoint_to_thrust_vector`."""
+    fx, fy, fz = F_w[0], F_w[1], F_w[2]
     thrust = math.sqrt(fx * fx + fy * fy + fz * fz)
     if thrust < 1e-9:
         return 0.0, 0.0, 0.0

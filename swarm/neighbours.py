@@ -8,9 +8,33 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import FloatArray
+from swarm.rotation import FloatArray, IntArray
+
+
+@njit(cache=True)
+def _roster_columns(xvr, rows):  # noqa: ANN001, ANN202
+    """Rows ``rows`` of a roster ``xvr`` (n * 7,) as contiguous centres (k, 3), velocities
+    (k, 3) and radii (k,)."""
+    k = rows.shape[0]
+    c, cd, r = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    for i in range(k):
+        o = 7 * rows[i]
+        for j in range(3):
+            c[i, j] = xvr[o + j]
+            cd[i, j] = xvr[o + 3 + j]
+        r[i] = xvr[o + 6]
+    return c, cd, r
+
+
+def roster_arrays(xvr: FloatArray, rows: IntArray, zeros: FloatArray, ones: np.ndarray) -> ObstacleArrays:
+    """The drones ``rows`` of a world roster ``xvr`` (per drone: body centre [m, world],
+    its velocity [m/s, world], radius [m]) as neighbour rows: no acceleration, spheres.
+    ``zeros`` (k, 3) and ``ones`` (k,) bool are shared by the caller's calls."""
+    c, cd, r = _roster_columns(xvr, rows)
+    return ObstacleArrays(c, cd, zeros, r, zeros, ones)
 
 
 @dataclass

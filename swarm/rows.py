@@ -76,22 +76,34 @@ def _own_rotor(x, v, q, Om, K, consts):  # noqa: ANN001
 
 
 class OwnDynamics:
-    """Builds :class:`OwnAffine` each tick from constants computed once per airframe."""
+    """Builds :class:`OwnAffine` each tick from constants computed once per airframe:
+    ``K`` (3, 4) and ``consts`` (l, g, Jx, Jy, Jz) of the rotor level, ``Aa_att`` the
+    attitude level's constant ``[A | a0_own]``."""
 
     def __init__(self, level: CommandLevel, model: QuadModel) -> None:
         p = model.params
         self.level = level
         M = model.J_inv @ model.B[1:]
-        self._K = np.ascontiguousarray(np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg]))
-        self._consts = np.array([p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2])
-        self._Aa_att = np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]])
+        self.K = np.ascontiguousarray(np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg]))
+        self.consts = np.array([p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2])
+        self.Aa_att = np.ascontiguousarray(np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]]))
 
     def __call__(self, state: QuadState) -> OwnAffine:
-        if self.level is CommandLevel.ATTITUDE:
-            xv_b = np.empty((2, 3))
-            xv_b[0], xv_b[1] = state.x_w, state.v_w
-            return OwnAffine(xv_b, self._Aa_att)
-        return OwnAffine(*_own_rotor(state.x_w, state.v_w, state.q, state.Omega_b, self._K, self._consts))
+        return OwnAffine(*own_affine(self.level is CommandLevel.ROTORS, state.x_w, state.v_w, state.q,
+                                     state.Omega_b, self.K, self.consts, self.Aa_att))  # fmt: skip
+
+
+@njit(cache=True)
+def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):  # noqa: ANN001, ANN201
+    """(xv_b, Aa) of :class:`OwnAffine`: the rotor level's from the state, or at the
+    attitude level the centre of mass itself and the constant ``Aa_att``."""
+    if rotor:
+        return _own_rotor(x, v, q, Om, K, consts)
+    xv_b = np.empty((2, 3))
+    for i in range(3):
+        xv_b[0, i] = x[i]
+        xv_b[1, i] = v[i]
+    return xv_b, Aa_att
 
 
 @njit(cache=True)
@@ -247,5 +259,6 @@ __all__ = [
     "OwnDynamics",
     "Rows",
     "assemble",
+    "own_affine",
     "rows_kernel",
 ]

@@ -148,10 +148,13 @@ def payload(sample: Any) -> bytes:
     return bytes(sample.payload.to_bytes())
 
 
-def decode_sample(sample: Any, run: str, counter: Counter, kinds: tuple[str, ...] | None = None) -> Message | None:
-    """Decode a sample or drop and count it."""
+def decode_sample(
+    sample: Any, run: str, counter: Counter, kinds: tuple[str, ...] | None = None, fields: tuple[str, ...] | None = None
+) -> Message | None:
+    """Decode a sample (its ``fields`` only, if given: :func:`swarm.messages.decode`) or
+    drop and count it."""
     try:
-        return decode(payload(sample), run, kinds)
+        return decode(payload(sample), run, kinds, fields)
     except DecodeError as exc:
         counter.drop(str(exc))
         return None
@@ -170,8 +173,9 @@ class Inbox:
 
     def __init__(self, session: zenoh.Session, keys: str | list[str]) -> None:
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._held: list[Any] = []  # taken from the queue by a wait for one sample, drained first
         self._lock = threading.Lock()
-        self._want = 1 << 62  # wake wait_for when the queue holds this many samples
+        self._want = _NEVER  # wake wait_for when the queue holds this many samples (a wait for several)
         self._enough = threading.Event()
         # indirect=False: Zenoh's receive thread runs the callback itself, instead of handing
         # each sample to a Python thread of its own first (one thread wake-up less per sample;
@@ -180,13 +184,16 @@ class Inbox:
         self.subs = [session.declare_subscriber(key, on_sample) for key in ([keys] if isinstance(keys, str) else keys)]
 
     def _on_sample(self, sample: Any) -> None:
-        with self._lock:
-            self._q.put(sample)
-            if self._q.qsize() >= self._want:
-                self._enough.set()
+        self._q.put(sample)
+        if self._want != _NEVER:  # a wait for several samples: count them under the lock
+            with self._lock:
+                if self._q.qsize() >= self._want:
+                    self._enough.set()
 
     def get(self, deadline: float) -> Any | None:
         """Next sample, or None at the wall-clock ``deadline`` (``time.monotonic``)."""
+        if self._held:
+            return self._held.pop(0)
         try:
             return self._q.get(timeout=max(0.0, deadline - time.monotonic()))
         except queue.Empty:
@@ -194,23 +201,42 @@ class Inbox:
 
     def wait_for(self, count: int, deadline: float) -> None:
         """Block until at least ``count`` samples are queued, or the wall-clock
-        ``deadline`` (``time.monotonic``); then :meth:`drain` them."""
-        with self._lock:
-            if self._q.qsize() >= count:
+        ``deadline`` (``time.monotonic``); then :meth:`drain` them.
+
+        A wait for one sample blocks in the queue itself (its C lock: the receive thread's
+        callback is one ``put``, no Python event); a wait for several counts them in the
+        callback and wakes once, when the last one is queued."""
+        if count <= 1 or self._held:
+            if not self._held:
+                s = self.get(deadline)
+                if s is not None:
+                    self._held.append(s)
+            if count <= 1:
                 return
-            self._want = count
+        with self._lock:
+            # (``_want`` is set before the count is read: a sample queued in between is
+            # either counted here or sees ``_want`` in the callback)
+            self._want = count - len(self._held)
             self._enough.clear()
+            if self._q.qsize() >= self._want:
+                self._want = _NEVER
+                return
         self._enough.wait(max(0.0, deadline - time.monotonic()))
         with self._lock:
-            self._want = 1 << 62
+            self._want = _NEVER
 
     def drain(self) -> Iterator[Any]:
         """Every sample queued right now, without blocking."""
+        while self._held:
+            yield self._held.pop(0)
         while True:
             try:
                 yield self._q.get_nowait()
             except queue.Empty:
                 return
+
+
+_NEVER = 1 << 62
 
 
 def liveliness_change(sample: Any) -> tuple[str, bool]:

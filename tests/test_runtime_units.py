@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from swarm.config import ConfigError, dump, load, resolve
 from swarm.messages import VERSION, DecodeError, clock_measurement, decode, encode, expand_record, to_json
 from swarm.metrics import compute
-from swarm.neighbours import NeighbourTable
+from swarm.neighbours import NeighbourTable, roster_arrays
 from swarm.scenario import circle_swap
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -90,6 +90,24 @@ def test_messages_round_trip():
     m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
     assert m["goal_reached"] is True and m["infeasible"] == 2 and m["u"].tolist() == [0.1] * 4
     assert m["row_ids"] == ["ball"] and m["h_rows"].tolist() == [0.5]
+
+
+def test_a_partial_decode_checks_the_fields_it_keeps_and_only_those():
+    """The world decodes a command's level, input and status only: a malformed report is
+    the recorder's to drop, a malformed input is still the world's."""
+    fields = ("level", "u", "status")
+    body = dict(level="rotors", u=[0.1] * 4, intervention=0.2, goal_reached=False, min_h=0.0, status="ok",
+                infeasible=0, solve_us=40.0, dropped=0, row_ids=["ball", 3], h_rows=[0.5, float("nan")])  # fmt: skip
+    with pytest.raises(DecodeError):
+        decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
+    m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",), fields)
+    assert sorted(m.body) == sorted(fields) and m["u"].tolist() == [0.1] * 4 and (m.src, m.k) == ("cf1", 3)
+    for bad in (dict(u=[0.1, float("inf"), 0.1, 0.1]), dict(status=1), dict(level=None)):
+        with pytest.raises(DecodeError):
+            decode(encode("command", "r", "cf1", 8, 1.5, 3, **{**body, **bad}), "r", ("command",), fields)
+    with pytest.raises(DecodeError, match="missing field"):
+        decode(encode("command", "r", "cf1", 8, 1.5, 3, **{k: v for k, v in body.items() if k != "u"}), "r",
+               ("command",), fields)  # fmt: skip
 
 
 def _clock(**over):
@@ -234,3 +252,14 @@ def test_the_cpu_plan_spreads_agents_round_robin_around_world_and_recorder():
     plan = cpu_plan(16, [2, 3, 5, 7])  # the CPUs this process may use, whatever their numbers
     assert plan["world"] == 2 and plan["recorder"] == 7
     assert [plan[i] for i in range(16)].count(3) == 4 and set(plan.values()) == {2, 3, 5, 7}
+
+
+def test_roster_rows_are_the_chosen_drones_centres_velocities_and_radii():
+    xvr = np.arange(4 * 7, dtype=float)  # 4 drones: x (3), v (3), r
+    rows = np.array([0, 2, 3], dtype=np.intp)
+    arr = roster_arrays(xvr, rows, np.zeros((3, 3)), np.ones(3, dtype=bool))
+    want = xvr.reshape(4, 7)[rows]
+    np.testing.assert_array_equal(arr.c_w, want[:, 0:3])
+    np.testing.assert_array_equal(arr.c_dot_w, want[:, 3:6])
+    np.testing.assert_array_equal(arr.radius_m, want[:, 6])
+    assert arr.is_neighbour.all() and not arr.axis_w.any() and not arr.c_ddot_w.any()

@@ -76,6 +76,7 @@ def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
 
 
 STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
+COMMAND_FIELDS = ("level", "u", "status")  # what the world reads of a command (the report is the recorder's)
 _STOP = np.zeros(3)
 _DESCEND = np.array([0.0, 0.0, -0.3])  # m/s, landing
 
@@ -176,7 +177,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     def poll_commands(k_now: int, wait_until: float | None = None) -> None:
         first = cmd_in.get(wait_until) if wait_until is not None else None
         for s in ([first] if first is not None else []) + list(cmd_in.drain()):
-            m = tp.decode_sample(s, run, counter, ("command",))
+            m = tp.decode_sample(s, run, counter, ("command",), COMMAND_FIELDS)
             if m is None:
                 continue
             slot = slots.get(m.src)

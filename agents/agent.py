@@ -28,10 +28,9 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, right_hand_bias, setpoint_vector
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, clock_measurement, encode, warm_up
-from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.neighbours import NeighbourTable, roster_arrays
 from swarm.obstacles import ObstacleArrays
-from swarm.rotation import quat_to_R_rows
 from swarm.scenario import items_to_arrays
 from swarm.shutdown import StopFlag
 
@@ -182,12 +181,7 @@ class Agent:
         me, model, level = self.me, self.model, self.level
         k, t = msg.k, msg.t
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = quat_to_R_rows(state.q)
-        wx, wy, _wz = state.Omega_b.tolist()
-        (x, y, z), (vx, vy, vz), lm = state.x_w.tolist(), state.v_w.tolist(), model.params.l_m
-        x_b = np.array([x + lm * r02, y + lm * r12, z + lm * r22])  # x + l R e3
-        v_b = np.array([vx + lm * (r00 * wy - r01 * wx), vy + lm * (r10 * wy - r11 * wx),
-                        vz + lm * (r20 * wy - r21 * wx)])  # v + l R (Omega x e3)  # fmt: skip
+        x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
         if self.from_world:
             neighbours = self.roster_rows(t, k if lockstep else None)
         else:
@@ -208,7 +202,7 @@ class Agent:
         else:
             F_ref = tracker.thrust_vector(model, state.x_w, state.v_w)  # (the whole tracker in one call)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
-        rows = ObstacleArrays.concat([self.obstacles, neighbours])
+        rows = ObstacleArrays.concat([self.obstacles, neighbours]) if len(self.obstacles) else neighbours
         row_ids: list[str] = []
         h_rows = np.zeros(0)
         if me.filter.enabled:
@@ -224,11 +218,10 @@ class Agent:
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0
         if not self.reached:
-            gx, gy, gz = self.goal.tolist()
-            self.reached = math.dist((x, y, z), (gx, gy, gz)) <= self.cfg.goal_tolerance_m
+            self.reached = math.dist(state.x_w.tolist(), self.goal.tolist()) <= self.cfg.goal_tolerance_m
         report = self._report(status.value, solve_us, row_ids, h_rows)
         if level is CommandLevel.ATTITUDE:
-            cmd = setpoint_vector(u, math.atan2(r10, r00), me.yaw_rad, YAW_GAIN_PER_S)  # yaw from R
+            cmd = setpoint_vector(u, yaw, me.yaw_rad, YAW_GAIN_PER_S)
         else:
             cmd = u
         return self._state_body(x_b, v_b), dict(level=level.value, u=cmd, intervention=intervention, **report)

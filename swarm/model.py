@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 from swarm.errors import InputError
-from swarm.rotation import E3, FloatArray, quat_derivative, quat_to_R
+from swarm.rotation import E3, FloatArray, quat_derivative, quat_to_R, quat_to_R_into
 
 
 class CommandLevel(StrEnum):
@@ -71,6 +71,21 @@ def state_check(x, v, q, Om):  # noqa: ANN001, ANN202
             if not math.isfinite(e):
                 return i + 1, 0.0
     return 0, q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+
+
+@njit(cache=True)
+def body_centre(x, v, q, Om, l):  # noqa: ANN001, ANN201, E741
+    """(x_b (3,) [m, world], v_b (3,) [m/s, world], yaw [rad]) of a state: its body centre
+    ``x + l R e3`` (``l`` [m] above the centre of mass), that point's velocity
+    ``v + l R (Omega x e3)`` and the ZYX yaw of ``R``."""
+    R = np.empty((3, 3))
+    quat_to_R_into(q, R)
+    wx, wy = Om[0], Om[1]
+    x_b, v_b = np.empty(3), np.empty(3)
+    for i in range(3):
+        x_b[i] = x[i] + l * R[i, 2]
+        v_b[i] = v[i] + l * (R[i, 0] * wy - R[i, 1] * wx)
+    return x_b, v_b, math.atan2(R[1, 0], R[0, 0])
 
 
 @dataclass(frozen=True)

@@ -28,19 +28,14 @@ def vee(S: FloatArray) -> FloatArray:
     return np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]]) / 2.0
 
 
-def quat_to_R_rows(q: FloatArray | list[float]) -> tuple[tuple[float, float, float], ...]:
-    """The rows of :func:`quat_to_R` as plain floats (a per-tick path: no small array)."""
-    x, y, z, w = q.tolist() if isinstance(q, np.ndarray) else q
-    return (
-        (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
-        (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
-        (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)),
-    )
-
-
 def quat_to_R(q: FloatArray) -> FloatArray:
     """(3, 3) rotation body to world from a scalar-last unit quaternion (x, y, z, w)."""
-    return np.array(quat_to_R_rows(q))
+    x, y, z, w = q.tolist() if isinstance(q, np.ndarray) else q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
 
 
 @njit(cache=True)

@@ -293,16 +293,6 @@ class SafetyFilter:
             raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}")
         return idx
 
-    def with_floor(self, state: QuadState) -> LinearInputSet:
-        """The input set of this tick: the fixed one, plus the floor row if configured."""
-        cfg = self.config
-        if cfg.floor_z_m is None:
-            return self.input_set
-        p, ins = self.model.params, self._floor_set
-        _floor_row(cfg.level is CommandLevel.ATTITUDE, ins.C[-1], ins.d, ins.d.size - 1, state.x_w[2], state.v_w[2],
-                   state.q, cfg.floor_z_m, cfg.floor_gain_per_s, p.mass_kg, p.g_mps2, self.input_set.ub)  # fmt: skip
-        return ins
-
     def rows(
         self, state: QuadState, obstacles: ObstacleArrays, u_ref: FloatArray | None = None,
         input_set: LinearInputSet | None = None, sel: IntArray | None = None,

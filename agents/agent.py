@@ -82,6 +82,7 @@ class Agent:
         encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
                dropped=0, **self._report("ok"))  # fmt: skip
         warm_up()
+        roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.zeros((1, 3)), np.ones(1, dtype=bool))
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases

@@ -21,6 +21,9 @@ from numba import njit
 from swarm.barriers import BarrierKind, BarrierRows
 from swarm.errors import InputError
 from swarm.model import (
+    Q_NORM2_MAX,
+    Q_NORM2_MIN,
+    Q_RENORM_TOL,
     CommandLevel,
     LinearInputSet,
     QuadModel,
@@ -137,9 +140,9 @@ def _prepare(
             bad = _BAD_STATE
         else:
             bad, nq2 = state_check(x, v, q, Om)
-            if bad == 0 and not 0.25 < nq2 < 2.25:
+            if bad == 0 and not Q_NORM2_MIN < nq2 < Q_NORM2_MAX:
                 bad = _BAD_QUAT
-            elif bad == 0 and abs(nq2 - 1.0) > 1e-12:
+            elif bad == 0 and abs(nq2 - 1.0) > Q_RENORM_TOL:
                 s = 1.0 / math.sqrt(nq2)
                 for i in range(4):
                     qn[i] *= s

@@ -63,6 +63,12 @@ def all_finite(a):  # noqa: ANN001, ANN201
     return True
 
 
+Q_NORM2_MIN, Q_NORM2_MAX = 0.25, 2.25
+"""A state's quaternion must have ``Q_NORM2_MIN < |q|^2 < Q_NORM2_MAX`` (else it is rejected)."""
+Q_RENORM_TOL = 1e-12
+"""A quaternion with ``||q|^2 - 1| >`` this is normalised before use."""
+
+
 @njit(cache=True)
 def state_check(x, v, q, Om):  # noqa: ANN001, ANN202
     """0 if all finite, else 1 + index of the first bad field; and |q|^2."""
@@ -226,9 +232,9 @@ class QuadState:
             fields = (("x_w", x, 3), ("v_w", v, 3), ("q", q, 4), ("Omega_b", Om, 3))
             x, v, q, Om = (check_finite(f"{name}.{f}", a, (k,)) for f, a, k in fields)
             nq2 = float(q @ q)
-        if not 0.25 < nq2 < 2.25:
+        if not Q_NORM2_MIN < nq2 < Q_NORM2_MAX:
             raise InputError(f"{name}.q: quaternion norm {math.sqrt(nq2):.3g} is far from 1")
-        if abs(nq2 - 1.0) > 1e-12:
+        if abs(nq2 - 1.0) > Q_RENORM_TOL:
             q = q / math.sqrt(nq2)
         return QuadState(x, v, q, Om)
 

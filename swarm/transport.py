@@ -206,13 +206,12 @@ class Inbox:
         A wait for one sample blocks in the queue itself (its C lock: the receive thread's
         callback is one ``put``, no Python event); a wait for several counts them in the
         callback and wakes once, when the last one is queued."""
-        if count <= 1 or self._held:
+        if count <= 1:
             if not self._held:
                 s = self.get(deadline)
                 if s is not None:
                     self._held.append(s)
-            if count <= 1:
-                return
+            return
         with self._lock:
             # (``_want`` is set before the count is read: a sample queued in between is
             # either counted here or sees ``_want`` in the callback)

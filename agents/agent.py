@@ -126,8 +126,13 @@ class Agent:
             return self.roster_ids[: len(neighbours)]  # (the roster rows are the other drones)
         return self.table.row_names[: len(neighbours)]
 
-    def on_clock(self, m: Message) -> None:
-        """Tick k's live agents and obstacles, and (world source) the roster."""
+    def on_clock(self, m: Message) -> list[str]:
+        """Tick k's live agents and obstacles, and (world source) the roster. Returns the
+        neighbours the world's live list lost since the newest clock before (in a star
+        topology agents hear no liveliness but the hubs': this is how they learn a
+        neighbour is gone)."""
+        before = self.clock_live.get(self._newest_k) if m.k > self._newest_k else None
+        left = [] if before is None or m["live"] == before else [n for n in before if n not in m["live"]]
         self.clock_live[m.k] = m["live"]
         if m.k >= self._newest_k:
             self._newest_k = m.k
@@ -145,6 +150,7 @@ class Agent:
             self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, *self._roster_const))
             _keep_newest(self.roster, 5)
         _keep_newest(self.clock_live, 5)
+        return [n for n in left if n in self.others]
 
     def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
         """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""
@@ -273,6 +279,13 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
     msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
 
+    reported_gone: set[str] = set()
+
+    def neighbour_gone(name: str, how: str) -> None:
+        if name not in reported_gone:
+            reported_gone.add(name)
+            print(f"agent {agent_id}: neighbour {name} gone ({how}) at wall {time.time():.4f}", file=sys.stderr)
+
     def handle(sample) -> None:  # noqa: ANN001
         key = str(sample.key_expr)
         m = tp.decode_sample(sample, run, counter)
@@ -285,7 +298,8 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
         elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
         elif m.kind == "clock" and key == keys.clock:
-            agent.on_clock(m)
+            for name in agent.on_clock(m):
+                neighbour_gone(name, "the world's live list")
             mine = None if real_drone or m["done"] else clock_measurement(m, agent_id)
             if mine is not None:
                 pending.append(mine)
@@ -316,8 +330,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
                     if name in agent.others:
                         if not agent.from_world:  # the world keeps measuring a dead agent's body
                             agent.table.mark_gone(name)
-                        print(f"agent {agent_id}: neighbour {name} gone (liveliness) at wall {time.time():.4f}",
-                              file=sys.stderr)  # fmt: skip
+                        neighbour_gone(name, "liveliness")
             if world_seen and "world" not in alive:
                 print(f"agent {agent_id}: the world is gone, stopping", file=sys.stderr)
                 if flying[0]:

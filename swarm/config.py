@@ -232,6 +232,15 @@ class NetworkSettings(_Strict):
     host: str = "127.0.0.1"
     port: int = Field(0, ge=0, le=65535)
     connect: list[str] = []  # extra endpoints (a router, other machines)
+    topology: Literal["auto", "mesh", "star"] = "auto"
+    """Which processes link to which (``swarm.transport.process_config``). ``mesh``: every
+    process listens and Zenoh's gossip links every pair, so any peer that joins sees all
+    traffic. ``star``: only the hubs listen, the world on ``port``, the recorder on
+    ``port + 1``, the launcher on ``port + 2``; the others link to the hubs alone, with
+    Zenoh's low-latency transport (a ``put`` is written to the socket by the calling
+    thread). It needs ``neighbours.source: world`` (agents never hear each other) and peer
+    mode without extra endpoints; an outside peer sees only the hubs' messages. ``auto``:
+    star when those hold and ``host`` is loopback, else mesh."""
 
 
 class FailureSettings(_Strict):
@@ -306,6 +315,30 @@ class ScenarioConfig(_Strict):
                     raise ValueError(f"duplicate {what} id {it.id!r}")
                 seen.add(it.id)
         return self
+
+    @model_validator(mode="after")
+    def _star(self) -> ScenarioConfig:
+        if self.network.topology == "star":
+            why = self._star_blocker()
+            if why:
+                raise ValueError(f"network.topology: star {why}")
+        return self
+
+    def _star_blocker(self) -> str | None:
+        """Why a star cannot link this scenario's processes, or None."""
+        if self.neighbours.source != "world":
+            return "links agents only to the world, recorder and launcher; neighbours.source: agents needs the mesh"
+        if self.network.mode != "peer" or self.network.connect:
+            return "needs network.mode: peer and no network.connect endpoints"
+        return None
+
+    @property
+    def topology(self) -> Literal["mesh", "star"]:
+        """``network.topology`` with ``auto`` resolved (see :class:`NetworkSettings`)."""
+        if self.network.topology != "auto":
+            return self.network.topology
+        loopback = self.network.host in ("localhost", "::1") or self.network.host.startswith("127.")
+        return "star" if loopback and self._star_blocker() is None else "mesh"
 
     def agent(self, agent_id: str) -> AgentConfig:
         for a in self.agents:

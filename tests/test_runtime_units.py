@@ -1,5 +1,6 @@
 """Pure pieces of the runtime: config, messages, neighbour table, metrics."""
 
+import json
 import math
 from pathlib import Path
 
@@ -263,3 +264,56 @@ def test_roster_rows_are_the_chosen_drones_centres_velocities_and_radii():
     np.testing.assert_array_equal(arr.c_dot_w, want[:, 3:6])
     np.testing.assert_array_equal(arr.radius_m, want[:, 6])
     assert arr.is_neighbour.all() and not arr.axis_w.any() and not arr.c_ddot_w.any()
+
+
+def _net(**over: object):
+    raw = {"version": 1, "name": "t", "duration_s": 1.0, "agents": [{"id": "a", "start": [0, 0, 1]}]}
+    return resolve({**raw, **over}, "my.yaml")
+
+
+def test_auto_topology_is_a_star_only_where_one_can_carry_the_run():
+    world = {"source": "world"}
+    assert _net(neighbours=world).topology == "star"  # loopback peers, neighbours from the world
+    assert _net().topology == "mesh"  # agents hear each other's states
+    assert _net(neighbours=world, network={"host": "192.168.1.5"}).topology == "mesh"  # other machines may join
+    assert _net(neighbours=world, network={"connect": ["tcp/10.0.0.2:7447"]}).topology == "mesh"
+    assert _net(neighbours=world, network={"mode": "client"}).topology == "mesh"
+    assert _net(network={"topology": "mesh"}, neighbours=world).topology == "mesh"
+    with pytest.raises(ConfigError, match=r"my.yaml: .*network.topology: star .*neighbours.source: agents"):
+        _net(network={"topology": "star"})
+    with pytest.raises(ConfigError, match=r"network.topology: star needs network.mode: peer"):
+        _net(network={"topology": "star", "mode": "client"}, neighbours=world)
+
+
+def test_star_links_every_process_to_the_hubs_alone():
+    from swarm import transport as tp
+
+    cfg = _net(neighbours={"source": "world"}, network={"port": 7000})
+    hub = [f"tcp/127.0.0.1:{p}" for p in (7000, 7001, 7002)]  # world, recorder, launcher
+
+    def get(conf, key):
+        return json.loads(conf.get_json(key))
+
+    def links(role):
+        c = tp.process_config(cfg, role)
+        assert get(c, "scouting/gossip/enabled") is False and get(c, "transport/unicast/lowlatency") is True
+        return get(c, "listen/endpoints"), get(c, "connect/endpoints")
+
+    assert links(tp.Role.WORLD) == ([hub[0]], hub[1:])
+    assert links(tp.Role.RECORDER) == ([hub[1]], hub[2:])
+    assert links(tp.Role.LAUNCHER) == ([hub[2]], [])  # started first: it connects to nobody
+    assert links(tp.Role.AGENT) == ([], hub)
+    assert links(tp.Role.OBSERVER) == ([], hub)
+    mesh = tp.process_config(_net(network={"port": 7000}), tp.Role.AGENT)
+    assert get(mesh, "connect/endpoints") == [hub[0]] and get(mesh, "transport/unicast/lowlatency") is False
+
+
+def test_free_port_leaves_room_for_the_hubs():
+    import socket
+
+    from tools.launch import free_port
+
+    port = free_port()
+    for p in range(port, port + 3):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", p))  # free

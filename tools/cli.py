@@ -158,7 +158,9 @@ def _process_args(config: str, run_id: str | None, port: int | None, mode: str |
 @cli.command()
 @click.argument("config")
 @click.option("--run", "run_id", help="run id shared by all processes (default: the scenario name)")
-@click.option("--port", type=int, help="the world's listening port")
+@click.option(
+    "--port", type=int, help="the world's listening port (in a star the recorder and launcher listen on the next two)"
+)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
 @click.option("--gui", is_flag=True)
 @click.option("--expect", multiple=True, help="other processes to wait for, e.g. recorder")
@@ -171,7 +173,7 @@ def world(
     from world.main import main as world_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
-    os._exit(world_main(cfg, run_name, tp.process_config(cfg.network, is_world=True), gui=gui, expect=expect))
+    os._exit(world_main(cfg, run_name, tp.process_config(cfg, tp.Role.WORLD), gui=gui, expect=expect))
 
 
 @cli.command()
@@ -192,7 +194,7 @@ def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode
     except ConfigError as exc:
         click.echo(f"config error: {exc}", err=True)
         sys.exit(2)
-    os._exit(agent_main(cfg, agent_id, run_name, tp.process_config(cfg.network, is_world=False)))
+    os._exit(agent_main(cfg, agent_id, run_name, tp.process_config(cfg, tp.Role.AGENT)))
 
 
 @cli.command()
@@ -213,7 +215,7 @@ def record(config: str, out: Path, run_id: str | None, port: int | None) -> None
         target.write_text(dump(cfg))
     real = any(a.backend == "crazyflie" for a in cfg.agents)
     linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
-    os._exit(record_main(run_name, out, tp.process_config(cfg.network, is_world=False), linger_s))
+    os._exit(record_main(run_name, out, tp.process_config(cfg, tp.Role.RECORDER), linger_s))
 
 
 @cli.command()

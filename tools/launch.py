@@ -8,6 +8,7 @@ process behind (SIGTERM to each group, then SIGKILL after a grace period).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import secrets
@@ -26,10 +27,20 @@ from swarm.config import ScenarioConfig, dump
 from swarm.messages import DecodeError, decode
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
+def free_port(host: str = "127.0.0.1", span: int = len(tp.HUBS)) -> int:
+    """A port P such that P .. P + span - 1 are free now (a star's hubs listen on P, P + 1
+    and P + 2; ``swarm.transport.process_config``)."""
+    while True:
+        with contextlib.ExitStack() as held:
+            first = held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
+            first.bind((host, 0))
+            port = int(first.getsockname()[1])
+            try:
+                for p in range(port + 1, port + span):
+                    held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)).bind((host, p))
+            except (OSError, OverflowError):  # taken, or past 65535: try another
+                continue
+            return port
 
 
 def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
@@ -94,7 +105,7 @@ class RunHandle:
         cfg_path.write_text(dump(cfg))
         common = [str(cfg_path), "--run", h.run]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
-        h._session = tp.open_session(tp.process_config(cfg.network, is_world=False))
+        h._session = tp.open_session(tp.process_config(cfg, tp.Role.LAUNCHER))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
         h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],

@@ -48,7 +48,7 @@ class FakeWorld:
 
     def __init__(self, cfg: ScenarioConfig, run: str) -> None:
         self.cfg, self.run, self.keys = cfg, run, tp.Keys(run)
-        self.session = tp.open_session(tp.process_config(cfg.network, is_world=True))
+        self.session = tp.open_session(tp.process_config(cfg, tp.Role.WORLD))
         self.token = tp.declare_liveliness(self.session, self.keys.alive("world"))
         self.pub_meas = self.session.declare_publisher(self.keys.measurement("cf1"))
         self.pub_clock = self.session.declare_publisher(self.keys.clock)

@@ -95,17 +95,20 @@ def test_eight_agents_start_in_time_on_a_cold_compile_cache(start_run, tmp_path,
     assert set(m["exit_codes"].values()) == {0}
 
 
-def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run):
+@pytest.mark.parametrize("source", ["agents", "world"])  # a mesh, a star (agents hear the hubs alone)
+def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run, source):
     cfg = scenario(
         "swap_2.yaml",
         name="kill_3",
         duration_s=10.0,
+        neighbours={"source": source},
         agents=[
             {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
             {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
             {"id": "cf3", "start": [2.0, 1.5, 1.0], "goal": [2.0, -1.5, 1.0], "speed_mps": 0.3},
         ],
     )
+    assert cfg.topology == ("star" if source == "world" else "mesh")
     h = start_run(cfg)
     h.wait_sim_time(1.0)  # the swarm is flying
     killed_at = time.time()
@@ -117,16 +120,20 @@ def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run):
     assert m["agents"]["cf1"]["reached_goal"] and m["agents"]["cf2"]["reached_goal"]
     for survivor in ("cf1", "cf2"):
         log = (h.out / "logs" / f"agent-{survivor}.log").read_text()
-        seen = re.search(r"neighbour cf3 gone \(liveliness\) at wall ([0-9.]+)", log)
+        # its liveliness token, directly (mesh only) or as the world's live list, whichever came first
+        seen = re.search(r"neighbour cf3 gone \((liveliness|the world's live list)\) at wall ([0-9.]+)", log)
         assert seen, log
-        assert float(seen.group(1)) - killed_at < 0.5
+        assert float(seen.group(2)) - killed_at < 0.5
     assert "agent cf3 gone" in (h.out / "logs" / "world.log").read_text()
     assert m["exit_codes"]["agent-cf3"] == -signal.SIGKILL
 
 
-def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
+@pytest.mark.parametrize("source", ["agents", "world"])  # a mesh, a star
+def test_garbage_on_every_topic_is_dropped_and_counted(start_run, source):
     # long enough that the injected garbage is routed to every process while they run
-    cfg = scenario("swap_2.yaml", name="garbage", duration_s=8.0, stop_when_all_reached=False)
+    cfg = scenario(
+        "swap_2.yaml", name="garbage", duration_s=8.0, stop_when_all_reached=False, neighbours={"source": source}
+    )
     h = start_run(cfg)
     keys = [
         *(f"swarm/{h.run}/world/{a}/measurement" for a in ("cf1", "cf2")),
@@ -158,6 +165,7 @@ def test_garbage_on_every_topic_is_dropped_and_counted(start_run):
     assert set(m["exit_codes"].values()) == {0}
     assert m["all_reached_goal"] is True and m["collisions"] == 0
     assert m["dropped_messages"] > 0
+    assert all(a["dropped_messages"] > 0 for a in m["agents"].values())  # the garbage reached every agent
     recorder = json.loads((h.out / "recorder.json").read_text())
     assert recorder["dropped"] > 0
 
@@ -199,7 +207,7 @@ def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig
     out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
     cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
-    session = tp.open_session(tp.process_config(cfg.network, is_world=False))
+    session = tp.open_session(tp.process_config(cfg, tp.Role.OBSERVER))
     status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
         [sys.executable, "-m", "tools.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),

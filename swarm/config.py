@@ -330,6 +330,8 @@ class ScenarioConfig(_Strict):
             return "links agents only to the world, recorder and launcher; neighbours.source: agents needs the mesh"
         if self.network.mode != "peer" or self.network.connect:
             return "needs network.mode: peer and no network.connect endpoints"
+        if self.network.port > 65535 - 2:
+            return "needs network.port <= 65533 (the hubs listen on port, port + 1, port + 2)"
         return None
 
     @property

@@ -130,10 +130,11 @@ def process_config(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
 
     star: hub i of :data:`HUBS` listens on ``port + i`` and connects to the hubs after it
     (``swarm run`` starts the launcher, then the recorder, then the world: each connects to
-    listeners already up); agents and observers connect to every hub and listen on nothing; gossip is off, so
-    exactly these links exist, and they use the low-latency transport. (That transport left
-    Zenoh 1.10.2's gossip mesh incomplete in 3 of 4 starts of 17 peers; links made only by
-    explicit connects in one direction came up complete in 40 of 40.)"""
+    listeners already up); agents and observers connect to every hub and listen on nothing.
+    Gossip is off, so exactly these links exist, and they use the low-latency transport.
+    (That transport left Zenoh 1.10.2's gossip mesh incomplete in 3 of 4 starts of 17
+    peers; links made only by explicit connects in one direction came up complete in 40 of
+    40.)"""
     network = cfg.network
     if cfg.topology == "star":
         ports = [network.port + i for i in range(len(HUBS))]

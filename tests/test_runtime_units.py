@@ -283,6 +283,9 @@ def test_auto_topology_is_a_star_only_where_one_can_carry_the_run():
         _net(network={"topology": "star"})
     with pytest.raises(ConfigError, match=r"network.topology: star needs network.mode: peer"):
         _net(network={"topology": "star", "mode": "client"}, neighbours=world)
+    with pytest.raises(ConfigError, match=r"network.topology: star needs network.port <= 65533"):
+        _net(network={"topology": "star", "port": 65534}, neighbours=world)
+    assert _net(neighbours=world, network={"port": 65534}).topology == "mesh"
 
 
 def test_star_links_every_process_to_the_hubs_alone():

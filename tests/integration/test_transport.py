@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -76,3 +77,55 @@ def test_zenoh_threads_run_as_batch_and_the_caller_keeps_its_policy():
     assert seen["new"], "Zenoh started no thread"
     assert set(seen["new"]) == {os.SCHED_BATCH}
     assert seen["caller"] == os.SCHED_OTHER
+
+
+_STAR_PEER = """
+import json, os, sys, time
+from swarm import transport as tp
+from swarm.config import load
+name, role, config, need = sys.argv[1], tp.Role(sys.argv[2]), sys.argv[3], set(sys.argv[4].split(","))
+session = tp.open_session(tp.process_config(load(config), role))
+token = tp.declare_liveliness(session, "star/alive/" + name)
+sub = tp.liveliness_subscriber(session, "star/alive/*")
+seen, deadline = set(), time.monotonic() + 60.0
+while not need <= seen and time.monotonic() < deadline:
+    s = tp.wait_sample(sub, deadline)
+    if s is not None:
+        other, up = tp.liveliness_change(s)
+        if up:
+            seen.add(other)
+print(json.dumps({"name": name, "missing": sorted(need - seen)}), flush=True)
+sys.stdin.read()  # stay up until the test has heard from everyone
+os._exit(0)
+"""
+
+
+def test_a_star_of_three_hubs_and_sixteen_agents_links_completely(tmp_path):
+    """Zenoh's low-latency transport left a gossip mesh incomplete (README); the star's
+    explicit one-way links must come up whole: every hub hears every process, every agent
+    the three hubs. Started all at once, as a worst case."""
+    from swarm.config import dump, load
+
+    cfg = load(Path(__file__).resolve().parents[2] / "configs" / "circle_8.yaml", {"network": {"port": free_port()}})
+    agents = [f"a{i}" for i in range(16)]
+    hubs = [r.value for r in tp.HUBS]
+    assert cfg.topology == "star"
+    (tmp_path / "c.yaml").write_text(dump(cfg))
+    peers = [(h, h, [x for x in hubs + agents if x != h]) for h in hubs] + [(a, "agent", hubs) for a in agents]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _STAR_PEER, name, role, str(tmp_path / "c.yaml"), ",".join(need)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )  # fmt: skip
+        for name, role, need in peers
+    ]
+    try:
+        reports = [json.loads(p.stdout.readline()) for p in procs]  # each once it heard all it needs, or at 60 s
+    finally:
+        for p in procs:
+            p.stdin.close()
+            p.wait(timeout=30)
+    assert [r for r in reports if r["missing"]] == []

@@ -137,8 +137,7 @@ def process_config(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     40.)"""
     network = cfg.network
     if cfg.topology == "star":
-        ports = [network.port + i for i in range(len(HUBS))]
-        ends = [world_endpoint(network.host, p) for p in ports]
+        ends = [world_endpoint(network.host, network.port + i) for i in range(len(HUBS))]
         if role in HUBS:
             i = HUBS.index(role)
             return session_config(listen=[ends[i]], connect=ends[i + 1 :], gossip=False, lowlatency=True)

@@ -1,19 +1,20 @@
-"""Collision-cone barriers (DESIGN.md section 4), compiled with numba, one loop over rows.
+"""Collision-cone barriers (docs/design.md, "The barrier math"), compiled with numba, one loop over rows.
 
 A row is an obstacle seen from the agent: ``p`` the relative position obstacle centre
 minus agent body centre [m, world], ``w = p'`` [m/s, world], ``r`` the full safety
 radius [m], ``a`` a unit cylinder axis [world] or zeros for a sphere. Every barrier here
 has gradients of the form
 
-    dh/dp = a_p p + b_p w,        dh/dw = a_w p + b_w w
+    dh/dp = a_p p + b_p w,        dh/dw = a_w p + b_w w + c_d d
 
-with scalar coefficients per row:
+with scalar coefficients per row (``d`` is the live row's direction, below):
 
-| barrier | h | a_p | b_p | a_w | b_w |
-|---|---|---|---|---|---|
-| C3BF | <p,w> + n(w) s | n/s | 1 | 1 | s/sqrt(\\|w\\|^2+eps^2) |
-| HO-CBF | <p,w> + gamma_ho s | gamma_ho/s | 1 | 1 | 0 |
-| escape (inside r) | <p,w>/\\|p\\| - v_esc | -<p,w>/\\|p\\|^3 | 1/\\|p\\| | 1/\\|p\\| | 0 |
+| barrier | h | a_p | b_p | a_w | b_w | c_d |
+|---|---|---|---|---|---|---|
+| C3BF (paper, smoothed) | <p,w> + n(w) s | n/s | 1 | 1 | s/sqrt(\\|w\\|^2+eps^2) | 0 |
+| C3BF (live) | <p,w> + s <d,w> | <d,w>/s | 1 | 1 | 0 | s |
+| HO-CBF | <p,w> + gamma_ho s | gamma_ho/s | 1 | 1 | 0 | 0 |
+| escape (inside r) | <p,w>/\\|p\\| - v_esc | -<p,w>/\\|p\\|^3 | 1/\\|p\\| | 1/\\|p\\| | 0 | 0 |
 
 with ``s = sqrt(|p|^2 - r^2)`` and the smoothed norm ``n = sqrt(|w|^2+eps^2) - eps``
 (``n <= |w|``, so a non-negative smoothed h keeps the true one non-negative).
@@ -21,6 +22,33 @@ Cylinders use ``P p`` and ``P w`` with ``P = I - a a^T``; the gradients then lie
 range(P) and need no second projection. A row already inside ``r`` gets the escape
 barrier (separate at ``v_esc``); a coincident pair is treated as if the obstacle were
 ``COINCIDENT_M`` below the agent, so the agent escapes upwards. No row produces NaN.
+
+**Live rows** (the default of the filter). The exact C3BF ``h = <p,w> + |w| s`` is not
+differentiable at ``w = 0``, where a swarm at rest sits (h = 0): there the exact
+condition along ``w(t) ~ t a`` is ``<p,a> + s|a| >= 0``, any relative acceleration
+outside the cone. The smoothed gradient collapses to ``<p, a> >= 0`` ("never towards the
+centre"), and a few obstacles around leave only ``a = 0``: the swarm freezes. For any
+``|d| <= 1``, ``|w| >= <d,w>``, so
+
+    h >= h_d := <p, w> + s <d, w>                                        (1)
+
+and ``h_d`` is smooth. A live row is the CBF condition ``h_d' + gamma h_d >= 0`` with
+``d`` held for the tick, where ``d`` is chosen so that ``h_d >= 0`` now (``d`` in
+``D = {|d| <= 1, <p + s d, w> >= 0}``, which holds ``w/|w|`` whenever ``h >= 0``). Then
+``h_d`` stays non-negative over the tick, and with it ``h`` by (1): the row is
+sufficient for safety. At ``w = 0`` it is ``<p + s d, a> >= 0``, a half-space inside the
+exact set that touches it along ``d`` when ``|d| = 1`` on the cone's boundary.
+
+``d`` per row and tick (:func:`live_direction`): a target ``d*`` from the relative
+acceleration ``a_ref`` the reference command would give: ``a_ref/|a_ref|`` where the
+cone allows it, else the cone's nearest boundary generator in the plane of ``p`` and
+``a_ref``; straight at the centre, or for a neighbour (another agent, whose own filter
+must pick the opposite ``d`` for the pair to agree), the generator on the side
+``e x p`` (``e`` = world up, or the cylinder axis; world x when ``p`` is vertical):
+every agent deflects the same way round, and the pair's two rows are mirror images
+(``d_ji = -d_ij``), so each agent's half-space holds the other's. ``d*`` is moved into
+``D`` and blended to the exact gradient ``w/|w|`` as ``|w|`` grows from ``w_lo`` to
+``w_hi``: above ``w_hi`` the live row is the exact, unsmoothed C3BF row.
 """
 
 from __future__ import annotations
@@ -28,6 +56,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -52,27 +81,137 @@ class BarrierKind(StrEnum):
 
 
 # columns of the coefficient array returned by the kernels
-H, A_P, B_P, A_W, B_W, PW, WW = range(7)
+H, A_P, B_P, A_W, B_W, PW, WW, C_D = range(8)
+N_COEF = 8
+
+LIVE_W_LO_MPS = 0.005
+"""Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
+LIVE_W_HI_MPS = 0.02
+"""From this relative speed [m/s] up a live row is the exact C3BF row (``d = w/|w|``)."""
+_TINY = 1e-12
+
+
+@njit(cache=True)
+def _unit_side(P, pp, a, out):  # noqa: ANN001, ANN202
+    """``e x p / |e x p|`` into ``out`` (3,): ``e`` = the cylinder axis ``a``, or world up
+    for a sphere (world x when ``p`` is nearly vertical). Odd in ``p``."""
+    if a[0] == 0.0 and a[1] == 0.0 and a[2] == 0.0:
+        e0, e1, e2 = 0.0, 0.0, 1.0
+        if P[0] * P[0] + P[1] * P[1] < 1e-6 * pp:
+            e0, e2 = 1.0, 0.0
+    else:
+        e0, e1, e2 = a[0], a[1], a[2]
+    out[0] = e1 * P[2] - e2 * P[1]
+    out[1] = e2 * P[0] - e0 * P[2]
+    out[2] = e0 * P[1] - e1 * P[0]
+    n = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2])
+    for k in range(3):
+        out[k] /= n
+
+
+@njit(cache=True)
+def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noqa: ANN001, ANN201
+    """The live row's direction ``d`` (3,) [unit-free, |d| <= 1, in range(P)] into ``d``,
+    for the projected ``P`` = p [m], ``W`` = w [m/s], ``A`` = a_ref [m/s^2] of one row
+    (``s = sqrt(|P|^2 - r^2) > 0``, ``pp = |P|^2``). See the module docstring.
+
+    ``has_ref``: ``A`` is the reference's relative acceleration (else no target but the
+    side rule for ``side_only`` rows, and ``d* = 0`` for the others); ``side_only``: a
+    neighbour, whose target is always the side generator (odd in ``p``, so two agents'
+    rows of one pair agree). Returns ``<d, W>``."""
+    rp = math.sqrt(pp)
+    cphi, sphi = s / rp, math.sqrt(max(pp - s * s, 0.0)) / rp  # cone half-angle about -p
+    t = np.empty(3)
+    aa = A[0] * A[0] + A[1] * A[1] + A[2] * A[2]
+    # the target d*
+    if side_only or (has_ref and aa > _TINY):
+        if side_only:
+            _unit_side(P, pp, a, t)
+            for k in range(3):
+                d[k] = -cphi * P[k] / rp + sphi * t[k]
+        else:
+            na = math.sqrt(aa)
+            pa = (P[0] * A[0] + P[1] * A[1] + P[2] * A[2]) / na
+            if pa + s >= 0.0:  # outside the cone (or on it): the reference direction itself
+                for k in range(3):
+                    d[k] = A[k] / na
+            else:  # inside: the nearest generator, in the plane of p and a_ref
+                for k in range(3):
+                    t[k] = A[k] / na - pa * P[k] / pp
+                nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+                if nt < 1e-9:
+                    _unit_side(P, pp, a, t)
+                else:
+                    for k in range(3):
+                        t[k] /= nt
+                for k in range(3):
+                    d[k] = -cphi * P[k] / rp + sphi * t[k]
+    else:
+        d[0], d[1], d[2] = 0.0, 0.0, 0.0
+    ww = W[0] * W[0] + W[1] * W[1] + W[2] * W[2]
+    nw = math.sqrt(ww)
+    if nw <= _TINY:  # at rest relative to it: any |d| <= 1 keeps h_d = 0 = h
+        return 0.0
+    u = np.empty(3)
+    for k in range(3):
+        u[k] = W[k] / nw
+    c0 = -(P[0] * u[0] + P[1] * u[1] + P[2] * u[2]) / s  # d in D  <=>  <d, w/|w|> >= c0
+    if c0 > 1.0:  # h < 0 already: the exact row, which asks h back up
+        d[0], d[1], d[2] = u[0], u[1], u[2]
+        return nw
+    du = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+    if du < c0 and d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:  # no target: D's point nearest to 0
+        for k in range(3):
+            d[k] = c0 * u[k]
+    elif du < c0:  # move d* into D: the unit vector at <d, u> = c0 nearest to it
+        for k in range(3):
+            t[k] = d[k] - du * u[k]
+        nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+        if nt < 1e-9:
+            _unit_side(W, ww, a, t)
+        else:
+            for k in range(3):
+                t[k] /= nt
+        q = math.sqrt(max(1.0 - c0 * c0, 0.0))
+        for k in range(3):
+            d[k] = c0 * u[k] + q * t[k]
+    lam = 1.0 if nw <= w_lo else (0.0 if nw >= w_hi else (w_hi - nw) / (w_hi - w_lo))
+    for k in range(3):
+        d[k] = lam * d[k] + (1.0 - lam) * u[k]
+    return d[0] * W[0] + d[1] * W[1] + d[2] * W[2]
 
 
 @njit(cache=True, fastmath=False)
-def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out):  # noqa: ANN001
-    """One row. Writes the (projected) p, w into ``Y_out`` (2, 3) and
-    ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>`` into ``coef_out`` (7,); returns inside."""
+def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a_ref, has_ref, nb):  # noqa: ANN001
+    """One row. Writes the (projected) p, w and the live direction d into ``Y_out`` (3, 3)
+    and ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d`` into ``coef_out`` (8,); returns inside.
+
+    ``live`` = (on, w_lo, w_hi): C3BF rows are live rows (module docstring) when ``on`` is
+    non-zero; ``a_ref`` (3,) [m/s^2, world] is the reference's relative acceleration
+    (read when ``has_ref``); ``nb``: the obstacle is another agent (the side rule)."""
     ap = a[0] * p[0] + a[1] * p[1] + a[2] * p[2]
     aw = a[0] * w[0] + a[1] * w[1] + a[2] * w[2]
     for k in range(3):
         Y_out[0, k] = p[k] - ap * a[k]
         Y_out[1, k] = w[k] - aw * a[k]
+        Y_out[2, k] = 0.0
     P = Y_out[0]
     W = Y_out[1]
     pp = P[0] * P[0] + P[1] * P[1] + P[2] * P[2]
     pw = P[0] * W[0] + P[1] * W[1] + P[2] * W[2]
     ww = W[0] * W[0] + W[1] * W[1] + W[2] * W[2]
     s2 = pp - r * r
+    c_d = 0.0
     if s2 > 0.0:
         s = math.sqrt(s2)
-        if kind == 0:
+        if kind == 0 and live[0] != 0.0:
+            aA = a[0] * a_ref[0] + a[1] * a_ref[1] + a[2] * a_ref[2]
+            A = np.empty(3)
+            for k in range(3):
+                A[k] = a_ref[k] - aA * a[k]
+            dw = live_direction(P, W, A, s, pp, a, has_ref, nb, live[1], live[2], Y_out[2])
+            h, a_p, b_w, c_d = pw + s * dw, dw / s, 0.0, s
+        elif kind == 0:
             root = math.sqrt(ww + eps * eps)
             nw = root - eps
             h, a_p, b_w = pw + nw * s, nw / s, s / root
@@ -95,18 +234,29 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out):  # noq
     coef_out[4] = b_w
     coef_out[5] = pw
     coef_out[6] = ww
+    coef_out[7] = c_d
     return inside
 
 
+PAPER = np.zeros(3)
+"""``live`` argument of the kernels for the paper's smoothed rows."""
+
+
+def live_settings(on: bool, w_lo_mps: float = LIVE_W_LO_MPS, w_hi_mps: float = LIVE_W_HI_MPS) -> FloatArray:
+    """The kernels' ``live`` argument: (on, w_lo [m/s], w_hi [m/s])."""
+    return np.array([1.0 if on else 0.0, w_lo_mps, w_hi_mps])
+
+
 @njit(cache=True)
-def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc):  # noqa: ANN001
-    """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used, coef (n, 7), inside)."""
+def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc, live, a_ref, has_ref, nb):  # noqa: ANN001
+    """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used (n, 3, 3), coef (n, 8), inside)."""
     n = Y.shape[0]
-    Y_out = np.empty((n, 2, 3))
-    coef = np.empty((n, 7))
+    Y_out = np.empty((n, 3, 3))
+    coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        inside[i] = barrier_row(kind, Y[i, 0], Y[i, 1], r[i], axis[i], eps, gamma_ho, v_esc, Y_out[i], coef[i])
+        inside[i] = barrier_row(kind, Y[i, 0], Y[i, 1], r[i], axis[i], eps, gamma_ho, v_esc, Y_out[i], coef[i],
+                                live, a_ref[i], has_ref, nb[i])  # fmt: skip
     return Y_out, coef, inside
 
 
@@ -114,8 +264,8 @@ def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc):  # noqa: ANN001
 class BarrierRows:
     """Barrier values and gradient coefficients of ``n`` rows."""
 
-    Y: FloatArray  # (n, 2, 3) the (projected) p [m] and w [m/s] the values refer to
-    coef: FloatArray  # (n, 7) columns H, A_P, B_P, A_W, B_W, PW, WW
+    Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and the live direction d the values refer to
+    coef: FloatArray  # (n, 8) columns H, A_P, B_P, A_W, B_W, PW, WW, C_D
     inside: BoolArray  # (n,): |P p| <= r, the row holds the escape barrier
 
     @property
@@ -131,7 +281,13 @@ class BarrierRows:
     @property
     def dh_dw(self) -> FloatArray:
         """(n, 3) gradient of h with respect to w."""
-        return self.coef[:, A_W, None] * self.Y[:, 0] + self.coef[:, B_W, None] * self.Y[:, 1]
+        c = self.coef
+        return c[:, A_W, None] * self.Y[:, 0] + c[:, B_W, None] * self.Y[:, 1] + c[:, C_D, None] * self.Y[:, 2]
+
+    @property
+    def d(self) -> FloatArray:
+        """(n, 3) the live rows' direction (zeros for other rows)."""
+        return self.Y[:, 2]
 
 
 def evaluate(
@@ -143,14 +299,23 @@ def evaluate(
     eps: float = 1e-3,
     gamma_ho: float = 1.0,
     escape_speed: float = 0.3,
+    live: bool = False,
+    a_ref: FloatArray | None = None,
+    is_neighbour: BoolArray | None = None,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3). ``axis_w`` (n, 3) holds unit
-    cylinder axes (zero rows for spheres); ``None`` means all spheres."""
+    cylinder axes (zero rows for spheres); ``None`` means all spheres. With ``live`` the
+    C3BF rows are live rows for the reference relative accelerations ``a_ref`` (n, 3)
+    [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,)."""
     Y = np.ascontiguousarray(Y, dtype=float)
-    axis = np.zeros((Y.shape[0], 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
+    n = Y.shape[0]
+    axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
+    A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
+    nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
     Y_used, coef, inside = barrier_rows(
-        kind.code, Y, np.ascontiguousarray(r, dtype=float), axis, eps, gamma_ho, escape_speed
-    )
+        kind.code, Y, np.ascontiguousarray(r, dtype=float), axis, eps, gamma_ho, escape_speed,
+        live_settings(live), A, a_ref is not None, nb,
+    )  # fmt: skip
     return BarrierRows(Y_used, coef, inside)
 
 
@@ -160,7 +325,7 @@ def evaluate_pw(
     w: FloatArray,
     r: FloatArray,
     axis_w: FloatArray | None = None,
-    **kw: float,
+    **kw: Any,
 ) -> BarrierRows:
     """:func:`evaluate` for separate ``p`` and ``w`` (n, 3)."""
     return evaluate(kind, np.stack([p, w], axis=1), r, axis_w, **kw)

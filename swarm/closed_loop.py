@@ -4,6 +4,7 @@ runtime's world process does the same with PyBullet. Used by tests and quick stu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,11 +16,12 @@ from swarm.control import (
     setpoint_from_thrust_vector,
     yaw_of,
 )
+from swarm.errors import InputError
 from swarm.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import FloatArray, quat_to_R
-from swarm.scenario import surface_clearance
+from swarm.scenario import min_pair_distance, surface_clearance
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -98,3 +100,120 @@ def simulate(
             f = onboard.rotor_thrusts(state, sp, dt) if sp is not None else u
             state = step_rk4(model, state, f, dt)
     return log
+
+
+@dataclass
+class SwarmAgent:
+    """One agent of :func:`simulate_swarm`: where it starts, its path and its filter."""
+
+    start_w: FloatArray  # (3,) m, world: centre of mass at rest
+    path_w: FloatArray  # (k, 3) m, world: waypoints after the start (the last is the goal)
+    speed_mps: float = 0.8
+    config: FilterConfig = field(default_factory=FilterConfig)
+    start_velocity_w: FloatArray | None = None  # (3,) m/s, world (default: at rest)
+
+    @property
+    def goal_w(self) -> FloatArray:
+        return self.path_w[-1]
+
+
+@dataclass
+class SwarmLog:
+    """What :func:`simulate_swarm` measured. Distances between body centres."""
+
+    t_s: FloatArray  # (T,) s
+    x_b_w: FloatArray  # (T, N, 3) m, world: body centres
+    v_w: FloatArray  # (T, N, 3) m/s, world: centre-of-mass velocities
+    status: list[list[FilterStatus]]  # (T, N)
+    min_separation_m: float  # closest pair of body centres over the run
+    min_clearance_m: float  # closest body centre to an obstacle surface (inf: no obstacles)
+    time_to_goal_s: list[float | None]  # per agent: first time within the tolerance of the goal
+
+    @property
+    def infeasible_ticks(self) -> int:
+        """Agent ticks whose filter needed slack (or failed): ticks without the guarantee."""
+        return sum(s is FilterStatus.INFEASIBLE or s is FilterStatus.FAILED for row in self.status for s in row)
+
+    @property
+    def all_reached(self) -> bool:
+        return all(t is not None for t in self.time_to_goal_s)
+
+
+def _body_rows(states: list[QuadState], l_m: float) -> tuple[FloatArray, FloatArray]:
+    from swarm.model import body_centre
+
+    xb = np.empty((len(states), 3))
+    vb = np.empty((len(states), 3))
+    for i, s in enumerate(states):
+        xb[i], vb[i], _ = body_centre(s.x_w, s.v_w, s.q, s.Omega_b, l_m)
+    return xb, vb
+
+
+def simulate_swarm(
+    model: QuadModel,
+    agents: list[SwarmAgent],
+    obstacles: ObstacleArrays,
+    duration_s: float,
+    *,
+    control_hz: float = 100.0,
+    physics_hz: float = 300.0,
+    goal_tolerance_m: float = 0.15,
+) -> SwarmLog:
+    """Fly a swarm in one process, as a lockstep run with the world's roster does: at
+    every tick each agent filters its tracker's thrust vector (attitude level) against
+    the obstacles and every other agent's body centre and velocity of that tick (no
+    acceleration, as a roster gives), then the firmware's attitude loop and RK4 physics
+    run ``physics_hz / control_hz`` steps. Ends early once every agent has been within
+    ``goal_tolerance_m`` of its goal. No I/O; the benchmark and tests use it."""
+    for i, a in enumerate(agents):
+        if a.config.level is not CommandLevel.ATTITUDE:
+            raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
+    n = len(agents)
+    trackers = [PathTracker(np.vstack([a.start_w, a.path_w]), a.speed_mps) for a in agents]
+    filters = [SafetyFilter(model, a.config) for a in agents]
+    states = [QuadState.hover(a.start_w) for a in agents]
+    for s, a in zip(states, agents, strict=True):
+        if a.start_velocity_w is not None:
+            s.v_w = np.asarray(a.start_velocity_w, dtype=float).copy()
+    onboard = [OnboardController(model, 0.0) for _ in agents]
+    n_sub = max(1, round(physics_hz / control_hz))
+    dt = 1.0 / (control_hz * n_sub)
+    p = model.params
+    r_nb = np.full(n, p.body_radius_m)
+    others = [np.array([j for j in range(n) if j != i], dtype=np.intp) for i in range(n)]
+    zeros = np.zeros((max(n - 1, 0), 3))
+    nb_flags = np.ones(max(n - 1, 0), dtype=bool)
+    goals = np.array([a.goal_w for a in agents])
+    t_goal: list[float | None] = [None] * n
+    log_t, log_x, log_v, log_s = [], [], [], []
+    min_sep, min_clear = math.inf, math.inf
+    for k in range(round(duration_s * control_hz)):
+        t = k / control_hz
+        obs = obstacles_at(obstacles, t)
+        xb, vb = _body_rows(states, p.l_m)
+        if n > 1:
+            min_sep = min(min_sep, min_pair_distance(xb))
+        if len(obs):
+            min_clear = min(min_clear, float(surface_clearance(xb, obs).min()))
+        statuses = []
+        setpoints = []
+        for i in range(n):
+            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, nb_flags)
+            F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w)
+            res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
+            statuses.append(res.status)
+            setpoints.append(setpoint_from_thrust_vector(res.u, yaw_of(states[i])))
+        for i in range(n):
+            for _ in range(n_sub):
+                states[i] = step_rk4(model, states[i], onboard[i].rotor_thrusts(states[i], setpoints[i], dt), dt)
+        x_now = np.array([s.x_w for s in states])
+        for i in np.flatnonzero(np.linalg.norm(x_now - goals, axis=1) <= goal_tolerance_m).tolist():
+            if t_goal[i] is None:
+                t_goal[i] = t + 1.0 / control_hz
+        log_t.append(t)
+        log_x.append(xb)
+        log_v.append(np.array([s.v_w for s in states]))
+        log_s.append(statuses)
+        if all(tg is not None for tg in t_goal):
+            break
+    return SwarmLog(np.array(log_t), np.array(log_x), np.array(log_v), log_s, min_sep, min_clear, t_goal)

@@ -60,12 +60,14 @@ class FilterSettings(_Strict):
     floor_z_m: float | None = Field(
         0.25, allow_inf_nan=False
     )  # m, world: the centre of mass stays above (HO-CBF row); null: no floor
+    # C3BF: live rows at low relative speed (swarm.barriers); false: the paper's rows, which freeze at rest
+    live: bool = True
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
             level=level, barrier=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
             sensing_radius_m=self.sensing_radius_m, margin_m=self.margin_m, backend=self.backend,
-            floor_z_m=self.floor_z_m,
+            floor_z_m=self.floor_z_m, live=self.live,
         )  # fmt: skip
 
 

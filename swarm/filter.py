@@ -18,7 +18,7 @@ from enum import StrEnum
 import numpy as np
 from numba import njit
 
-from swarm.barriers import BarrierKind, BarrierRows
+from swarm.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, live_settings
 from swarm.errors import InputError
 from swarm.model import (
     Q_NORM2_MAX,
@@ -122,7 +122,7 @@ _BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
 @njit(cache=True)
 def _prepare(
     check, x, v, q, Om, u_ref, rotor, K, consts, Aa_att, c, cd, cdd, r, axis, is_nb, r2, max_rows,
-    floor, floor_z, floor_k, mass, lb, ub, C, d, kind, r_own, rho, gamma, eps, gamma_ho, v_esc,
+    floor, floor_z, floor_k, mass, lb, ub, C, d, kind, r_own, rho, gamma, eps, gamma_ho, v_esc, live,
 ):  # noqa: ANN001, ANN202  # fmt: skip
     """One filter call's work before the QP, in one compiled call: with ``check`` the
     state's finiteness, shapes and quaternion norm and ``u_ref``'s finiteness (a failure
@@ -150,7 +150,7 @@ def _prepare(
             bad = _BAD_UREF
         if bad != 0:
             z1 = np.zeros(0)
-            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 2, 3)), np.zeros((0, 7)),
+            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)), np.zeros((0, 8)),
                     np.zeros(0, dtype=np.bool_), z1, np.zeros((0, m)), z1, z1, False, False)  # fmt: skip
     idx, fixed = _select(c, is_nb, x, r2, max_rows)
     if floor:
@@ -158,7 +158,28 @@ def _prepare(
         _floor_row(not rotor, C[j], d, j, x[2], v[2], qn, floor_z, floor_k, mass, consts[1], ub)
     xv_b, Aa = own_affine(rotor, x, v, qn, Om, K, consts, Aa_att)
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
-        kind, c, cd, r, r_own, axis, cdd, is_nb, idx, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
+        kind,
+        c,
+        cd,
+        r,
+        r_own,
+        axis,
+        cdd,
+        is_nb,
+        idx,
+        rho,
+        xv_b,
+        Aa,
+        gamma,
+        eps,
+        gamma_ho,
+        v_esc,
+        u_ref,
+        lb,
+        ub,
+        C,
+        d,
+        live,
     )
     return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside
 
@@ -212,6 +233,14 @@ class FilterConfig:
     floor is the HO-CBF ``z'' >= -2 k z' - k^2 (z - floor_z_m)`` (``k`` = ``floor_gain_per_s``),
     one more input row: ``F_z`` at the attitude level, ``R33 sum f`` at the rotor level."""
     floor_gain_per_s: float = 2.0
+    live: bool = True
+    """C3BF only: live rows (``swarm.barriers``, "Live rows"), which let a swarm at rest
+    move where the cone allows, or False for the paper's smoothed rows, which freeze at
+    zero relative velocity. The live rows are the exact C3BF rows from ``live_hi_mps``."""
+    live_lo_mps: float = LIVE_W_LO_MPS
+    """Relative speed [m/s] below which a live row aims at the reference alone."""
+    live_hi_mps: float = LIVE_W_HI_MPS
+    """Relative speed [m/s] from which a live row is the exact C3BF row."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
@@ -228,6 +257,11 @@ class FilterConfig:
                 raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
         if not (0.0 < self.rho <= 1.0):
             raise InputError(f"FilterConfig.rho: must be in (0, 1], got {self.rho!r}")
+        if not (0.0 <= self.live_lo_mps < self.live_hi_mps and math.isfinite(self.live_hi_mps)):
+            raise InputError(
+                "FilterConfig.live_lo_mps, live_hi_mps: need 0 <= lo < hi, "
+                f"got {self.live_lo_mps!r}, {self.live_hi_mps!r}"
+            )
         if not (isinstance(self.max_rows, int) and self.max_rows >= 1):
             raise InputError(f"FilterConfig.max_rows: must be an integer >= 1, got {self.max_rows!r}")
 
@@ -285,6 +319,7 @@ class SafetyFilter:
         self._fallback = None if cfg.backend == "daqp" else make_backend("daqp", self.m, 0)
         self._slack_cache: dict[tuple[int, int], tuple[FloatArray, ...]] = {}  # (rows, input set) -> arrays
         self._own = OwnDynamics(cfg.level, model)
+        self._live = live_settings(cfg.live and cfg.barrier is BarrierKind.C3BF, cfg.live_lo_mps, cfg.live_hi_mps)
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
@@ -306,7 +341,7 @@ class SafetyFilter:
         return assemble(
             cfg.barrier, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
             rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
-            input_set=input_set or self.input_set, sel=sel,
+            input_set=input_set or self.input_set, sel=sel, live=self._live,
         )  # fmt: skip
 
     def filter(
@@ -327,7 +362,7 @@ class SafetyFilter:
             own.consts, own.Aa_att, obs.c_w, obs.c_dot_w, obs.c_ddot_w, obs.radius_m, obs.axis_w, obs.is_neighbour,
             cfg.sensing_radius_m**2, cfg.max_rows, cfg.floor_z_m is not None, cfg.floor_z_m or 0.0,
             cfg.floor_gain_per_s, self.model.params.mass_kg, ins.lb, ins.ub, ins.C, ins.d, cfg.barrier.code,
-            self.r_own_m, cfg.rho, cfg.gamma, cfg.eps_w_mps, cfg.gamma_ho, cfg.escape_speed_mps,
+            self.r_own_m, cfg.rho, cfg.gamma, cfg.eps_w_mps, cfg.gamma_ho, cfg.escape_speed_mps, self._live,
         )  # fmt: skip
         if bad != _BAD_NONE:  # the checking path raises, naming the field
             state.validated()

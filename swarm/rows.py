@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm.barriers import A_P, A_W, B_P, B_W, BarrierKind, BarrierRows, H, barrier_row
+from swarm.barriers import A_P, A_W, B_P, B_W, C_D, N_COEF, PAPER, BarrierKind, BarrierRows, H, barrier_row
 from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
@@ -108,23 +108,24 @@ def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):  # noqa: ANN001, ANN201
 
 @njit(cache=True)
 def rows_kernel(
-    kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d
+    kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d, live
 ):  # noqa: ANN001
     """All rows at once, row i for obstacle ``sel[i]`` (a selection indexes the obstacle
     arrays, no copy; safety radius ``r + r_own``; responsibility share ``rho`` for the
     rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as
     one QP constraint set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``),
     and the residuals ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips
-    them).
+    them). ``live`` as :func:`swarm.barriers.barrier_row` takes it; the live rows' target
+    is the relative acceleration ``c'' + a0_own + A u_ref`` that ``u_ref`` would give.
 
-    Returns (Y_used (n,2,3), coef (n,7), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
+    Returns (Y_used (n,3,3), coef (n,8), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
     bound and ``any_inside`` that some row is already inside its safety radius."""
     n = sel.shape[0]
     k_in = C.shape[0]
     m = Aa.shape[1] - 1
-    Y = np.empty((n, 2, 3))
-    coef = np.empty((n, 7))
+    Y = np.empty((n, 3, 3))
+    coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
     Lf = np.empty(n)
     A = np.empty((k_in + n, m))
@@ -139,19 +140,29 @@ def rows_kernel(
     dp = np.empty(3)
     dw = np.empty(3)
     any_inside = False
+    own_ref = np.zeros(3)  # a0_own + A u_ref [m/s^2, world]
+    a_ref = np.empty(3)
+    if with_ref:
+        for k in range(3):
+            acc = Aa[k, m]
+            for j in range(m):
+                acc += Aa[k, j] * u_ref[j]
+            own_ref[k] = acc
     for i in range(n):
         o = sel[i]
         for k in range(3):
             p[k] = c[o, k] - xv_b[0, k]
             w[k] = cd[o, k] - xv_b[1, k]
-        inside[i] = barrier_row(kind, p, w, r[o] + r_own, axis[o], eps, gamma_ho, v_esc, Y[i], coef[i])
+            a_ref[k] = cdd[o, k] + own_ref[k]
+        inside[i] = barrier_row(kind, p, w, r[o] + r_own, axis[o], eps, gamma_ho, v_esc, Y[i], coef[i], live, a_ref,
+                                with_ref, is_nb[o])  # fmt: skip
         any_inside = any_inside or inside[i]
         co = coef[i]
         rel = 0.0
         own = 0.0
         for k in range(3):
             dp[k] = co[A_P] * Y[i, 0, k] + co[B_P] * Y[i, 1, k]
-            dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k]
+            dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k] + co[C_D] * Y[i, 2, k]
             rel += dp[k] * Y[i, 1, k]
             own += dw[k] * (cdd[o, k] + Aa[k, m])
         row = k_in + i
@@ -230,12 +241,15 @@ def assemble(
     u_ref: FloatArray | None = None,
     input_set: LinearInputSet | None = None,
     sel: IntArray | None = None,
+    live: FloatArray = PAPER,
 ) -> Rows:
     """Build every row at once: one per obstacle, or row i for obstacle ``sel[i]``.
     ``r_own_m`` [m] is added to each obstacle's radius for the full safety radius of its
     row (the agent's own bounding radius and margin).
     With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
-    ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``)."""
+    ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``).
+    ``live`` (:func:`swarm.barriers.live_settings`; default the paper's rows) makes the
+    C3BF rows live rows aimed at ``u_ref``."""
     m = own.Aa.shape[1] - 1
     if input_set is None:  # no bounds: residuals of the barrier rows only
         lb, ub = np.full(m, -np.inf), np.full(m, np.inf)
@@ -245,7 +259,7 @@ def assemble(
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
         kind.code, obstacles.c_w, obstacles.c_dot_w, obstacles.radius_m, r_own_m, obstacles.axis_w, obstacles.c_ddot_w,
         obstacles.is_neighbour, np.arange(len(obstacles)) if sel is None else sel, rho, own.xv_b, own.Aa, gamma,
-        eps, gamma_ho, escape_speed, _NO_REF if u_ref is None else u_ref, lb, ub, C, d,
+        eps, gamma_ho, escape_speed, _NO_REF if u_ref is None else u_ref, lb, ub, C, d, live,
     )  # fmt: skip
     return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside))
 

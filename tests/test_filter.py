@@ -192,8 +192,9 @@ def test_bad_input_raises_a_specific_error(make):
 
 
 def test_reciprocal_rows_add_up_to_the_pair_condition():
-    """rho = 0.5: the two agents' rows sum to h' + gamma h >= 0 of the pair (DESIGN 5)."""
-    cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5)
+    """rho = 0.5: the two agents' rows sum to h' + gamma h >= 0 of the pair (DESIGN 5).
+    The paper's smoothed rows, whose formula this spells out."""
+    cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, live=False)
     filt = SafetyFilter(MODEL, cfg)
     a, b = QuadState.hover([0, 0, 1]), QuadState.hover([2.0, 0.3, 1.1])
     a.v_w, b.v_w = np.array([1.0, 0, 0]), np.array([-1.0, 0.1, 0])

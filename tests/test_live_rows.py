@@ -1,0 +1,186 @@
+"""Live C3BF rows (swarm.barriers, "Live rows") by their definition.
+
+Every command that satisfies a live row keeps the exact, unsmoothed collision cone:
+
+* at ``w = 0`` the exact condition along ``w(t) ~ t a``: ``<p, a> + s |a| >= 0``;
+* at any ``w``: ``h >= h_d >= 0`` now, and along the motion the exact ``h`` stays above
+  ``h_d(0) (1 - gamma tau)`` to second order, so it stays non-negative;
+* where ``d = w/|w|`` (relative speed above ``live_hi_mps``) the row is the exact C3BF
+  condition itself: ``h' + gamma h >= 0`` by a finite difference of the exact ``h``.
+
+And where the cone allows the reference, a static obstacle's row admits it; two agents'
+rows of one pair are mirror images (``d_ji = -d_ij``), so the pair keeps the cone."""
+
+import math
+
+import numpy as np
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from swarm.barriers import LIVE_W_HI_MPS, BarrierKind, evaluate_pw
+
+GAMMA = 1.0
+vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
+small = st.floats(-1.0, 1.0).map(lambda e: 10.0 ** (-9 * abs(e)) * math.copysign(1.0, e))  # 1e-9 .. 1
+axis_or_none = st.one_of(
+    st.just(np.zeros(3)), vec.filter(lambda a: np.linalg.norm(a) > 0.1).map(lambda a: a / np.linalg.norm(a))
+)
+
+
+def proj(a, v):
+    return v - a * (a @ v)
+
+
+def exact_h(p, w, r, a):
+    P, W = proj(a, p), proj(a, w)
+    return P @ W + np.linalg.norm(W) * math.sqrt(P @ P - r * r)
+
+
+def live(p, w, r, a, a_ref, nb=False):
+    return evaluate_pw(
+        BarrierKind.C3BF, p[None], w[None], np.array([r]), a[None], live=True,
+        a_ref=None if a_ref is None else a_ref[None], is_neighbour=np.array([nb]),
+    )  # fmt: skip
+
+
+def outside(p, r, a):
+    """p moved so that its projection is clear of the safety radius (or None)."""
+    if np.linalg.norm(proj(a, p)) >= r + 0.05:
+        return p
+    p = p + (r + 0.2) * (np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0]))
+    return p if np.linalg.norm(proj(a, p)) >= r + 0.05 else None
+
+
+def satisfying(n_w, c, acc):
+    """``acc`` moved onto the half-space ``<n_w, a> + c >= 0`` if it is outside."""
+    gap = n_w @ acc + c
+    return acc if gap >= 0 else acc - gap * n_w / (n_w @ n_w)
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec, acc=vec, nb=st.booleans())
+def test_at_rest_every_admitted_acceleration_keeps_the_exact_cone(p, r, a, a_ref, acc, nb):
+    p = outside(p, r, a)
+    assume(p is not None)
+    rows = live(p, np.zeros(3), r, a, a_ref, nb)
+    d = rows.d[0]
+    assert np.linalg.norm(d) <= 1.0 + 1e-12
+    assert rows.h[0] == 0.0 and not rows.inside[0]
+    n_w = rows.dh_dw[0]
+    acc = satisfying(n_w, 0.0, acc)  # any relative acceleration the row admits
+    P, A = proj(a, p), proj(a, acc)
+    s = math.sqrt(P @ P - r * r)
+    assert P @ A + s * np.linalg.norm(A) >= -1e-9 * (1 + np.linalg.norm(A))
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec)
+def test_at_rest_a_static_row_admits_the_reference_where_the_cone_does(p, r, a, a_ref):
+    p = outside(p, r, a)
+    assume(p is not None)
+    P, A = proj(a, p), proj(a, a_ref)
+    s = math.sqrt(P @ P - r * r)
+    rows = live(p, np.zeros(3), r, a, a_ref)
+    if np.linalg.norm(A) < 1e-6:  # no reference to aim at: today's row, d = 0
+        assert not rows.d[0].any()
+    elif P @ A + s * np.linalg.norm(A) >= 0:  # the exact cone allows it
+        assert rows.dh_dw[0] @ a_ref >= -1e-9 * (1 + np.linalg.norm(a_ref))
+    else:  # it does not: the row's half-space touches the cone on its boundary
+        d = rows.d[0]
+        assert abs(np.linalg.norm(d) - 1.0) < 1e-9 and abs(P @ d + s) < 1e-9
+
+
+@settings(max_examples=600, deadline=None)
+@given(
+    p=vec, w_dir=vec, w_size=small, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec),
+    acc=vec, nb=st.booleans(),
+)  # fmt: skip
+def test_any_speed_the_row_keeps_the_exact_h_non_negative_along_the_motion(p, w_dir, w_size, r, a, a_ref, acc, nb):
+    p = outside(p, r, a)
+    assume(p is not None and np.linalg.norm(w_dir) > 1e-3)
+    w = w_dir / np.linalg.norm(w_dir) * abs(w_size) * 3.0
+    rows = live(p, w, r, a, a_ref, nb)
+    h_d, h = rows.h[0], exact_h(p, w, r, a)
+    assert h_d <= h + 1e-12 * (1 + abs(h))  # (1): h >= h_d
+    if h >= 0:
+        assert h_d >= -1e-12 * (1 + np.linalg.norm(p) * np.linalg.norm(w))  # d was chosen in D
+    # a relative acceleration that satisfies the row h_d' + gamma h_d >= 0 (d held)
+    Lf = rows.dh_dp[0] @ w + GAMMA * h_d
+    acc = satisfying(rows.dh_dw[0], Lf, acc)
+    tau = 1e-4
+    h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
+    scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
+    assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), acc=vec)
+def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a_ref, acc):
+    p = outside(p, r, a)
+    assume(p is not None and np.linalg.norm(proj(a, w)) >= LIVE_W_HI_MPS)
+    rows = live(p, w, r, a, a_ref)
+    assert rows.h[0] == np.float64(exact_h(p, w, r, a)) or abs(rows.h[0] - exact_h(p, w, r, a)) < 1e-12 * (
+        1 + abs(rows.h[0])
+    )
+    Lf = rows.dh_dp[0] @ w + GAMMA * rows.h[0]
+    acc = satisfying(rows.dh_dw[0], Lf, acc)
+    d = 1e-6
+    fd = (exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, a) - exact_h(p - d * w + 0.5 * d * d * acc,
+                                                                              w - d * acc, r, a)) / (2 * d)  # fmt: skip
+    assert fd + GAMMA * exact_h(p, w, r, a) >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + np.linalg.norm(p))
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec)
+def test_gradients_of_h_d_match_finite_differences_with_d_held(p, w, r, a, a_ref):
+    p = outside(p, r, a)
+    assume(p is not None)
+    rows = live(p, w, r, a, a_ref)
+    d_dir = rows.d[0]
+    P = lambda v: proj(a, v)  # noqa: E731
+
+    def h_d(pp, ww):
+        Pp, Pw = P(pp), P(ww)
+        return Pp @ Pw + math.sqrt(Pp @ Pp - r * r) * (d_dir @ Pw)
+
+    assert abs(h_d(p, w) - rows.h[0]) < 1e-12 * (1 + abs(rows.h[0]))
+    e = 1e-6
+    for grad, which in ((rows.dh_dp[0], 0), (rows.dh_dw[0], 1)):
+        num = np.zeros(3)
+        for i in range(3):
+            E = np.zeros(3)
+            E[i] = e
+            args_p = ((p + E, w), (p - E, w)) if which == 0 else ((p, w + E), (p, w - E))
+            num[i] = (h_d(*args_p[0]) - h_d(*args_p[1])) / (2 * e)
+        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=vec, w_dir=vec, w_size=small, r=st.floats(0.05, 1.0), acc_i=vec, acc_j=vec)
+def test_a_pair_of_agents_picks_mirrored_directions_and_keeps_the_cone(p, w_dir, w_size, r, acc_i, acc_j):
+    p = outside(p, r, np.zeros(3))
+    assume(p is not None)
+    w = w_dir * abs(w_size)
+    ri = live(p, w, r, np.zeros(3), None, nb=True)
+    rj = live(-p, -w, r, np.zeros(3), None, nb=True)
+    np.testing.assert_allclose(rj.d[0], -ri.d[0], atol=1e-12)
+    np.testing.assert_allclose(rj.dh_dw[0], -ri.dh_dw[0], atol=1e-12)
+    if np.linalg.norm(w) == 0.0:
+        # each agent's own acceleration satisfies its own row (the other assumed unaccelerated):
+        # i sees w' = -acc_i, j sees w' = -acc_j; the pair's true relative acceleration is acc_j - acc_i
+        ai = -satisfying(ri.dh_dw[0], 0.0, -acc_i)
+        aj = -satisfying(rj.dh_dw[0], 0.0, -acc_j)
+        rel = aj - ai
+        s = math.sqrt(p @ p - r * r)
+        assert p @ rel + s * np.linalg.norm(rel) >= -1e-9 * (1 + np.linalg.norm(rel))
+
+
+def test_a_drone_at_rest_before_a_sphere_is_not_frozen():
+    """The paper's smoothed row forbids every acceleration towards the centre at rest;
+    the live row admits the reference when it passes beside the sphere."""
+    p = np.array([1.0, 0.3, 0.0])  # sphere ahead, a little to the left
+    a_ref = np.array([-3.0, 0.0, 0.0])  # the drone accelerates along +x: the sphere comes at it
+    paper = evaluate_pw(BarrierKind.C3BF, p[None], np.zeros((1, 3)), np.array([0.2]))
+    assert paper.dh_dw[0] @ a_ref < 0  # frozen: the reference is refused
+    assert live(p, np.zeros(3), 0.2, np.zeros(3), a_ref).dh_dw[0] @ a_ref >= 0

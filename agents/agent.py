@@ -25,7 +25,7 @@ import numpy as np
 from agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, right_hand_bias, setpoint_vector
+from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
@@ -201,13 +201,7 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
-        if me.tiebreak.kind == "right_hand":
-            tb = me.tiebreak
-            v_des = tracker.desired_velocity(state.x_w)
-            v_des = v_des + right_hand_bias(x_b, v_des, neighbours.c_w, tb.trigger_m, tb.speed_mps, tracker.speed_mps)
-            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, v_des)
-        else:
-            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w)  # (the whole tracker in one call)
+        F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours]) if len(self.obstacles) else neighbours
         row_ids: list[str] = []

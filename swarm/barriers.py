@@ -81,8 +81,11 @@ class BarrierKind(StrEnum):
 
 
 # columns of the coefficient array returned by the kernels
-H, A_P, B_P, A_W, B_W, PW, WW, C_D = range(8)
-N_COEF = 8
+H, A_P, B_P, A_W, B_W, PW, WW, C_D, RATE = range(9)
+N_COEF = 9
+RECOVERY_PER_CONTACT = 2.0
+"""Inside the cone a live row's class-K gain is at least this over the time to contact
+[unit-free]: the row asks to leave the cone within half the time to contact."""
 
 LIVE_W_LO_MPS = 0.005
 """Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
@@ -110,6 +113,51 @@ def _unit_side(P, pp, a, out):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
+def _generator(P, V, pp, s, a, t, d):  # noqa: ANN001, ANN202
+    """The cone's boundary generator nearest to direction ``V`` (3,), in the plane of
+    ``P`` and ``V`` (the side ``e x p`` when ``V`` is along ``P``), into ``d``; ``t`` is
+    scratch (3,). The cone: half-angle ``asin(r/|P|)`` about ``-P``."""
+    rp = math.sqrt(pp)
+    vp = (V[0] * P[0] + V[1] * P[1] + V[2] * P[2]) / pp
+    for k in range(3):
+        t[k] = V[k] - vp * P[k]
+    nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    nv = math.sqrt(V[0] * V[0] + V[1] * V[1] + V[2] * V[2])
+    if nt <= 1e-9 * nv or nt == 0.0:
+        _unit_side(P, pp, a, t)
+    else:
+        for k in range(3):
+            t[k] /= nt
+    tp = (t[0] * P[0] + t[1] * P[1] + t[2] * P[2]) / pp  # re-orthogonalise (t of a near-parallel V)
+    for k in range(3):
+        t[k] -= tp * P[k]
+    nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    cphi, sphi = s / rp, math.sqrt(max(pp - s * s, 0.0)) / rp
+    for k in range(3):
+        d[k] = -cphi * P[k] / rp + sphi * t[k] / nt
+
+
+AXIS_BAND = 1e-4
+"""Inside the cone, within this angle [rad] of its axis (lateral speed below
+``AXIS_BAND |w|``), a live row turns to the side rule's side rather than to the lateral
+speed, which there is noise (an exactly symmetric swap measured 1e-5 |w|)."""
+
+
+@njit(cache=True)
+def _inside_direction(P, W, pp, s, a, t, d):  # noqa: ANN001, ANN202
+    """Inside the cone: the generator nearest to ``W``, with the side rule's side ``e x p``
+    added to ``W``'s lateral part at ``AXIS_BAND |W|`` (odd in ``P``, ``W``)."""
+    nw = math.sqrt(W[0] * W[0] + W[1] * W[1] + W[2] * W[2])
+    _unit_side(P, pp, a, t)
+    eps = AXIS_BAND * nw
+    V = np.empty(3)
+    wp = (W[0] * P[0] + W[1] * P[1] + W[2] * P[2]) / pp
+    for k in range(3):
+        V[k] = W[k] - wp * P[k] + eps * t[k] - P[k]  # lateral part, biased, then along -p
+    _generator(P, V, pp, s, a, t, d)
+
+
+@njit(cache=True)
 def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noqa: ANN001, ANN201
     """The live row's direction ``d`` (3,) [unit-free, |d| <= 1, in range(P)] into ``d``,
     for the projected ``P`` = p [m], ``W`` = w [m/s], ``A`` = a_ref [m/s^2] of one row
@@ -118,34 +166,21 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noq
     ``has_ref``: ``A`` is the reference's relative acceleration (else no target but the
     side rule for ``side_only`` rows, and ``d* = 0`` for the others); ``side_only``: a
     neighbour, whose target is always the side generator (odd in ``p``, so two agents'
-    rows of one pair agree). Returns ``<d, W>``."""
-    rp = math.sqrt(pp)
-    cphi, sphi = s / rp, math.sqrt(max(pp - s * s, 0.0)) / rp  # cone half-angle about -p
+    rows of one pair agree). Where ``h < 0`` (inside the cone) the fast direction is the
+    boundary generator nearest to ``w`` rather than ``w/|w|``: any ``|d| <= 1`` bounds
+    ``h`` from below there. Returns ``<d, W>``."""
     t = np.empty(3)
     aa = A[0] * A[0] + A[1] * A[1] + A[2] * A[2]
     # the target d*
-    if side_only or (has_ref and aa > _TINY):
-        if side_only:
-            _unit_side(P, pp, a, t)
+    if side_only:
+        _generator(P, P, pp, s, a, t, d)
+    elif has_ref and aa > _TINY:
+        na = math.sqrt(aa)
+        if (P[0] * A[0] + P[1] * A[1] + P[2] * A[2]) / na + s >= 0.0:  # outside the cone: the reference itself
             for k in range(3):
-                d[k] = -cphi * P[k] / rp + sphi * t[k]
-        else:
-            na = math.sqrt(aa)
-            pa = (P[0] * A[0] + P[1] * A[1] + P[2] * A[2]) / na
-            if pa + s >= 0.0:  # outside the cone (or on it): the reference direction itself
-                for k in range(3):
-                    d[k] = A[k] / na
-            else:  # inside: the nearest generator, in the plane of p and a_ref
-                for k in range(3):
-                    t[k] = A[k] / na - pa * P[k] / pp
-                nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-                if nt < 1e-9:
-                    _unit_side(P, pp, a, t)
-                else:
-                    for k in range(3):
-                        t[k] /= nt
-                for k in range(3):
-                    d[k] = -cphi * P[k] / rp + sphi * t[k]
+                d[k] = A[k] / na
+        else:  # inside: the nearest generator, in the plane of p and a_ref
+            _generator(P, A, pp, s, a, t, d)
     else:
         d[0], d[1], d[2] = 0.0, 0.0, 0.0
     ww = W[0] * W[0] + W[1] * W[1] + W[2] * W[2]
@@ -156,35 +191,56 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noq
     for k in range(3):
         u[k] = W[k] / nw
     c0 = -(P[0] * u[0] + P[1] * u[1] + P[2] * u[2]) / s  # d in D  <=>  <d, w/|w|> >= c0
-    if c0 > 1.0:  # h < 0 already: the exact row, which asks h back up
-        d[0], d[1], d[2] = u[0], u[1], u[2]
-        return nw
-    du = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
-    if du < c0 and d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:  # no target: D's point nearest to 0
+    fast = np.empty(3)
+    if c0 > 1.0:  # h < 0: D is empty and any |d| <= 1 is a lower bound; fast: the nearest generator
+        _inside_direction(P, W, pp, s, a, t, fast)
+    else:
         for k in range(3):
-            d[k] = c0 * u[k]
-    elif du < c0:  # move d* into D: the unit vector at <d, u> = c0 nearest to it
-        for k in range(3):
-            t[k] = d[k] - du * u[k]
-        nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
-        if nt < 1e-9:
-            _unit_side(W, ww, a, t)
-        else:
+            fast[k] = u[k]
+        du = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]
+        if du < c0 and d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:  # no target: D's point nearest to 0
             for k in range(3):
-                t[k] /= nt
-        q = math.sqrt(max(1.0 - c0 * c0, 0.0))
-        for k in range(3):
-            d[k] = c0 * u[k] + q * t[k]
+                d[k] = c0 * u[k]
+        elif du < c0:  # move d* into D: the unit vector at <d, u> = c0 nearest to it
+            for k in range(3):
+                t[k] = d[k] - du * u[k]
+            nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+            if nt < 1e-9:
+                _unit_side(W, ww, a, t)
+            else:
+                for k in range(3):
+                    t[k] /= nt
+            q = math.sqrt(max(1.0 - c0 * c0, 0.0))
+            for k in range(3):
+                d[k] = c0 * u[k] + q * t[k]
     lam = 1.0 if nw <= w_lo else (0.0 if nw >= w_hi else (w_hi - nw) / (w_hi - w_lo))
     for k in range(3):
-        d[k] = lam * d[k] + (1.0 - lam) * u[k]
+        d[k] = lam * d[k] + (1.0 - lam) * fast[k]
     return d[0] * W[0] + d[1] * W[1] + d[2] * W[2]
+
+
+@njit(cache=True)
+def cone_row(r, s, pp, pw, ww):  # noqa: ANN001, ANN201
+    """``H = (r/|p|)(s w_perp - r w_par)`` and its coefficients (h, a_p, b_p, a_w, b_w),
+    for a row inside the cone off its axis (``w_perp > 0``): ``w_par = -<p,w>/|p|`` is the
+    approach speed [m/s], ``w_perp`` the speed across ``p``. ``H <= h`` everywhere (Cauchy-
+    Schwarz), ``H = h = 0`` on the cone with the same gradient, and H is smooth off the
+    axis; on the axis its w-gradient is ``r`` long where h's is about ``r^2 / (2|p|)``."""
+    rp = math.sqrt(pp)
+    c = pw / rp  # = -w_par
+    wperp = math.sqrt(max(ww - c * c, 0.0))
+    H = r / rp * (s * wperp + r * c)
+    k = (r * wperp - s * c) / (rp * wperp)
+    a_p = -H / pp + r * wperp / (rp * s) - r * c * k / pp
+    b_p = r * k / rp
+    return H, a_p, b_p, b_p, r * s / (rp * wperp)
 
 
 @njit(cache=True, fastmath=False)
 def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a_ref, has_ref, nb):  # noqa: ANN001
     """One row. Writes the (projected) p, w and the live direction d into ``Y_out`` (3, 3)
-    and ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d`` into ``coef_out`` (8,); returns inside.
+    and ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d, rate`` into ``coef_out`` (9,); returns
+    inside. ``rate`` [1/s] is the least class-K gain of the row (non-zero inside the cone).
 
     ``live`` = (on, w_lo, w_hi): C3BF rows are live rows (module docstring) when ``on`` is
     non-zero; ``a_ref`` (3,) [m/s^2, world] is the reference's relative acceleration
@@ -202,6 +258,7 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
     ww = W[0] * W[0] + W[1] * W[1] + W[2] * W[2]
     s2 = pp - r * r
     c_d = 0.0
+    rate = 0.0
     if s2 > 0.0:
         s = math.sqrt(s2)
         if kind == 0 and live[0] != 0.0:
@@ -209,16 +266,27 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
             A = np.empty(3)
             for k in range(3):
                 A[k] = a_ref[k] - aA * a[k]
-            dw = live_direction(P, W, A, s, pp, a, has_ref, nb, live[1], live[2], Y_out[2])
-            h, a_p, b_w, c_d = pw + s * dw, dw / s, 0.0, s
+            nw = math.sqrt(ww)
+            rp = math.sqrt(pp)
+            c = pw / rp
+            if pw + nw * s < 0.0:  # inside the cone, closing at -c: leave it within half the time to contact
+                rate = RECOVERY_PER_CONTACT * -c / (rp - r)
+            band = AXIS_BAND * nw
+            if nw >= live[2] and pw + nw * s < 0.0 and ww - c * c > band * band:  # inside, moving, off the axis: H
+                h, a_p, b_p, a_w, b_w = cone_row(r, s, pp, pw, ww)
+            else:
+                dw = live_direction(P, W, A, s, pp, a, has_ref, nb, live[1], live[2], Y_out[2])
+                h, a_p, b_p, a_w, b_w, c_d = pw + s * dw, dw / s, 1.0, 1.0, 0.0, s
+            inside = False
         elif kind == 0:
             root = math.sqrt(ww + eps * eps)
             nw = root - eps
             h, a_p, b_w = pw + nw * s, nw / s, s / root
         else:
             h, a_p, b_w = pw + gamma_ho * s, gamma_ho / s, 0.0
-        b_p, a_w = 1.0, 1.0
-        inside = False
+        if kind != 0 or live[0] == 0.0:
+            b_p, a_w = 1.0, 1.0
+            inside = False
     else:
         if pp < COINCIDENT_M * COINCIDENT_M:
             P[0], P[1], P[2] = 0.0, 0.0, -COINCIDENT_M
@@ -235,6 +303,7 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
     coef_out[5] = pw
     coef_out[6] = ww
     coef_out[7] = c_d
+    coef_out[8] = rate
     return inside
 
 
@@ -249,7 +318,7 @@ def live_settings(on: bool, w_lo_mps: float = LIVE_W_LO_MPS, w_hi_mps: float = L
 
 @njit(cache=True)
 def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc, live, a_ref, has_ref, nb):  # noqa: ANN001
-    """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used (n, 3, 3), coef (n, 8), inside)."""
+    """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
     n = Y.shape[0]
     Y_out = np.empty((n, 3, 3))
     coef = np.empty((n, N_COEF))
@@ -265,7 +334,7 @@ class BarrierRows:
     """Barrier values and gradient coefficients of ``n`` rows."""
 
     Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and the live direction d the values refer to
-    coef: FloatArray  # (n, 8) columns H, A_P, B_P, A_W, B_W, PW, WW, C_D
+    coef: FloatArray  # (n, 9) columns H, A_P, B_P, A_W, B_W, PW, WW, C_D, RATE
     inside: BoolArray  # (n,): |P p| <= r, the row holds the escape barrier
 
     @property

@@ -9,10 +9,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm.config import ScenarioConfig
 from swarm.control import (
     AttitudeController,
     OnboardController,
     PathTracker,
+    reference_thrust,
     setpoint_from_thrust_vector,
     yaw_of,
 )
@@ -21,7 +23,7 @@ from swarm.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import FloatArray, quat_to_R
-from swarm.scenario import min_pair_distance, surface_clearance
+from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -111,6 +113,7 @@ class SwarmAgent:
     speed_mps: float = 0.8
     config: FilterConfig = field(default_factory=FilterConfig)
     start_velocity_w: FloatArray | None = None  # (3,) m/s, world (default: at rest)
+    tiebreak: tuple[float, float] | None = None  # right-hand tie-break (trigger [m], speed [m/s]), or None
 
     @property
     def goal_w(self) -> FloatArray:
@@ -199,7 +202,8 @@ def simulate_swarm(
         setpoints = []
         for i in range(n):
             nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, nb_flags)
-            F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w)
+            F_ref = reference_thrust(model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]],
+                                     agents[i].tiebreak)  # fmt: skip
             res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
             statuses.append(res.status)
             setpoints.append(setpoint_from_thrust_vector(res.u, yaw_of(states[i])))
@@ -217,3 +221,62 @@ def simulate_swarm(
         if all(tg is not None for tg in t_goal):
             break
     return SwarmLog(np.array(log_t), np.array(log_x), np.array(log_v), log_s, min_sep, min_clear, t_goal)
+
+
+def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArrays]:
+    """A validated scenario's agents and obstacles (at t = 0) as :func:`simulate_swarm`
+    takes them, every filter at the attitude level."""
+    agents = [
+        SwarmAgent(np.asarray(a.start, dtype=float), np.asarray(a.path()[1:] or [a.start], dtype=float), a.speed_mps,
+                   a.filter.filter_config(CommandLevel.ATTITUDE), np.asarray(a.start_velocity, dtype=float),
+                   a.tiebreak.pair)
+        for a in cfg.agents
+    ]  # fmt: skip
+    return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
+
+
+@dataclass(frozen=True)
+class SwarmOutcome:
+    """How a :func:`simulate_swarm` run went, by the runtime's metric definitions."""
+
+    collisions: int  # agent pairs whose airframes touched, plus agent-obstacle contacts
+    deadlocked: int  # agents stalled short of the goal (swarm.metrics.deadlock_start)
+    reached: int  # agents that reached their goal
+    agents: int
+    infeasible_ticks: int
+    time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
+
+    @property
+    def success(self) -> bool:
+        return self.reached == self.agents and self.collisions == 0
+
+
+def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
+    """Collisions, deadlocks, arrivals and time ratios of a run of ``cfg``."""
+    from swarm.metrics import deadlock_start
+
+    body = np.array([a.airframe.params().body_radius_m for a in cfg.agents])
+    x = log.x_b_w  # (T, N, 3)
+    n = x.shape[1]
+    contacts = 0
+    for i in range(n):
+        for j in range(i + 1, n):
+            contacts += bool((np.linalg.norm(x[:, i] - x[:, j], axis=1) < body[i] + body[j]).any())
+    obs = items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
+    for i in range(n) if len(obs) else ():
+        clear = np.array([surface_clearance(x[k, i][None], obstacles_at(obs, t))[0] for k, t in enumerate(log.t_s)])
+        contacts += int(((clear < body[i]).sum(axis=0) > 0).sum())
+    dl = cfg.deadlock
+    deadlocked = 0
+    ratios = []
+    for i, a in enumerate(cfg.agents):
+        goal = np.asarray(a.final_goal, dtype=float)
+        t_goal = log.time_to_goal_s[i]
+        if t_goal is None and deadlock_start(log.t_s, x[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m,
+                                             speed_mps=dl.speed_mps, hold_s=dl.hold_s) is not None:  # fmt: skip
+            deadlocked += 1
+        straight = float(np.linalg.norm(goal - np.asarray(a.start))) / a.speed_mps
+        if t_goal is not None and straight > 0:
+            ratios.append(t_goal / straight)
+    reached = sum(t is not None for t in log.time_to_goal_s)
+    return SwarmOutcome(contacts, deadlocked, reached, n, log.infeasible_ticks, ratios)

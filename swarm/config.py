@@ -90,11 +90,19 @@ class AirframeSettings(_Strict):
 
 class TiebreakSettings(_Strict):
     """A deadlock answer that changes the reference, never the filter
-    (``swarm.control.right_hand_bias``)."""
+    (``swarm.control.right_hand_bias``). On by default: a crowd at rest in exact symmetry
+    (a circle swap) has every pair's relative reference on its cone's axis, and the
+    filter's least change of a radial reference is then no motion; the right-hand bias
+    gives every agent the same turning sense, a roundabout the live rows admit."""
 
-    kind: Literal["none", "right_hand"] = "none"
+    kind: Literal["none", "right_hand"] = "right_hand"
     trigger_m: float = Field(2.0, gt=0)  # m: other agents closer than this, and in front, count
     speed_mps: float = Field(0.3, gt=0)  # largest sideways velocity added to the reference
+
+    @property
+    def pair(self) -> tuple[float, float] | None:
+        """(trigger [m], speed [m/s]) for ``swarm.control.reference_thrust``, or None."""
+        return (self.trigger_m, self.speed_mps) if self.kind == "right_hand" else None
 
 
 class ThrustCalibration(_Strict):

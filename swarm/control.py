@@ -203,6 +203,21 @@ def right_hand_bias(
     return right * (speed_mps * weight)
 
 
+def reference_thrust(
+    model: QuadModel, tracker: PathTracker, x_w: FloatArray, v_w: FloatArray, x_b_w: FloatArray,
+    others_w: FloatArray, tiebreak: tuple[float, float] | None,
+) -> FloatArray:  # fmt: skip
+    """An agent's reference thrust vector [N, world]: the tracker's, with the right-hand
+    tie-break (``tiebreak`` = (trigger [m], speed [m/s]); None: none) added to its
+    commanded velocity for the other agents' body centres ``others_w`` (k, 3) [m] seen
+    from the body centre ``x_b_w`` [m]."""
+    if tiebreak is None:
+        return tracker.thrust_vector(model, x_w, v_w)  # (the whole tracker in one call)
+    v_des = tracker.desired_velocity(x_w)
+    v_des = v_des + right_hand_bias(x_b_w, v_des, others_w, tiebreak[0], tiebreak[1], tracker.speed_mps)
+    return tracker.thrust_vector(model, x_w, v_w, v_des)
+
+
 @dataclass(frozen=True)
 class AttitudeGains:
     """Natural frequency [rad/s] and damping of the attitude loop, per axis."""

@@ -150,7 +150,7 @@ def _prepare(
             bad = _BAD_UREF
         if bad != 0:
             z1 = np.zeros(0)
-            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)), np.zeros((0, 8)),
+            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)), np.zeros((0, 9)),
                     np.zeros(0, dtype=np.bool_), z1, np.zeros((0, m)), z1, z1, False, False)  # fmt: skip
     idx, fixed = _select(c, is_nb, x, r2, max_rows)
     if floor:

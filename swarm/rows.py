@@ -18,7 +18,10 @@ Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
     a0_own = g e3 + R (-l Omega x (Omega x e3) + l hat(e3) Omega'_drift),
     Omega'_drift = -J^-1 (Omega x J Omega)
 
-Attitude level (thrust-vector point mass at ``x``): ``A = -I / m``, ``a0_own = g e3``.
+Attitude level (thrust-vector point mass): ``A = -I / m``, ``a0_own = g e3``, about the
+body centre ``x + l R e3`` moving with the centre of mass (this level has no rotation
+state), the point the roster reports for every other drone: a pair's two rows then see
+mirrored ``p`` and ``w``.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm.barriers import A_P, A_W, B_P, B_W, C_D, N_COEF, PAPER, BarrierKind, BarrierRows, H, barrier_row
+from swarm.barriers import A_P, A_W, B_P, B_W, C_D, N_COEF, PAPER, RATE, BarrierKind, BarrierRows, H, barrier_row
 from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
@@ -96,12 +99,17 @@ class OwnDynamics:
 @njit(cache=True)
 def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):  # noqa: ANN001, ANN201
     """(xv_b, Aa) of :class:`OwnAffine`: the rotor level's from the state, or at the
-    attitude level the centre of mass itself and the constant ``Aa_att``."""
+    attitude level the body centre ``x + l R e3`` with the centre of mass's velocity and
+    the constant ``Aa_att``; ``consts`` = (l, g, Jx, Jy, Jz)."""
     if rotor:
         return _own_rotor(x, v, q, Om, K, consts)
+    l = consts[0]  # noqa: E741
+    r13 = 2.0 * (q[0] * q[2] + q[1] * q[3])  # R e3, scalar-last (swarm.rotation)
+    r23 = 2.0 * (q[1] * q[2] - q[0] * q[3])
+    r33 = 1.0 - 2.0 * (q[0] * q[0] + q[1] * q[1])
     xv_b = np.empty((2, 3))
+    xv_b[0, 0], xv_b[0, 1], xv_b[0, 2] = x[0] + l * r13, x[1] + l * r23, x[2] + l * r33
     for i in range(3):
-        xv_b[0, i] = x[i]
         xv_b[1, i] = v[i]
     return xv_b, Aa_att
 
@@ -118,7 +126,10 @@ def rows_kernel(
     them). ``live`` as :func:`swarm.barriers.barrier_row` takes it; the live rows' target
     is the relative acceleration ``c'' + a0_own + A u_ref`` that ``u_ref`` would give.
 
-    Returns (Y_used (n,3,3), coef (n,8), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
+    The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
+    the cone, twice the inverse time to contact).
+
+    Returns (Y_used (n,3,3), coef (n,9), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
     bound and ``any_inside`` that some row is already inside its safety radius."""
     n = sel.shape[0]
@@ -170,7 +181,7 @@ def rows_kernel(
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
         share = rho if is_nb[o] else 1.0
-        b[row] = own + share * (rel + gamma * co[H])
+        b[row] = own + share * (rel + max(gamma, co[RATE]) * co[H])
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]

@@ -164,3 +164,66 @@ def random_swap(
     starts = spaced()
     goals = spaced()
     return _scenario(name or f"random_{n}", starts, goals, s, planar=True)
+
+
+def sphere_field(
+    n_spheres: int = 8, settings: SwapSettings | None = None, name: str | None = None, *,
+    length_m: float = 7.0, half_width_m: float = 1.0, radius_range_m: tuple[float, float] = (0.15, 0.3),
+    clear_m: float = 0.8,
+) -> dict:  # fmt: skip
+    """One drone at rest at (0, 0, altitude), its goal ``length_m`` ahead along x, and
+    ``n_spheres`` static spheres (seeded radii in ``radius_range_m``) scattered in the box
+    x in [1, length - 1], |y| <= half_width, |z - altitude| <= 0.5 m, none within
+    ``clear_m`` of the start or the goal."""
+    s = settings or SwapSettings()
+    rng = np.random.default_rng(s.seed)
+    start = np.array([0.0, 0.0, s.altitude_m])
+    goal = np.array([length_m, 0.0, s.altitude_m])
+    centres: list[FloatArray] = []
+    radii: list[float] = []
+    for _ in range(1000 * max(n_spheres, 1)):
+        if len(centres) == n_spheres:
+            break
+        c = np.array([rng.uniform(1.0, length_m - 1.0), rng.uniform(-half_width_m, half_width_m),
+                      s.altitude_m + rng.uniform(-0.5, 0.5)])  # fmt: skip
+        r = float(rng.uniform(*radius_range_m))
+        if min(np.linalg.norm(c - start), np.linalg.norm(c - goal)) - r >= clear_m:
+            centres.append(c)
+            radii.append(r)
+    raw = _scenario(name or f"sphere_field_{n_spheres}", start[None], goal[None], s, planar=True)
+    raw["obstacles"] = [
+        {"id": f"s{i}", "shape": "sphere", "center": [round(float(v), 6) for v in c], "radius_m": round(r, 6)}
+        for i, (c, r) in enumerate(zip(centres, radii, strict=True))
+    ]
+    return raw
+
+
+def formation(
+    n: int = 4, spacing_m: float = 0.5, settings: SwapSettings | None = None, name: str | None = None, *,
+    run_m: float = 3.0, spread_m: float = 1.5, start_speed_mps: float | None = None,
+) -> dict:  # fmt: skip
+    """``n`` drones side by side along y, ``spacing_m`` apart, all with the same velocity
+    along x (``start_speed_mps``, default the target speed), then diverging goals:
+    ``run_m`` ahead and fanned out ``spread_m`` per place from the middle, so every
+    neighbour pair starts at zero relative velocity and ends up apart."""
+    s = settings or SwapSettings()
+    y = (np.arange(n) - (n - 1) / 2) * spacing_m
+    starts = np.column_stack([np.zeros(n), y, np.full(n, s.altitude_m)])
+    goals = np.column_stack([np.full(n, run_m), y + (np.arange(n) - (n - 1) / 2) * spread_m, np.full(n, s.altitude_m)])
+    raw = _scenario(name or f"formation_{n}", starts, goals, s, planar=True)
+    v0 = s.speed_mps if start_speed_mps is None else start_speed_mps
+    for a in raw["agents"]:
+        a["start_velocity"] = [v0, 0.0, 0.0]
+    return raw
+
+
+def pillar_swap(
+    n: int = 8, radius_m: float = 2.0, pillar_radius_m: float = 0.3, settings: SwapSettings | None = None,
+    name: str | None = None,
+) -> dict:  # fmt: skip
+    """:func:`circle_swap` around a vertical cylinder of ``pillar_radius_m`` at the centre."""
+    raw = circle_swap(n, radius_m, settings, name or f"pillar_{n}")
+    alt = (settings or SwapSettings()).altitude_m
+    raw["obstacles"] = [{"id": "pillar", "shape": "cylinder", "center": [0.0, 0.0, alt], "axis": [0.0, 0.0, 1.0],
+                         "radius_m": pillar_radius_m, "length_m": 4.0}]  # fmt: skip
+    return raw

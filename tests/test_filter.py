@@ -198,9 +198,10 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
     filt = SafetyFilter(MODEL, cfg)
     a, b = QuadState.hover([0, 0, 1]), QuadState.hover([2.0, 0.3, 1.1])
     a.v_w, b.v_w = np.array([1.0, 0, 0]), np.array([-1.0, 0.1, 0])
-    r_nb = MODEL.params.body_radius_m + cfg.margin_m
-    ra = filt.rows(a, ObstacleArrays.build(b.x_w, [r_nb], b.v_w, is_neighbour=[True]))
-    rb = filt.rows(b, ObstacleArrays.build(a.x_w, [r_nb], a.v_w, is_neighbour=[True]))
+    r_nb = filt.r_own_m  # each agent of the pair as big as the filter keeps itself
+    up = np.array([0.0, 0.0, MODEL.params.l_m])  # each reports its body centre (level: l above the centre)
+    ra = filt.rows(a, ObstacleArrays.build(b.x_w + up, [r_nb], b.v_w, is_neighbour=[True]))
+    rb = filt.rows(b, ObstacleArrays.build(a.x_w + up, [r_nb], a.v_w, is_neighbour=[True]))
     assert ra.h[0] == pytest.approx(rb.h[0], rel=1e-12)  # h symmetric in the pair
     rng = np.random.default_rng(0)
     Fa, Fb = rng.uniform(0.1, 0.4, 3), rng.uniform(0.1, 0.4, 3)

@@ -18,7 +18,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import LIVE_W_HI_MPS, BarrierKind, evaluate_pw
+from swarm.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
 
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
@@ -114,11 +114,19 @@ def test_any_speed_the_row_keeps_the_exact_h_non_negative_along_the_motion(p, w_
     assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
 
 
+def cone_H(p, w, r, a):
+    """H = (r/|p|)(s w_perp - r w_par) of the projected p, w."""
+    P, W = proj(a, p), proj(a, w)
+    rp = np.linalg.norm(P)
+    c = P @ W / rp
+    return r / rp * (math.sqrt(rp * rp - r * r) * math.sqrt(max(W @ W - c * c, 0.0)) + r * c)
+
+
 @settings(max_examples=400, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), acc=vec)
 def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a_ref, acc):
     p = outside(p, r, a)
-    assume(p is not None and np.linalg.norm(proj(a, w)) >= LIVE_W_HI_MPS)
+    assume(p is not None and np.linalg.norm(proj(a, w)) >= LIVE_W_HI_MPS and exact_h(p, w, r, a) >= 0)
     rows = live(p, w, r, a, a_ref)
     assert rows.h[0] == np.float64(exact_h(p, w, r, a)) or abs(rows.h[0] - exact_h(p, w, r, a)) < 1e-12 * (
         1 + abs(rows.h[0])
@@ -131,16 +139,53 @@ def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a
     assert fd + GAMMA * exact_h(p, w, r, a) >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + np.linalg.norm(p))
 
 
+@settings(max_examples=400, deadline=None)
+@given(
+    p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), frac=st.floats(0.0, 0.99),
+    speed=st.floats(LIVE_W_HI_MPS, 3.0), t_dir=vec, axial=st.floats(-2, 2),
+)  # fmt: skip
+def test_inside_the_cone_at_speed_the_row_is_h_with_the_same_cone(p, r, a, a_ref, frac, speed, t_dir, axial):
+    p = outside(p, r, a)
+    assume(p is not None)
+    P = proj(a, p)
+    rp = np.linalg.norm(P)
+    t = proj(a, t_dir) - (proj(a, t_dir) @ P) / (rp * rp) * P
+    t = t / np.linalg.norm(t) if np.linalg.norm(t) > 1e-6 else np.zeros(3)
+    th = frac * math.asin(r / rp)  # inside the cone: closer to its axis than its half-angle
+    w = speed * (-math.cos(th) * P / rp + math.sin(th) * t) + axial * a
+    h = exact_h(p, w, r, a)
+    assume(h < 0)
+    rows = live(p, w, r, a, a_ref)
+    H = rows.h[0]
+    assert H <= h + 1e-12 * (1 + abs(h)) and H < 0  # a lower bound with the same safe set
+    P, W = proj(a, p), proj(a, w)
+    if np.linalg.norm(W - (P @ W) / (P @ P) * P) > 1.01 * AXIS_BAND * np.linalg.norm(W):  # off the axis: H itself
+        assert abs(H - cone_H(p, w, r, a)) < 1e-9 * (1 + abs(H))
+    # on the cone's boundary H and h agree, value and gradient: the rows meet continuously
+    rp, s = np.linalg.norm(P), math.sqrt(P @ P - r * r)
+    t = W - (P @ W) / (P @ P) * P
+    if np.linalg.norm(t) > 1e-6:
+        t /= np.linalg.norm(t)
+        wb = np.linalg.norm(W) * (-(s / rp) * P / rp + (r / rp) * t)  # w turned onto the cone
+        rb = live(p, wb, r, a, a_ref)
+        assert abs(rb.h[0]) < 1e-7 * (1 + np.linalg.norm(wb) * rp)
+        assert abs(cone_H(p, wb, r, a)) < 1e-7 * (1 + np.linalg.norm(wb) * rp)
+
+
 @settings(max_examples=300, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec)
-def test_gradients_of_h_d_match_finite_differences_with_d_held(p, w, r, a, a_ref):
+def test_gradients_of_the_live_rows_match_finite_differences(p, w, r, a, a_ref):
+    """Of h_d with d held (the rows at low speed and the exact rows), or of H itself."""
     p = outside(p, r, a)
     assume(p is not None)
     rows = live(p, w, r, a, a_ref)
     d_dir = rows.d[0]
     P = lambda v: proj(a, v)  # noqa: E731
+    is_H = rows.coef[0, 7] == 0.0
 
     def h_d(pp, ww):
+        if is_H:
+            return cone_H(pp, ww, r, a)
         Pp, Pw = P(pp), P(ww)
         return Pp @ Pw + math.sqrt(Pp @ Pp - r * r) * (d_dir @ Pw)
 

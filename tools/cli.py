@@ -314,7 +314,7 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--speed", type=float, default=0.8, show_default=True, help="target speed [m/s]")
 @click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share (DESIGN.md 5)")
-@click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="none", show_default=True)
+@click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="right_hand", show_default=True)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
 def scenario(kind: str, n: int, radius: float | None, density: float, perturb: float, rotate_deg: float, seed: int,

@@ -7,8 +7,8 @@ half. Here each agent of the config becomes such a disc at its start (x, y), wit
 Crazyflie's maximum speed (its target speed) and radius (its airframe radius plus half the
 filter margin, so a pair keeps the same distance as C3BF's neighbour rows), and a
 preferred velocity towards its goal at target speed (slowing within ``kp`` of it, as the
-quadrotor's tracker does). Altitude is kept at the start's; a 3-D (sphere) scenario is
-refused, since RVO2 is planar.
+quadrotor's tracker does). Altitude is kept at the start's; a 3-D (sphere) scenario, or any obstacle but a static
+vertical cylinder (an RVO2 polygon), is refused, since RVO2 is planar.
 
 The run writes the same records a real run would (measurements, agent states with the
 per-agent solve time, collisions, a final status), so ``swarm.metrics.compute`` gives
@@ -27,6 +27,14 @@ import numpy as np
 
 from swarm.config import ScenarioConfig, dump
 from swarm.metrics import compute
+
+
+def _polygon(centre: list[float], radius_m: float, sides: int = 24) -> list[tuple[float, float]]:
+    """A disc [m, world x-y] as RVO2's counter-clockwise polygon, circumscribed (its edges
+    stay outside the disc)."""
+    r = radius_m / math.cos(math.pi / sides)
+    return [(centre[0] + r * math.cos(2 * math.pi * k / sides), centre[1] + r * math.sin(2 * math.pi * k / sides))
+            for k in range(sides)]  # fmt: skip
 
 
 def run_orca(
@@ -49,6 +57,12 @@ def run_orca(
     dt = 1.0 / cfg.time.control_hz
     sim = pyrvo.RVOSimulator()
     sim.set_time_step(dt)
+    for o in cfg.obstacles:
+        if o.shape != "cylinder" or o.axis is None or math.hypot(o.axis[0], o.axis[1]) > 1e-9 or any(o.velocity):
+            raise ValueError(f"ORCA is planar: obstacle {o.id} is not a static vertical cylinder")
+        sim.add_obstacle(_polygon(o.center[:2], o.radius_m))
+    if cfg.obstacles:
+        sim.process_obstacles()
     ids, goals, body = [], [], []
     for a in cfg.agents:
         p = a.airframe.params()

@@ -1,0 +1,145 @@
+"""Liveness benchmark: swarms that start at rest, C3BF (live rows, the default) beside
+ORCA on the same planar scenes. Prints one JSON line per scene family point.
+
+Each point flies its scenes in one process (``swarm.closed_loop.simulate_swarm``: the
+agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the world's
+roster of body centres each tick) for every seed, and reports the success rate (every
+agent at its goal, no contact), collisions (pairs and obstacle contacts), deadlocked
+agents, infeasible agent ticks (ticks without the guarantee), and the mean and worst time
+to goal over the straight-line time (distance / target speed). ORCA (``tools.orca``) runs
+the same scene where it is planar, with its figures under ``orca``; ``null`` otherwise.
+
+    python -m tools.bench_liveness                 # every family (about 15 min on 2 cores)
+    python -m tools.bench_liveness --quick         # one seed, smaller swarms
+    python -m tools.bench_liveness --family circle --jobs 2
+
+Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
+infeasible_ticks, mean_time_ratio, worst_time_ratio, orca.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.config import ScenarioConfig, resolve
+from swarm.model import QuadModel
+from swarm.scenario import SwapSettings, circle_swap, formation, pillar_swap, sphere_field, sphere_swap
+
+PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
+
+
+@dataclass(frozen=True)
+class Point:
+    """One line of output: a family, its scene parameters, and the seeds it runs."""
+
+    family: str
+    scene: str
+    n: int
+    rho: float
+    exact: bool
+    make: Callable[[int], dict]  # seed -> raw scenario
+    seeds: tuple[int, ...]
+
+
+def _with_rho(raw: dict, rho: float) -> dict:
+    raw["defaults"].setdefault("filter", {})["rho"] = rho
+    return raw
+
+
+def points(quick: bool, seeds: int) -> Iterator[Point]:
+    few = (0,) if quick else tuple(range(seeds))
+    for rho in (1.0, 0.5):
+        for density, k in (("sparse", 5), ("medium", 10), ("dense", 20)):
+            yield Point("sphere_field", density, 1, rho, False,
+                        lambda s, k=k: sphere_field(k, SwapSettings(seed=s)), few)  # fmt: skip
+        for n in (2, 4, 8) if quick else (2, 4, 8, 16, 32):
+            yield Point("circle", f"circle_{n}", n, rho, True, lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0),
+                        (0,))  # fmt: skip
+            yield Point("circle", f"circle_{n}", n, rho, False,
+                        lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0,
+                                                   SwapSettings(perturb_m=PERTURB_M, seed=s)), few)  # fmt: skip
+        for n in (8,) if quick else (8, 12, 16, 32):
+            for radius in (2.0, 1.5):
+                yield Point("sphere", f"sphere_{n}_r{radius:g}", n, rho, True,
+                            lambda s, n=n, radius=radius: sphere_swap(n, radius), (0,))  # fmt: skip
+        yield Point("formation", "formation_4", 4, rho, True, lambda s: formation(4), (0,))
+        yield Point("pillar", "pillar_8", 8, rho, True, lambda s: pillar_swap(8), (0,))
+        yield Point("pillar", "pillar_8", 8, rho, False,
+                    lambda s: pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=s)), few)  # fmt: skip
+
+
+def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
+    agents, obs = scenario_swarm(cfg)
+    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
+                         physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m)  # fmt: skip
+    o = outcome(cfg, log)
+    return {"success": o.success, "collisions": o.collisions, "deadlocks": o.deadlocked,
+            "infeasible": o.infeasible_ticks, "ratios": o.time_ratios}  # fmt: skip
+
+
+def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
+    from tools.orca import run_orca
+
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            m = run_orca(cfg, Path(tmp))
+        except ValueError:  # not planar
+            return None
+    ratios = [a["time_to_goal_s"] / (a["straight_line_m"] / cfg.agents[i].speed_mps)
+              for i, a in enumerate(m["agents"].values()) if a["time_to_goal_s"] is not None]  # fmt: skip
+    return {"success": bool(m["all_reached_goal"]) and m["collisions"] == 0, "collisions": m["collisions"],
+            "deadlocks": len(m["deadlocked_agents"]), "infeasible": None, "ratios": ratios}  # fmt: skip
+
+
+def _run(args: tuple[dict, bool]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    raw, with_orca = args
+    cfg = resolve(raw)
+    return _c3bf(cfg), (_orca(cfg) if with_orca else None)
+
+
+def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    ratios = [r for run in runs for r in run["ratios"]]
+    infeasible = [run["infeasible"] for run in runs]
+    return {
+        "runs": len(runs),
+        "success_rate": sum(r["success"] for r in runs) / len(runs),
+        "collisions": sum(r["collisions"] for r in runs),
+        "deadlocks": sum(r["deadlocks"] for r in runs),
+        "infeasible_ticks": None if None in infeasible else sum(infeasible),
+        "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,
+        "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
+    }
+
+
+def main(quick: bool = False, seeds: int = 3, family: str | None = None, jobs: int = 2, orca: bool = True) -> None:
+    todo = [p for p in points(quick, seeds) if family is None or p.family == family]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for p in todo:
+            raws = [_with_rho(p.make(s), p.rho) for s in p.seeds]
+            results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
+            line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
+            line |= _summary([c for c, _ in results])
+            orca_runs = [o for _, o in results if o is not None]
+            line["orca"] = _summary(orca_runs) if orca_runs else None
+            print(json.dumps(line), flush=True)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="one seed, smaller swarms")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds per perturbed scene")
+    ap.add_argument("--family", choices=["sphere_field", "circle", "sphere", "formation", "pillar"])
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--no-orca", action="store_true")
+    a = ap.parse_args()
+    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca)

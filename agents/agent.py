@@ -73,6 +73,7 @@ class Agent:
         self.infeasible = 0
         self.min_h = math.inf
         self.reached = False
+        self.solo = not me.filter.enabled  # this agent is not doing its share of a pair's avoidance now
         self.plan: FlightPlan | None = None  # a real drone's phases (set after the warm-up)
         # The first tick loads numba's compiled code and pays every other first-call cost
         # (about a second): run one now, before the world can see this agent, so that no
@@ -117,8 +118,8 @@ class Agent:
 
     def _state_body(self, x_b: np.ndarray, v_b: np.ndarray) -> dict:
         """This agent's state message body: body centre [m], its velocity [m/s], world,
-        and the bounding radius [m]."""
-        return dict(x=x_b, v=v_b, r=self.model.params.body_radius_m)
+        the bounding radius [m], and whether it is not doing its share now (``solo``)."""
+        return dict(x=x_b, v=v_b, r=self.model.params.body_radius_m, solo=self.solo)
 
     def neighbour_ids(self, neighbours: ObstacleArrays) -> list[str]:
         """Names of the neighbour rows, in the order the neighbour sources build them."""
@@ -147,7 +148,10 @@ class Agent:
                 self.roster_ids = [ids[i] for i in self._roster_rows.tolist()]
                 n = len(self._roster_rows)
                 self._roster_const = (np.zeros((n, 3)), np.ones(n, dtype=bool))  # no acceleration, spheres
-            self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, *self._roster_const))
+            zeros, shares = self._roster_const
+            if m["solo"]:  # drones not doing their share: this agent takes all of each of those pairs
+                shares = np.array([name not in m["solo"] for name in self.roster_ids], dtype=bool)
+            self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, zeros, shares))
             _keep_newest(self.roster, 5)
         _keep_newest(self.clock_live, 5)
         return [n for n in left if n in self.others]
@@ -214,6 +218,7 @@ class Agent:
             u, status = res.u, res.status
             if status is not FilterStatus.OK:
                 self.infeasible += 1
+            self.solo = status is not FilterStatus.OK
             self.min_h = min(self.min_h, res.min_h)
             intervention, solve_us = res.intervention, res.solve_time_s * 1e6
         else:
@@ -290,7 +295,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
             last_meas[0] = time.monotonic()  # arrival time: a slow tick of ours is not a lost body
             msg_seen.setdefault(m.k, time.monotonic())
         elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
-            agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"])
+            agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
         elif m.kind == "clock" and key == keys.clock:
             for name in agent.on_clock(m):
                 neighbour_gone(name, "the world's live list")

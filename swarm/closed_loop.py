@@ -114,6 +114,7 @@ class SwarmAgent:
     config: FilterConfig = field(default_factory=FilterConfig)
     start_velocity_w: FloatArray | None = None  # (3,) m/s, world (default: at rest)
     tiebreak: tuple[float, float] | None = None  # right-hand tie-break (trigger [m], speed [m/s]), or None
+    filtered: bool = True  # False: flies its reference unfiltered (and so takes no share of any pair)
 
     @property
     def goal_w(self) -> FloatArray:
@@ -165,7 +166,8 @@ def simulate_swarm(
     """Fly a swarm in one process, as a lockstep run with the world's roster does: at
     every tick each agent filters its tracker's thrust vector (attitude level) against
     the obstacles and every other agent's body centre and velocity of that tick (no
-    acceleration, as a roster gives), then the firmware's attitude loop and RK4 physics
+    acceleration, as a roster gives; an agent whose last filter call was not a clean
+    solve is an obstacle row, as the roster's ``solo`` makes it), then the firmware's attitude loop and RK4 physics
     run ``physics_hz / control_hz`` steps. Ends early once every agent has been within
     ``goal_tolerance_m`` of its goal. No I/O; the benchmark and tests use it."""
     for i, a in enumerate(agents):
@@ -185,7 +187,7 @@ def simulate_swarm(
     r_nb = np.full(n, p.body_radius_m)
     others = [np.array([j for j in range(n) if j != i], dtype=np.intp) for i in range(n)]
     zeros = np.zeros((max(n - 1, 0), 3))
-    nb_flags = np.ones(max(n - 1, 0), dtype=bool)
+    ok = np.ones(n, dtype=bool)  # each agent's last filter call was a clean solve (it does its share)
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
     log_t, log_x, log_v, log_s = [], [], [], []
@@ -201,12 +203,19 @@ def simulate_swarm(
         statuses = []
         setpoints = []
         for i in range(n):
-            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, nb_flags)
+            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
             F_ref = reference_thrust(model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]],
                                      agents[i].tiebreak)  # fmt: skip
-            res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
-            statuses.append(res.status)
-            setpoints.append(setpoint_from_thrust_vector(res.u, yaw_of(states[i])))
+            if agents[i].filtered:
+                res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
+                u, status = res.u, res.status
+            else:
+                u, status = F_ref, FilterStatus.OK
+            statuses.append(status)
+            setpoints.append(setpoint_from_thrust_vector(u, yaw_of(states[i])))
+        ok = np.array(
+            [st is FilterStatus.OK and a.filtered for st, a in zip(statuses, agents, strict=True)]
+        )  # the next tick's shares, as the roster gives them
         for i in range(n):
             for _ in range(n_sub):
                 states[i] = step_rk4(model, states[i], onboard[i].rotor_thrusts(states[i], setpoints[i], dt), dt)
@@ -229,7 +238,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
     agents = [
         SwarmAgent(np.asarray(a.start, dtype=float), np.asarray(a.path()[1:] or [a.start], dtype=float), a.speed_mps,
                    a.filter.filter_config(CommandLevel.ATTITUDE), np.asarray(a.start_velocity, dtype=float),
-                   a.tiebreak.pair)
+                   a.tiebreak.pair, a.filter.enabled)
         for a in cfg.agents
     ]  # fmt: skip
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

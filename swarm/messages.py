@@ -22,15 +22,17 @@ import numpy as np
 
 from swarm.model import all_finite
 
-VERSION = 3  # 2: the clock carries the measurements and obstacles; the command the filter report
-# 3: vectors as float64 binaries
+VERSION = 4  # 2: the clock carries the measurements and obstacles; the command the filter report
+# 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
 SCHEMAS: dict[str, dict[str, Any]] = {
     "measurement": {"x": 3, "v": 3, "q": 4, "w": 3},
-    # what a neighbour needs of an agent: its body centre, velocity and bounding radius
-    "state": {"x": 3, "v": 3, "r": "f"},
+    # what a neighbour needs of an agent: its body centre, velocity and bounding radius, and
+    # whether it is not doing its share of a pair's avoidance now (its last filter call was
+    # not a clean solve, or it flies unfiltered): then the neighbour takes all of it
+    "state": {"x": 3, "v": 3, "r": "f", "solo": "b"},
     # what the world needs (the command of the agent's level), then the filter's report
     # of this tick for the record: status, intervention |u - u_ref|, solve time [us],
     # the names and h of the rows, and the agent's running counts
@@ -40,6 +42,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
     "clock": {
         "live": "ls", "done": "b", "ids": "ls", "xvr": "vf", "meas_ids": "ls", "meas": "vf", "items": "obs",
+        "solo": "ls",
     },
     "status": {
         "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
@@ -50,6 +53,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
 #   ids, xvr         the roster: per drone its body centre [m], velocity [m/s] and radius [m]
+#   solo             the drones of the roster not doing their share (dead, unfiltered, or their
+#                    last command not a clean filter solve): the others take all of each pair
 #   meas_ids, meas   per simulated drone its measurement x [m], v [m/s], q (x, y, z, w), w [rad/s]
 #   items            the obstacles at tick k
 # Real drones' measurements come from the motion-capture relay on their own key.
@@ -232,7 +237,7 @@ def decode(
 def warm_up() -> None:
     """Decode one message now: the first decode loads the compiled finiteness check of the
     vectors, which a process should pay before its first tick, not in it."""
-    decode(encode("state", "", "warm-up", 0, 0.0, 0, x=np.zeros(3), v=np.zeros(3), r=0.0), "")
+    decode(encode("state", "", "warm-up", 0, 0.0, 0, x=np.zeros(3), v=np.zeros(3), r=0.0, solo=False), "")
 
 
 def record_of(msg: Message) -> dict[str, Any]:

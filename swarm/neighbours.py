@@ -44,6 +44,7 @@ class Neighbour:
     x_w: FloatArray  # (3,) m, world: body centre
     v_w: FloatArray  # (3,) m/s, world
     radius_m: float  # its own bounding radius
+    solo: bool = False  # it said it is not doing its share of a pair's avoidance
 
 
 class NeighbourTable:
@@ -64,11 +65,13 @@ class NeighbourTable:
         self.gone: set[str] = set()
         self.row_names: list[str] = []  # names of the rows the last arrays() built
 
-    def update(self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float) -> None:
+    def update(
+        self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool = False
+    ) -> None:
         if name in self.gone:
             return
         h = self.history.setdefault(name, {})
-        h[k] = Neighbour(t_s, k, x_w, v_w, radius_m)
+        h[k] = Neighbour(t_s, k, x_w, v_w, radius_m, solo)
         if len(h) > self.HISTORY:
             del h[min(h)]
 
@@ -89,11 +92,13 @@ class NeighbourTable:
 
     def arrays(self, t_now_s: float, k_max: int | None = None) -> ObstacleArrays:
         """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``; their
-        names are left in :attr:`row_names`."""
+        names are left in :attr:`row_names`. A neighbour that is gone, past the hard limit
+        or ``solo`` is an obstacle row (``is_neighbour`` false): it is not doing its share,
+        so this agent takes all of the pair."""
         self.row_names = []
         if not self.history:
             return ObstacleArrays.empty()
-        c, cd, r = [], [], []
+        c, cd, r, share = [], [], [], []
         for name in self.history:
             n = self.state(name, k_max)
             if n is None:
@@ -105,12 +110,14 @@ class NeighbourTable:
                 c.append(n.x_w)
                 cd.append(np.zeros(3))
                 r.append(n.radius_m)
+                share.append(False)
                 self.row_names.append(name)
                 continue
             self.row_names.append(name)
             c.append(n.x_w + n.v_w * age)
             cd.append(n.v_w)
             r.append(n.radius_m + self.growth_mps * max(0.0, age - self.timeout_s))
+            share.append(not n.solo)
         if not c:
             return ObstacleArrays.empty()
-        return ObstacleArrays.build(np.array(c), np.array(r), np.array(cd), is_neighbour=np.ones(len(c), bool))
+        return ObstacleArrays.build(np.array(c), np.array(r), np.array(cd), is_neighbour=np.array(share, bool))

@@ -26,6 +26,7 @@ mirrored ``p`` and ``w``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,6 +115,109 @@ def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):  # noqa: ANN001, ANN201
     return xv_b, Aa_att
 
 
+RING = 16
+"""Candidate directions per static cone in :func:`free_target` (around its boundary)."""
+
+
+@njit(cache=True)
+def _clear_of(v, Ps, ss, axes, m):  # noqa: ANN001, ANN202
+    """``v`` (3,) lies outside the first ``m`` cones (``Ps`` projected p, ``ss`` s, axes)."""
+    for i in range(m):
+        a = axes[i]
+        av = a[0] * v[0] + a[1] * v[1] + a[2] * v[2]
+        pv = 0.0
+        vv = 0.0
+        for k in range(3):
+            vk = v[k] - av * a[k]
+            pv += Ps[i, k] * vk
+            vv += vk * vk
+        if pv + ss[i] * math.sqrt(vv) < -1e-12:
+            return False
+    return True
+
+
+@njit(cache=True)
+def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):  # noqa: ANN001, ANN201
+    """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at.
+
+    At rest relative to several obstacles the exact condition asks for one direction of
+    relative acceleration outside every obstacle's cone; rows aimed at the reference
+    ``A0`` one by one can together admit only ``a = 0``. This returns ``A0`` when its
+    direction is clear of every cone of the non-neighbour rows slower than ``w_hi``
+    [m/s] (and outside their radius), else the clear direction nearest to it among each
+    cone's boundary generators (``RING`` around it, and the one nearest ``A0``, all 2 %
+    outside), scaled to ``|A0|``; ``A0`` itself when none is clear."""
+    n = sel.shape[0]
+    Ps = np.empty((n, 3))
+    ss = np.empty(n)
+    axes = np.empty((n, 3))
+    m = 0
+    for i in range(n):
+        o = sel[i]
+        if is_nb[o]:
+            continue
+        a = axis[o]
+        ap, aw = 0.0, 0.0
+        for k in range(3):
+            ap += a[k] * (c[o, k] - xv_b[0, k])
+            aw += a[k] * (cd[o, k] - xv_b[1, k])
+        pp, ww = 0.0, 0.0
+        for k in range(3):
+            Ps[m, k] = c[o, k] - xv_b[0, k] - ap * a[k]
+            wk = cd[o, k] - xv_b[1, k] - aw * a[k]
+            pp += Ps[m, k] * Ps[m, k]
+            ww += wk * wk
+        rr = r[o] + r_own
+        if pp <= rr * rr or ww >= w_hi * w_hi:
+            continue
+        ss[m] = math.sqrt(pp - rr * rr)
+        axes[m] = a
+        m += 1
+    na = math.sqrt(A0[0] * A0[0] + A0[1] * A0[1] + A0[2] * A0[2])
+    if m == 0 or na < 1e-6 or _clear_of(A0, Ps, ss, axes, m):
+        return A0
+    best = -2.0
+    out = A0.copy()
+    v = np.empty(3)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    for j in range(m):
+        P = Ps[j]
+        rp = math.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
+        sphi = min(1.0, 1.02 * math.sqrt(max(rp * rp - ss[j] * ss[j], 0.0)) / rp)
+        cphi = math.sqrt(1.0 - sphi * sphi)
+        # a frame about -P: e1 towards A0's lateral part (the nearest generator first), e2 = -P x e1
+        ap = (A0[0] * P[0] + A0[1] * P[1] + A0[2] * P[2]) / (rp * rp)
+        for k in range(3):
+            e1[k] = A0[k] - ap * P[k]
+        n1 = math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+        if n1 < 1e-9 * na:
+            e1[0], e1[1], e1[2] = -P[1], P[0], 0.0
+            if abs(P[2]) > 0.9 * rp:
+                e1[0], e1[1], e1[2] = 0.0, -P[2], P[1]
+            n1 = math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+        for k in range(3):
+            e1[k] /= n1
+        e2[0] = -(P[1] * e1[2] - P[2] * e1[1]) / rp
+        e2[1] = -(P[2] * e1[0] - P[0] * e1[2]) / rp
+        e2[2] = -(P[0] * e1[1] - P[1] * e1[0]) / rp
+        for q in range(RING):
+            th = 2.0 * math.pi * q / RING
+            for k in range(3):
+                v[k] = -cphi * P[k] / rp + sphi * (math.cos(th) * e1[k] + math.sin(th) * e2[k])
+            a = axes[j]
+            if a[0] != 0.0 or a[1] != 0.0 or a[2] != 0.0:  # a cylinder: keep A0's part along its axis
+                aa = (a[0] * A0[0] + a[1] * A0[1] + a[2] * A0[2]) / na
+                for k in range(3):
+                    v[k] = v[k] * math.sqrt(max(1.0 - aa * aa, 0.0)) + aa * a[k]
+            score = (v[0] * A0[0] + v[1] * A0[1] + v[2] * A0[2]) / na
+            if score > best and _clear_of(v, Ps, ss, axes, m):
+                best = score
+                for k in range(3):
+                    out[k] = na * v[k]
+    return out
+
+
 @njit(cache=True)
 def rows_kernel(
     kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d, live
@@ -124,7 +228,8 @@ def rows_kernel(
     one QP constraint set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``),
     and the residuals ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips
     them). ``live`` as :func:`swarm.barriers.barrier_row` takes it; the live rows' target
-    is the relative acceleration ``c'' + a0_own + A u_ref`` that ``u_ref`` would give.
+    is the relative acceleration ``c'' + a0_own + A u_ref`` that ``u_ref`` would give (for
+    the obstacles, its direction clear of all their cones: :func:`free_target`).
 
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
     the cone, twice the inverse time to contact).
@@ -159,12 +264,15 @@ def rows_kernel(
             for j in range(m):
                 acc += Aa[k, j] * u_ref[j]
             own_ref[k] = acc
+    static_ref = own_ref
+    if with_ref and live[0] != 0.0 and kind == 0:
+        static_ref = free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, own_ref, live[2])
     for i in range(n):
         o = sel[i]
         for k in range(3):
             p[k] = c[o, k] - xv_b[0, k]
             w[k] = cd[o, k] - xv_b[1, k]
-            a_ref[k] = cdd[o, k] + own_ref[k]
+            a_ref[k] = cdd[o, k] + (own_ref[k] if is_nb[o] else static_ref[k])
         inside[i] = barrier_row(kind, p, w, r[o] + r_own, axis[o], eps, gamma_ho, v_esc, Y[i], coef[i], live, a_ref,
                                 with_ref, is_nb[o])  # fmt: skip
         any_inside = any_inside or inside[i]

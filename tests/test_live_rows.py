@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
+from swarm.obstacles import ObstacleArrays
 
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
@@ -229,3 +230,75 @@ def test_a_drone_at_rest_before_a_sphere_is_not_frozen():
     paper = evaluate_pw(BarrierKind.C3BF, p[None], np.zeros((1, 3)), np.array([0.2]))
     assert paper.dh_dw[0] @ a_ref < 0  # frozen: the reference is refused
     assert live(p, np.zeros(3), 0.2, np.zeros(3), a_ref).dh_dw[0] @ a_ref >= 0
+
+
+def _fly(raw, **over):
+    from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
+    from swarm.config import resolve
+    from swarm.model import QuadModel
+
+    cfg = resolve(raw)
+    agents, obs = scenario_swarm(cfg)
+    for a in agents:
+        for k, v in over.items():
+            setattr(a, k, v)
+    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
+                         physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m)  # fmt: skip
+    return outcome(cfg, log), log
+
+
+def test_a_drone_at_rest_finds_the_one_way_clear_of_every_sphere_ahead():
+    """Ten spheres ahead whose rows, each aimed at the reference alone, admit only a = 0
+    (the drone sat at its start for the whole run): one clear direction for all of them."""
+    from swarm.scenario import SwapSettings, sphere_field
+
+    o, log = _fly(sphere_field(10, SwapSettings(seed=1)))
+    assert o.success and o.deadlocked == 0 and o.infeasible_ticks == 0
+    assert log.min_clearance_m >= 0.07 + 0.02 - 2e-3  # body radius + margin, less the sampling's share
+
+
+def test_with_rho_half_an_unfiltered_neighbour_head_on_is_still_avoided():
+    """rho = 0.5, head-on at 0.8 m/s each from rest, the neighbour flying its reference
+    unfiltered: no contact. (This scene also held with the neighbour counted as sharing;
+    the rule itself is tested on the rows below.)"""
+    from swarm.closed_loop import SwarmAgent, outcome, simulate_swarm
+    from swarm.config import resolve
+    from swarm.filter import FilterConfig
+    from swarm.model import CommandLevel, QuadModel
+    from swarm.scenario import SwapSettings, circle_swap
+
+    cfg = resolve(circle_swap(2, 2.0, SwapSettings(perturb_m=0.02, seed=4)))
+    fc = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, floor_z_m=0.25, sensing_radius_m=2.5)
+    agents = [
+        SwarmAgent(np.array(a.start), np.array([a.final_goal]), a.speed_mps, fc, filtered=(i == 0))
+        for i, a in enumerate(cfg.agents)
+    ]
+    log = simulate_swarm(QuadModel(), agents, ObstacleArrays.empty(), cfg.duration_s)
+    o = outcome(cfg, log)
+    assert o.collisions == 0 and log.min_separation_m >= 2 * 0.07 + 0.02 - 2e-3
+
+
+def test_a_neighbour_that_does_not_share_gets_a_full_row():
+    """rho = 0.5 halves a neighbour row's rate terms, for a neighbour doing the other half.
+    One that says it is solo (not a clean solve, unfiltered), is gone or is past the hard
+    limit is an obstacle row instead: the whole condition, as rho = 1 writes it."""
+    from swarm.filter import FilterConfig, SafetyFilter
+    from swarm.model import CommandLevel, QuadModel, QuadState
+    from swarm.neighbours import NeighbourTable
+
+    table = NeighbourTable(timeout_s=0.1, growth_mps=0.5, hard_limit_s=1.0)
+    for name, solo in (("a", False), ("b", True), ("c", False)):
+        table.update(name, 0.0, 0, np.array([2.0, 0.1, 1.0]), np.array([-1.0, 0.0, 0.0]), 0.07, solo)
+    table.mark_gone("c")
+    rows = table.arrays(0.0)
+    assert dict(zip(table.row_names, rows.is_neighbour.tolist(), strict=True)) == {"a": True, "b": False, "c": False}
+
+    state = QuadState.hover([0.0, 0.0, 1.0])
+    state.v_w = np.array([0.5, 0.0, 0.0])
+    one = ObstacleArrays.build([[2.0, 0.1, 1.0]], [0.07], [[-1.0, 0.0, 0.0]], is_neighbour=[True])
+    solo = ObstacleArrays.build([[2.0, 0.1, 1.0]], [0.07], [[-1.0, 0.0, 0.0]], is_neighbour=[False])
+    cfg = dict(level=CommandLevel.ATTITUDE, live=False)
+    half = SafetyFilter(QuadModel(), FilterConfig(rho=0.5, **cfg))
+    full = SafetyFilter(QuadModel(), FilterConfig(rho=1.0, **cfg))
+    assert half.rows(state, one).lower[0] != full.rows(state, one).lower[0]  # sharing: half the rate terms
+    assert half.rows(state, solo).lower[0] == full.rows(state, one).lower[0]  # solo: the whole of it

@@ -81,7 +81,8 @@ def test_generated_circle_is_antipodal_and_valid():
 
 
 def test_messages_round_trip():
-    m = decode(encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07), "r", ("state",))
+    m = decode(encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, solo=False), "r",
+               ("state",))  # fmt: skip
     assert (m.kind, m.src, m.seq, m.t, m.k) == ("state", "cf1", 7, 1.5, 3)
     np.testing.assert_array_equal(m["x"], [1, 2, 3])
     body = dict(
@@ -114,7 +115,7 @@ def test_a_partial_decode_checks_the_fields_it_keeps_and_only_those():
 def _clock(**over):
     body = dict(live=["a", "b"], done=False, ids=["a", "b"], xvr=np.arange(14.0), meas_ids=["b"],
                 meas=np.arange(13.0), items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0],
-                                              "r": 0.5, "a": [0, 0, 0]}])  # fmt: skip
+                                              "r": 0.5, "a": [0, 0, 0]}], solo=[])  # fmt: skip
     return encode("clock", "r", "world", 4, 0.5, 50, **{**body, **over})
 
 

@@ -65,6 +65,7 @@ class DroneSlot:
     reached_at_s: float | None = None
     yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
+    solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
 
 
 def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
@@ -95,6 +96,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
     slots: dict[str, DroneSlot] = {}
     real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
+    unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
     for a in cfg.agents:
         model = QuadModel(a.airframe.params())
         sim.add_drone(
@@ -186,6 +188,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 continue
             if m["status"] != "ok":
                 slot.infeasible += 1
+            slot.solo = m["status"] != "ok"
             if m.src in real:  # a real drone's command went to it by radio: recorded, not flown
                 slot.command_k = max(slot.command_k, m.k)
                 continue
@@ -302,8 +305,9 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 seq += 1
                 pub_status.put(encode("status", run, "world", seq, t, k, **status))
             seq += 1
+            solo = [a for a in names if slots[a].solo or slots[a].dead or a in unfiltered]
             pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster,
-                                 meas_ids=measured, meas=meas, items=items))  # fmt: skip
+                                 meas_ids=measured, meas=meas, items=items, solo=solo))  # fmt: skip
             if done:
                 break
 

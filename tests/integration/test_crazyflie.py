@@ -65,7 +65,8 @@ class FakeWorld:
             t = k * 0.01
             seq += 2
             self.pub_clock.put(encode("clock", self.run, "world", seq, t, k, live=["cf1"], done=False, ids=["cf1"],
-                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07], meas_ids=[], meas=[], items=[]))  # fmt: skip
+                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07], meas_ids=[], meas=[], items=[],
+                                      solo=[]))  # fmt: skip
             if self.measuring.is_set():
                 self.pub_meas.put(encode("measurement", self.run, "world", seq + 1, t, k, x=[0.0, 0.0, 1.0],
                                          v=[0.0, 0.0, 0.0], q=[0.0, 0.0, 0.0, 1.0], w=[0.0, 0.0, 0.0]))  # fmt: skip

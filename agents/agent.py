@@ -48,7 +48,7 @@ class Agent:
     def __init__(self, cfg: ScenarioConfig, agent_id: str) -> None:
         self.cfg, self.id = cfg, agent_id
         me = self.me = cfg.agent(agent_id)
-        self.model = QuadModel(me.airframe.params())
+        self.model = QuadModel(me.quad_params())
         self.level = me.command_level
         fc = me.filter.filter_config(self.level)
         self.filt = SafetyFilter(self.model, fc)
@@ -256,8 +256,8 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
     cf_settings = cfg.agent(agent_id).crazyflie
     if agent.plan is not None and cf_settings is not None:
         link = CrazyflieLink(cf_settings, agent_id)
-        if not link.ready.wait(15.0):
-            print(f"agent {agent_id}: the Crazyflie link guard did not come up", file=sys.stderr)
+        if not link.wait_ready(15.0):
+            print(f"agent {agent_id}: Crazyflie at {cf_settings.uri} not reached: {link.lost_reason}", file=sys.stderr)
             token.undeclare()
             return 2
     last_meas = [time.monotonic()]

@@ -14,7 +14,8 @@ closes.
 
 Each connection flies one drone. The agent sends msgpack frames, with units:
 
-* ``["hello", uri, link_timeout_s, expect_replies]``: first, opens the link;
+* ``["hello", uri, link_timeout_s, expect_replies, on_agent_loss]``: first, opens the
+  link; ``on_agent_loss`` is ``"estop"`` or ``"watchdog"`` (below);
 * ``["sp", roll_deg, pitch_deg, yawrate_dps, thrust]``: cflib's
   ``Commander.send_setpoint``, with thrust the 16-bit command;
 * ``["pose", x, y, z, qx, qy, qz, qw]``: the motion-capture pose [m, world], sent with
@@ -23,11 +24,25 @@ Each connection flies one drone. The agent sends msgpack frames, with units:
 * ``["estop", reason]``: an emergency stop;
 * ``["bye"]``: a clean end. The server sends the stop setpoint and closes the link.
 
-The server answers ``["ready"]``, or ``["lost", reason]`` when the link goes.
+The server answers ``["ready"]`` once the drone has answered a packet (within
+``CONNECT_TIMEOUT_S``), or ``["lost", reason]`` when it does not or the link goes.
+
+The firmware's rules it follows (``swarm.crazyflie_fw`` cites them):
+
+* on opening it sends zero-thrust setpoints: the RPYT commander starts with its thrust
+  locked and unlocks only on a setpoint of thrust 0 (crtp_commander_rpyt.c);
+* after the stop setpoint (motors off) it keeps sending zero-thrust setpoints every
+  ``KEEPALIVE_S`` until the connection ends, and on a clean end for at least
+  ``LANDED_AFTER_S`` after the last thrust before it hands the drone back with
+  ``send_notify_setpoint_stop``: the supervisor counts a drone as flying for 2 s after
+  its motors stop, and one flying without setpoints levels out after 500 ms and is locked
+  after 2 s (supervisor.c), which only a reboot undoes.
 
 It sends an emergency stop by itself in three cases:
 
-* the connection closes without ``bye``: the agent died, even by SIGKILL;
+* the connection closes without ``bye``: the agent died, even by SIGKILL (with
+  ``on_agent_loss: watchdog`` it goes silent instead and leaves the drone to the
+  firmware's watchdog: level out after 500 ms, motors off and locked after 2 s);
 * the link reports an error;
 * no packet has come back for ``link_timeout_s``. The server polls each link with
   null packets every 50 ms, as cflib's radio driver does; the radio acknowledges every
@@ -52,6 +67,10 @@ from pathlib import Path
 from typing import Any
 
 import msgpack
+
+CONNECT_TIMEOUT_S = 3.0  # the drone must answer within this after the link opens
+KEEPALIVE_S = 0.05  # zero-thrust setpoints while the motors are off
+LANDED_AFTER_S = 2.5  # > the supervisor's 2 s flying hysteresis (supervisor.c IS_FLYING_HYSTERESIS_THRESHOLD)
 
 
 def default_socket() -> Path:
@@ -100,10 +119,11 @@ class _Drone:
         unpacker = msgpack.Unpacker(raw=False)
         frames = self._frames(unpacker)
         hello = next(frames, None)
-        if not (isinstance(hello, list) and len(hello) == 4 and hello[0] == "hello"):
+        if not (isinstance(hello, list) and len(hello) == 5 and hello[0] == "hello"):
             self.reply(["lost", f"expected hello, got {hello!r}"])
             return
         self.uri, link_timeout_s, expect_replies = str(hello[1]), float(hello[2]), bool(hello[3])
+        silent_on_loss = hello[4] == "watchdog"
         errors: list[str] = []
         driver = cflib.crtp.get_link_driver(self.uri, link_error_callback=lambda msg: errors.append(str(msg)))
         if driver is None:
@@ -111,6 +131,8 @@ class _Drone:
             return
         cf = _Shim(driver)
         commander, loc = Commander(cf), Localization(cf)
+        answered = threading.Event()
+        motors = {"off": True, "thrust_t": 0.0}  # zero-thrust keep-alive while off; last thrust [monotonic s]
 
         def estop(reason: str) -> None:
             for _ in range(3):
@@ -124,6 +146,8 @@ class _Drone:
                 cf.send_packet(legacy)
             print(f"cf_guard {self.uri}: emergency stop ({reason})", file=sys.stderr, flush=True)
 
+        last_keepalive = [0.0]
+
         def watch_link() -> None:
             last_rx = time.monotonic()
             while not self.lost.is_set():
@@ -132,7 +156,11 @@ class _Drone:
                 now = time.monotonic()
                 while pk is not None:
                     last_rx = now
+                    answered.set()
                     pk = driver.receive_packet(0)
+                if motors["off"] and now - last_keepalive[0] >= KEEPALIVE_S:
+                    commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlocks the thrust; keeps the watchdog fed
+                    last_keepalive[0] = now
                 reason = None
                 if errors:
                     reason = f"link error: {errors[0]}"
@@ -143,26 +171,45 @@ class _Drone:
                     estop(f"link lost: {reason}")
                     self.reply(["lost", reason])
 
+        for _ in range(3):
+            commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlock the RPYT commander's thrust
         threading.Thread(target=watch_link, daemon=True).start()
+        if expect_replies and not answered.wait(CONNECT_TIMEOUT_S):
+            self.lost.set()
+            self.reply(["lost", f"{self.uri} did not answer within {CONNECT_TIMEOUT_S:.0f} s"])
+            driver.close()
+            return
         self.reply(["ready"])
         clean = False
         for frame in frames:
             kind = frame[0] if isinstance(frame, list) and frame else None
             if kind == "sp":
+                motors["off"] = int(frame[4]) == 0
+                if not motors["off"]:
+                    motors["thrust_t"] = time.monotonic()
                 commander.send_setpoint(float(frame[1]), float(frame[2]), float(frame[3]), int(frame[4]))
             elif kind == "pose":
                 loc.send_extpose([float(v) for v in frame[1:4]], [float(v) for v in frame[4:8]])
             elif kind == "stop":
                 commander.send_stop_setpoint()
+                motors["off"] = True
             elif kind == "estop":
                 estop(str(frame[1]) if len(frame) > 1 else "asked")
             elif kind == "bye":
                 commander.send_stop_setpoint()
+                motors["off"] = True
+                while time.monotonic() - motors["thrust_t"] < LANDED_AFTER_S and not self.lost.is_set():
+                    time.sleep(KEEPALIVE_S)  # (the link thread sends the zero setpoints)
+                commander.send_notify_setpoint_stop()
                 clean = True
                 break
             else:
                 print(f"cf_guard {self.uri}: unknown frame {frame!r} dropped", file=sys.stderr)
-        if not clean:
+        if not clean and silent_on_loss:
+            motors["off"] = False  # no keep-alive either: the firmware's watchdog takes over
+            print(f"cf_guard {self.uri}: the agent is gone; silent, the firmware's watchdog decides",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        elif not clean:
             estop("the agent is gone (its connection closed)")
         self.lost.set()
         time.sleep(0.05)  # let the last packets leave the socket or radio

@@ -9,8 +9,11 @@ Crazyflie's legacy RPYT setpoint:
 * roll and pitch in degrees. Positive roll moves the drone to its right. Positive pitch
   moves it forward: the thrust tilts towards +x of the body. That is what cflib's
   ``send_setpoint`` expects; cflib itself negates pitch on the wire.
-* yaw rate in degrees per second, counter-clockwise positive (z up);
-* thrust as a 16-bit command, through the config's calibration (:func:`thrust_command`).
+* yaw rate in degrees per second, negated: the firmware inverts the legacy yaw-rate input
+  (``attitudeRate.yaw = -values->yaw``, crtp_commander_rpyt.c), so a counter-clockwise
+  (z up) rate goes out negative (:func:`swarm.crazyflie_fw.wire_yaw_rate_dps`);
+* thrust as a 16-bit command, through the config's calibration (:func:`thrust_command`),
+  by default the firmware's own thrust map.
 
 Fly a new setup with the propellers off first, and check these signs against the
 client's attitude display.
@@ -44,6 +47,7 @@ import numpy as np
 from agents.cf_guard import default_socket
 from swarm.config import AgentConfig, CrazyflieSettings, ThrustCalibration
 from swarm.control import PathTracker
+from swarm.crazyflie_fw import wire_yaw_rate_dps
 from swarm.rotation import FloatArray
 
 
@@ -51,15 +55,16 @@ def thrust_command(thrust_N: float, cal: ThrustCalibration) -> int:
     """Collective thrust [N] to the 16-bit thrust command, clipped to ``[0, max_pwm]``."""
     if not math.isfinite(thrust_N):
         return 0
-    return int(round(min(max(cal.pwm_offset + cal.pwm_per_newton * thrust_N, 0.0), cal.max_pwm)))
+    return int(round(min(max(cal.pwm_offset + cal.per_newton * thrust_N, 0.0), cal.max_pwm)))
 
 
 def rpyt(roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float, cal: ThrustCalibration) -> tuple:
-    """Our attitude setpoint as the arguments of cflib's ``Commander.send_setpoint``."""
+    """Our attitude setpoint (yaw rate counter-clockwise) as the arguments of cflib's
+    ``Commander.send_setpoint``."""
     return (
         math.degrees(roll_rad),
         math.degrees(pitch_rad),
-        math.degrees(yaw_rate_radps),
+        wire_yaw_rate_dps(math.degrees(yaw_rate_radps)),
         thrust_command(thrust_N, cal),
     )
 
@@ -135,7 +140,7 @@ class CrazyflieLink:
         self._lock = threading.Lock()
         self.sock = self._connect()
         threading.Thread(target=self._read, daemon=True).start()
-        self._send(["hello", settings.uri, settings.link_timeout_s, settings.expect_replies])
+        self._send(["hello", settings.uri, settings.link_timeout_s, settings.expect_replies, settings.on_agent_loss])
 
     def _connect(self, timeout_s: float = 15.0) -> socket.socket:
         started = False
@@ -183,6 +188,18 @@ class CrazyflieLink:
                 self.sock.sendall(msgpack.packb(frame))
             except OSError:
                 self.lost.set()
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait until the guard says the drone answered (True), or it is lost or ``timeout_s``
+        passes (False; :attr:`lost_reason` says why)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.ready.wait(0.05):
+                return True
+            if self.lost.is_set():
+                return False
+        self.lost_reason = self.lost_reason or f"the link guard did not answer within {timeout_s:.0f} s"
+        return False
 
     def setpoint(self, roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float) -> None:
         if not self.stopped:

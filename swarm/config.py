@@ -8,6 +8,7 @@ the file, the field path and the reason (:class:`ConfigError`). Validation uses 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -17,6 +18,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from swarm.barriers import BarrierKind
+from swarm.crazyflie_fw import pwm_per_newton
 from swarm.filter import FilterConfig
 from swarm.model import CommandLevel, Layout, QuadParams
 
@@ -107,13 +109,36 @@ class TiebreakSettings(_Strict):
 
 class ThrustCalibration(_Strict):
     """Collective thrust [N] to the Crazyflie's 16-bit thrust command:
-    ``pwm = offset + per_newton * F``, clipped to ``[0, max_pwm]``. The default maps the
-    stock Crazyflie 2.1's weight (0.265 N) to about 42000, a typical hover value; fly a
-    hover test and fit these two numbers for your drones and batteries."""
+    ``pwm = offset + per_newton * F``, clipped to ``[0, max_pwm]``. By default
+    ``per_newton`` is the firmware's own linear map (``swarm.crazyflie_fw``:
+    ``65535 / (4 THRUST_MAX)``, THRUST_MAX by release and propellers); for another
+    release, or to trim for your drones, fit ``pwm_per_newton`` (and the offset) by a
+    hover test."""
 
+    firmware: str = "2026.04"  # the release on the drones: 2025.09, 2025.12, 2026.04, 2026.08
+    propellers: Literal["standard", "thrust_upgrade"] = "standard"
     pwm_offset: float = 0.0
-    pwm_per_newton: float = Field(158_000.0, gt=0)
-    max_pwm: int = Field(60_000, gt=0, le=65_535)
+    pwm_per_newton: float | None = Field(None, gt=0)  # None: the firmware's thrust map
+    max_pwm: int = Field(60_000, gt=0, le=60_000)  # the RPYT commander caps at 60000 (crtp_commander_rpyt.c)
+
+    @model_validator(mode="after")
+    def _known(self) -> ThrustCalibration:
+        if self.pwm_per_newton is None:
+            try:
+                pwm_per_newton(self.firmware, self.propellers)
+            except ValueError as exc:
+                raise ValueError(str(exc)) from None
+        return self
+
+    @property
+    def per_newton(self) -> float:
+        """Thrust command per newton of collective thrust."""
+        return self.pwm_per_newton or pwm_per_newton(self.firmware, self.propellers)
+
+    @property
+    def max_thrust_N(self) -> float:
+        """The largest collective thrust [N] a setpoint can ask of the drone."""
+        return max(0.0, (self.max_pwm - self.pwm_offset) / self.per_newton)
 
 
 class CrazyflieSettings(_Strict):
@@ -131,6 +156,11 @@ class CrazyflieSettings(_Strict):
     link_timeout_s: float = Field(0.5, gt=0)  # no packet back from the drone for this long: link lost
     mocap_timeout_s: float = Field(0.2, gt=0)  # no measurement for this long: body lost
     expect_replies: bool = True  # the radio (and the test stand-in) answer every packet
+    # when the agent dies (its connection to the link guard closes without a clean end):
+    # estop: the guard sends the emergency stop (motors off now, locked until a reboot);
+    # watchdog: the guard goes silent and the firmware's watchdog levels the drone out with
+    # its last thrust after 500 ms and stops and locks it after 2 s (supervisor.c)
+    on_agent_loss: Literal["estop", "watchdog"] = "estop"
 
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
 
@@ -168,6 +198,16 @@ class AgentConfig(_Strict):
                 if np.any(np.asarray(pt) < lo) or np.any(np.asarray(pt) > hi):
                     raise ValueError(f"{name} {pt} is outside the geofence {list(lo)} .. {list(hi)}")
         return self
+
+    def quad_params(self) -> QuadParams:
+        """The airframe the filter and the world use. A real Crazyflie's thrust-to-weight
+        is at most what its setpoint can ask (``crazyflie.thrust.max_thrust_N``): a
+        guarantee computed with thrust the drone cannot give is none."""
+        p = self.airframe.params()
+        if self.crazyflie is None:
+            return p
+        ttw = self.crazyflie.thrust.max_thrust_N / p.weight_N
+        return replace(p, thrust_to_weight=min(p.thrust_to_weight, ttw)) if ttw < p.thrust_to_weight else p
 
     @property
     def mocap_body(self) -> str:
@@ -280,7 +320,11 @@ class DeadlockSettings(_Strict):
 
 class MocapSettings(_Strict):
     """The motion-capture system the world relays for real drones (libmotioncapture:
-    vicon, qualisys, optitrack, vrpn, ..., or ``mock`` for tests)."""
+    vicon, qualisys, optitrack, vrpn, ..., or ``mock`` for tests), or ``sitl``: software-
+    in-the-loop Crazyflies (``tools.sitl_cf``) that ``swarm run`` starts itself, one per
+    real agent at its ``udp://127.0.0.1:PORT``, on the ground below its start with its yaw
+    turned by ``options.yaw_offset_deg``, the release ``options.firmware``; their poses
+    are the capture (``options.port``, 0 or absent: a free one)."""
 
     type: str = Field(pattern=r"^[a-z_]+$")
     hostname: str | None = None

@@ -38,7 +38,7 @@ def test_thrust_calibration_and_setpoint_units():
     assert thrust_command(10.0, cal) == 60_000 and thrust_command(-1.0, cal) == 0
     assert thrust_command(float("nan"), cal) == 0  # never a NaN on the wire
     r, p, y, t = rpyt(math.radians(5), math.radians(-3), math.radians(30), 0.2, cal)
-    assert (r, p, y, t) == pytest.approx((5.0, -3.0, 30.0, 31_000))
+    assert (r, p, y, t) == pytest.approx((5.0, -3.0, -30.0, 31_000))  # the firmware inverts the yaw rate
 
 
 def _raw(**cf):

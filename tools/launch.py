@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import secrets
 import signal
@@ -51,6 +52,18 @@ def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
 
 
 CPU_ENV = "SWARM_CPU"  # the CPU a child of swarm run pins itself to (tools.cli)
+
+
+def _with_sitl_port(cfg: ScenarioConfig) -> ScenarioConfig:
+    """``cfg`` with a free loopback port for the sitl poses when it names none."""
+    assert cfg.mocap is not None
+    if cfg.mocap.options.get("port", "0") not in ("", "0"):
+        return cfg
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    mocap = cfg.mocap.model_copy(update={"options": {**cfg.mocap.options, "port": str(port)}})
+    return cfg.model_copy(update={"mocap": mocap})
 
 
 def cpu_plan(n_agents: int, cpus: list[int] | None = None) -> dict[str | int, int]:
@@ -98,6 +111,9 @@ class RunHandle:
         the other agents. An exception while starting stops what was started."""
         port = cfg.network.port or free_port(cfg.network.host)
         cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
+        sitl = cfg.mocap is not None and cfg.mocap.type == "sitl"
+        if sitl:
+            cfg = _with_sitl_port(cfg)
         h = cls(cfg, out, run_id or f"{cfg.name}-{secrets.token_hex(3)}")
         out.mkdir(parents=True, exist_ok=True)
         (out / "logs").mkdir(exist_ok=True)
@@ -107,6 +123,8 @@ class RunHandle:
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
         h._session = tp.open_session(tp.process_config(cfg, tp.Role.LAUNCHER))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
+        if sitl:
+            h._start_sitl()
         h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
         h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
                  cpus.get("world"))  # fmt: skip
@@ -121,6 +139,45 @@ class RunHandle:
             h._stop_all()
             raise
         return h
+
+    def _start_sitl(self) -> None:
+        """Start the software-in-the-loop Crazyflies of the real agents and wait until each
+        answers a CRTP null packet at its URI (as cflib's UDP scan probes)."""
+        cfg = self.cfg
+        assert cfg.mocap is not None
+        opts = cfg.mocap.options
+        args = ["-m", "tools.sitl_cf", "--mocap-port", opts["port"], "--firmware", opts.get("firmware", "2026.04")]
+        ports = []
+        for a in cfg.agents:
+            if a.crazyflie is None:
+                continue
+            host_port = a.crazyflie.uri.removeprefix("udp://")
+            host, _, p = host_port.partition(":")
+            if not a.crazyflie.uri.startswith("udp://") or host not in ("127.0.0.1", "localhost") or not p.isdigit():
+                raise ValueError(f"agent {a.id}: mocap sitl needs crazyflie.uri udp://127.0.0.1:PORT, "
+                                 f"got {a.crazyflie.uri}")  # fmt: skip
+            yaw = math.degrees(a.yaw_rad) + float(opts.get("yaw_offset_deg", "0"))
+            args += ["--drone", f"{a.mocap_body},{p},{a.start[0]},{a.start[1]},0.0,{yaw}"]
+            ports.append(int(p))
+        self._spawn("sitl", args)
+        deadline = time.monotonic() + 30.0
+        probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        probe.settimeout(0.1)
+        try:
+            for p in ports:
+                while True:
+                    if self.procs["sitl"].poll() is not None:
+                        raise RuntimeError(f"the sitl stand-ins exited: {self._last_line('sitl')}")
+                    if time.monotonic() > deadline:
+                        raise RuntimeError(f"the sitl stand-in at udp://127.0.0.1:{p} did not answer")
+                    probe.sendto(b"\xff", ("127.0.0.1", p))
+                    try:
+                        probe.recv(64)
+                        break
+                    except TimeoutError:
+                        continue
+        finally:
+            probe.close()
 
     def _wait_alive(self, agent_id: str, cancelled: Callable[[], bool]) -> None:
         """Wait until ``agent_id`` declares its liveliness (its warm-up tick is done), or
@@ -187,9 +244,20 @@ class RunHandle:
                 return "completed" if code == 0 else f"world exited with {code}"
             return f"recorder exited with {ex['recorder']}"
         dead = [n for n in ex if n.startswith("agent-")]
+        if dead and not self.progress.status:  # before the world's first status: it could not start
+            return f"{dead[0]} exited with {ex[dead[0]]} while starting: {self._last_line(dead[0])}"
         if dead and stop_on_agent_death:
             return f"{dead[0]} died"
         return None
+
+    def _last_line(self, name: str) -> str:
+        """The last line a process wrote to its log (why it stopped, as it said it)."""
+        try:
+            lines = (self.out / "logs" / f"{name}.log").read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return "(no log)"
+        own = [ln for ln in lines if ln.startswith(name.replace("-", " ", 1) + ":")]  # "agent cf1: ..."
+        return (own or lines or ["(empty log)"])[-1]
 
     def wait_sim_time(self, t_s: float, timeout_s: float = 120.0) -> None:
         """Block until a world status message reports sim time ``t_s`` [s] or later;
@@ -225,6 +293,8 @@ class RunHandle:
         if reason == "completed":
             self._wait_procs(["recorder"], 15.0)
             self._wait_procs([n for n in self.procs if n.startswith("agent-")], 5.0)
+            if "sitl" in self.procs:  # the stand-ins end once their guards have handed each drone back
+                self._wait_procs(["sitl"], 10.0)
         self._stop_all()
         self.reason = reason
         self.metrics()

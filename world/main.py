@@ -68,6 +68,18 @@ class DroneSlot:
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
 
 
+GROUND_IMPACT_MPS = 0.5
+"""A drone touching the ground slower than this [m/s] stands, takes off or lands on it:
+not a collision (a real drone takes off from the ground and lands on it)."""
+
+
+def _impact(pair: tuple[str, str], index: dict[str, int], v_w: np.ndarray) -> bool:
+    """A ground contact of ``pair``'s drone at ``GROUND_IMPACT_MPS`` or faster."""
+    drone = pair[0] if pair[1] == "ground" else pair[1]
+    i = index.get(drone)
+    return i is None or float(np.linalg.norm(v_w[i])) >= GROUND_IMPACT_MPS
+
+
 def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
     """Roll, pitch [rad], yaw rate [rad/s], thrust [N]: the agent's, or level hover
     before its first command."""
@@ -98,7 +110,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
     unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
     for a in cfg.agents:
-        model = QuadModel(a.airframe.params())
+        model = QuadModel(a.quad_params())
         sim.add_drone(
             a.id,
             model,
@@ -385,7 +397,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     else:  # rotor level: the agent's thrusts, held
                         f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
                 sim.apply_rotors_all(flown, f_all, fs)
-                pairs = set(sim.step())
+                pairs = {p for p in sim.step() if "ground" not in p or _impact(p, index, ds.v_w)}
                 for pair in pairs - touching:
                     collisions += 1
                     seq += 1

@@ -84,8 +84,47 @@ class PoseDifferentiator:
         return est
 
 
+class SitlMocap:
+    """The ``sitl`` motion-capture source: libmotioncapture's interface
+    (``waitForNextFrame``, ``rigidBodies`` with ``position`` and ``rotation.x/y/z/w``) over
+    the software-in-the-loop stand-in's pose datagrams (``tools.sitl_cf``) on
+    127.0.0.1:``port``: msgpack ``[[name, x, y, z, qx, qy, qz, qw], ...]`` per frame."""
+
+    @dataclass
+    class Rotation:
+        x: float
+        y: float
+        z: float
+        w: float
+
+    @dataclass
+    class Body:
+        position: FloatArray
+        rotation: SitlMocap.Rotation
+
+    def __init__(self, port: int, timeout_s: float = 1.0) -> None:
+        import socket
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(timeout_s)
+        self.rigidBodies: dict[str, SitlMocap.Body] = {}
+
+    def waitForNextFrame(self) -> None:  # noqa: N802 - libmotioncapture's name
+        import msgpack
+
+        data = self.sock.recv(65536)  # a TimeoutError is a broken stream to the relay
+        self.rigidBodies = {
+            str(b[0]): self.Body(np.array(b[1:4], float), self.Rotation(*map(float, b[4:8])))
+            for b in msgpack.unpackb(data, raw=False)
+        }
+
+
 def connect(kind: str, hostname: str | None, options: dict[str, str]) -> Any:
-    """Open a libmotioncapture connection (``mock`` needs no hardware)."""
+    """Open a libmotioncapture connection (``mock`` needs no hardware), or the
+    software-in-the-loop stand-in's poses (``sitl``, ``options["port"]``)."""
+    if kind == "sitl":
+        return SitlMocap(int(options["port"]))
     import motioncapture
 
     cfg = dict(options)

@@ -126,7 +126,7 @@ def test_setpoints_at_the_drone_are_the_filtered_commands_and_a_lost_body_stops_
     commands = world.received_commands()
     assert len(commands) >= 5
     cal = cfg.agents[0].crazyflie.thrust
-    sent = [(math.degrees(u[0]), math.degrees(u[1]), math.degrees(u[2]), thrust_command(u[3], cal)) for u in commands]
+    sent = [(math.degrees(u[0]), math.degrees(u[1]), -math.degrees(u[2]), thrust_command(u[3], cal)) for u in commands]
     got = [(s.roll_deg, s.pitch_deg, s.yawrate_dps, s.thrust) for s in standin.setpoints]
     matched = [g for g in got[-10:] if any(np.allclose(g[:3], c[:3], atol=1e-4) and g[3] == c[3] for c in sent)]
     assert len(matched) == len(got[-10:]), (got[-3:], sent[-3:])
@@ -195,13 +195,16 @@ def test_mixed_swarm_with_mock_motion_capture(tmp_path):
         # the real drone avoids the virtual obstacle: its filter changes its command because of the ball
         assert "ball" in rows["real2"]
         assert max(r["intervention"] for r in records if r["kind"] == "command" and r["src"] == "real2") > 1e-3
-        # every setpoint at a stand-in is one of that agent's recorded filtered commands
+        # every setpoint at a stand-in is one of that agent's recorded filtered commands (yaw
+        # rate negated for the firmware), or the guard's own zero-thrust setpoint (the thrust
+        # unlock, the keep-alive once the motors are off)
         cal = cfg.agents[0].crazyflie.thrust
         for aid, st in stand.items():
             sent = [
-                (math.degrees(u[0]), math.degrees(u[1]), math.degrees(u[2]), thrust_command(u[3], cal))
+                (math.degrees(u[0]), math.degrees(u[1]), -math.degrees(u[2]), thrust_command(u[3], cal))
                 for u in (r["u"] for r in records if r["kind"] == "command" and r["src"] == aid)
-            ]
+            ] + [(0.0, 0.0, 0.0, 0)]
+            assert st.setpoints[0].thrust == 0  # the first setpoint unlocks the thrust (crtp_commander_rpyt.c)
             assert len(st.setpoints) > 100
             for s in st.setpoints[::10]:
                 g = (s.roll_deg, s.pitch_deg, s.yawrate_dps, s.thrust)

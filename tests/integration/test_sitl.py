@@ -1,0 +1,89 @@
+"""The real-drone path closed through cflib against software-in-the-loop Crazyflies that
+apply the firmware's rules (tools/sitl_cf.py): a sign or scale error of the client shows
+as a drone that drifts, turns away, falls or never spins up. Realtime, as real drones fly."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import time
+
+import numpy as np
+
+from swarm.messages import measurement_agent
+from swarm.rotation import R_to_euler, quat_to_R
+from tools.runfiles import read_records
+
+from .conftest import scenario
+
+REAL = ("real1", "real2")
+
+
+def _track(run_dir, agent: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t [s], x (T, 3) [m], yaw (T,) [rad]) of an agent's measurements, in time order."""
+    recs = sorted((r for r in read_records(run_dir / "run.mcap") if r["kind"] == "measurement"
+                   and measurement_agent(r) == agent), key=lambda r: r["t"])  # fmt: skip
+    yaw = [R_to_euler(quat_to_R(np.asarray(r["q"])))[2] for r in recs]
+    return np.array([r["t"] for r in recs]), np.array([r["x"] for r in recs]), np.array(yaw)
+
+
+def _sitl_events(run_dir) -> dict[str, tuple[str, list]]:
+    """What the stand-ins said at the end: per drone its last supervisor state and events."""
+    out = {}
+    for line in (run_dir / "logs" / "sitl.log").read_text().splitlines():
+        m = re.match(r"sitl: (\w+) ended (\w+); supervisor events (.*)$", line)
+        if m:
+            out[m[1]] = (m[2], eval(m[3]))  # a list of (monotonic s, state) tuples it printed
+    return out
+
+
+def test_sitl_drones_take_off_hold_height_and_yaw_let_the_others_pass_and_land(start_run):
+    cfg = scenario("mixed_sitl.yaml", duration_s=12.0, stop_when_all_reached=False)
+    h = start_run(cfg, "sitl")
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07 + 0.02 - 3e-3
+    assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
+    for name in REAL:
+        t, x, yaw = _track(h.out, name)
+        assert x[0, 2] < 0.05  # it started on the ground
+        up = np.flatnonzero(np.abs(x[:, 2] - 1.0) < 0.03)
+        assert up.size, f"{name} never reached its height: highest {x[:, 2].max():.3f} m"
+        held = (t > t[up[0]] + 1.0) & (t < cfg.duration_s)  # from 1 s after it got there to the landing
+        assert np.abs(x[held, 2] - 1.0).max() < 0.03  # hovers within 3 cm of its height target
+        assert abs(np.degrees(yaw[0])) > 15.0  # it started 20 degrees off
+        assert np.abs(np.degrees(yaw[held])).max() < 3.0  # and turned to its yaw, not away from it
+        assert x[-1, 2] < 0.1  # landed
+    ends = _sitl_events(h.out)
+    assert {n: ends[n][0] for n in REAL} == {"real1": "landed", "real2": "landed"}  # not locked: reusable
+
+
+def test_an_agent_killed_mid_flight_meets_the_firmware_watchdog(start_run):
+    cfg = scenario("mixed_sitl.yaml", duration_s=12.0, stop_when_all_reached=False,
+                   agent_types={"real": {"crazyflie": {"on_agent_loss": "watchdog"}}})  # fmt: skip
+    h = start_run(cfg, "kill")
+    h.wait_sim_time(5.0)  # the real drones are up and holding
+    killed = time.monotonic()
+    h.kill("agent-real1", signal.SIGKILL)
+    assert h.wait() == "completed"
+    state, events = _sitl_events(h.out)["real1"]
+    assert state == "locked"
+    after = [(round(t - killed, 2), what) for t, what in events if t > killed]
+    level = next(t for t, what in after if what == "level_out")
+    locked = next(t for t, what in after if what == "locked")
+    assert 0.4 < level < 0.9 and 1.9 < locked < 2.4, after  # 500 ms level out, 2 s cut (supervisor.c)
+    t, x, _ = _track(h.out, "real1")
+    z_lock = np.interp(t[-1] - 0.0, t, x[:, 2])
+    assert z_lock < 0.1  # then it fell: the recording shows the firmware's end of a lost agent
+    assert _sitl_events(h.out)["real2"][0] == "landed"  # the other real drone landed as usual
+
+
+def test_a_drone_that_does_not_answer_fails_the_run_in_seconds_naming_it(start_run):
+    cfg = scenario("mixed_mock.yaml")
+    silent = next(a for a in cfg.agents if a.crazyflie is not None)
+    t0 = time.monotonic()
+    h = start_run(cfg, "silent")  # nothing listens at the stand-ins' ports
+    reason = h.wait()
+    assert time.monotonic() - t0 < 20.0
+    assert reason.startswith("agent-") and "not reached" in reason and silent.crazyflie.uri in reason, reason

@@ -1,0 +1,207 @@
+"""Software-in-the-loop Crazyflies: CRTP over cflib's UDP driver, the firmware's rules, a body.
+
+    python -m tools.sitl_cf --mocap-port 19900 --drone real1,19850,1.0,0.3,0.0,20 [--drone ...]
+
+Each ``--drone NAME,PORT,X,Y,Z,YAW_DEG`` binds 127.0.0.1:PORT, where cflib's UDP driver
+(``udp://127.0.0.1:PORT``) finds it, and starts at rest at (X, Y, Z) [m, world] with yaw
+YAW_DEG [deg, counter-clockwise]. Every CRTP packet (one per datagram: a header byte
+``port << 4 | 3 << 2 | channel``, then up to 30 data bytes) is acknowledged with an empty
+one, as the radio does, and decoded:
+
+* port 3 channel 0, ``<fffH``: a legacy RPYT setpoint, given to :class:`swarm.crazyflie_fw.Firmware`
+  as it arrives (thrust lock, inverted yaw rate, the release's thrust map, the cap);
+* port 7 (generic commander), type 0: the stop setpoint; type 4 on channel 2: notify-stop;
+* port 6 channel 1 type 8, ``<Bfffffff``: an external pose (recorded; the body is ground truth);
+* port 9 channel 1: supervisor command 3 (emergency stop) or 2 (recover);
+  port 6 channel 1 type 3: the older emergency stop.
+
+The firmware's supervisor (watchdog 500 ms / 2 s, locked, crashed) decides what the
+motors do; an attitude controller of the stand-in's own (the geometric SO(3) law of
+``swarm.control``, tracking the firmware's roll, pitch and integrated yaw setpoint)
+turns that into rotor thrusts, and RK4 integrates the Crazyflie 2.1 body at 500 Hz in
+wall-clock time, with the ground at z = 0. The bodies' poses go out as the ``sitl``
+motion-capture source (``world.mocap.SitlMocap``, what the world's relay reads for
+``mocap.type: sitl``) to 127.0.0.1:``--mocap-port`` at 100 Hz: one datagram per frame,
+msgpack ``[[name, x, y, z, qx, qy, qz, qw], ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import socket
+import struct
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import msgpack
+import numpy as np
+
+from swarm.control import AttitudeController
+from swarm.crazyflie_fw import Firmware
+from swarm.model import QuadModel, QuadState, step_rk4
+from swarm.rotation import euler_to_quat, quat_to_R
+
+PHYSICS_HZ = 500.0
+MOCAP_HZ = 100.0
+
+
+@dataclass
+class SitlDrone:
+    """One stand-in Crazyflie: its socket, its firmware and its body."""
+
+    name: str
+    sock: socket.socket
+    firmware: Firmware
+    state: QuadState
+    model: QuadModel
+    att: AttitudeController
+    yaw_sp_rad: float
+    packets: int = 0
+    poses: list[tuple[float, ...]] = field(default_factory=list)
+    notify_stops: int = 0
+    last_packet_s: float = 0.0  # monotonic time of the newest packet
+    deaf: bool = False
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def start(cls, name: str, port: int, x_w: list[float], yaw_deg: float, firmware: str = "2026.04") -> SitlDrone:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind(("127.0.0.1", port))
+        s.settimeout(0.05)
+        model = QuadModel()
+        yaw = math.radians(yaw_deg)
+        state = QuadState(np.asarray(x_w, float), np.zeros(3), euler_to_quat(0.0, 0.0, yaw), np.zeros(3))
+        d = cls(name, s, Firmware(firmware), state, model, AttitudeController(model), yaw)
+        threading.Thread(target=d._serve, name=f"sitl-{name}", daemon=True).start()
+        return d
+
+    @property
+    def uri(self) -> str:
+        return f"udp://127.0.0.1:{self.sock.getsockname()[1]}"
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(64)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            if data:
+                self.decode(data, time.monotonic())
+                if not self.deaf:
+                    self.sock.sendto(b"\xf3", addr)  # an empty packet back (port 15, channel 3)
+
+    def decode(self, data: bytes, now: float) -> None:
+        h, body = data[0], data[1:]
+        port, ch = (h >> 4) & 0x0F, h & 0x03
+        fw = self.firmware
+        with self.lock:
+            self.packets += 1
+            self.last_packet_s = now
+            if port == 3 and ch == 0 and len(body) == 14:
+                fw.rpyt(now, *struct.unpack("<fffH", body))
+            elif port == 7 and ch == 0 and body[:1] == b"\x00":
+                fw.stop(now)
+            elif port == 7 and ch == 2 and body[:1] == b"\x00":
+                self.notify_stops += 1  # META_COMMAND_CHANNEL, TYPE_META_COMMAND_NOTIFY_SETPOINT_STOP
+            elif port == 6 and ch == 1 and body[:1] == b"\x08" and len(body) == 29:
+                self.poses.append(struct.unpack("<Bfffffff", body)[1:])
+            elif (port == 9 and ch == 1 and body[:1] == b"\x03") or (port == 6 and ch == 1 and body[:1] == b"\x03"):
+                fw.emergency_stop(now)
+            elif port == 9 and ch == 1 and body[:1] == b"\x02":
+                fw.recover(now, self.tilt_rad() > math.radians(60))
+
+    def handed_back(self, now: float) -> bool:
+        """Its client is done with it: handed back (notify-stop), or silent for 3 s after talking."""
+        return self.notify_stops > 0 or (self.packets > 0 and now - self.last_packet_s > 3.0)
+
+    def tilt_rad(self) -> float:
+        return math.acos(max(-1.0, min(1.0, float(quat_to_R(self.state.q)[2, 2]))))
+
+    def step(self, now: float, dt: float) -> None:
+        """The firmware's decision and the body's motion over ``dt`` [s]."""
+        with self.lock:
+            out = self.firmware.step(now, self.tilt_rad())
+        s = self.state
+        if out.motors_on:
+            self.yaw_sp_rad += out.yaw_rate_radps * dt
+            cr, sr, cp, sp = (
+                math.cos(out.roll_rad),
+                math.sin(out.roll_rad),
+                math.cos(out.pitch_rad),
+                math.sin(out.pitch_rad),
+            )
+            cy, sy = math.cos(self.yaw_sp_rad), math.sin(self.yaw_sp_rad)
+            R_des = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                              [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                              [-sp, cp * sr, cp * cr]])  # fmt: skip
+            f = self.att.rotor_thrusts(s, R_des, out.thrust_N)
+        else:
+            f = np.zeros(4)
+        s = step_rk4(self.model, s, f, dt)
+        if s.x_w[2] <= 0.0:  # the ground: it stops what pushes into it
+            s.x_w[2] = 0.0
+            if s.v_w[2] < 0.0:
+                s.v_w = np.zeros(3)
+                s.Omega_b = np.zeros(3)
+        self.state = s
+
+
+def run(drones: list[SitlDrone], mocap_port: int, stop: threading.Event) -> None:
+    """Step every body at ``PHYSICS_HZ`` of wall-clock time and send the poses at ``MOCAP_HZ``,
+    until ``stop`` or every drone has been handed back by its client (then the firmware has
+    seen the end of the flight, and the process ends by itself)."""
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    dt = 1.0 / PHYSICS_HZ
+    t0 = time.monotonic()
+    k = 0
+    every = round(PHYSICS_HZ / MOCAP_HZ)
+    while not stop.is_set():
+        k += 1
+        now = t0 + k * dt
+        for d in drones:
+            d.step(now, dt)
+        if k % every == 0:
+            frame = [[d.name, *map(float, d.state.x_w), *map(float, d.state.q)] for d in drones]
+            try:
+                out.sendto(msgpack.packb(frame), ("127.0.0.1", mocap_port))
+            except OSError:
+                pass
+        if k % every == 0 and all(d.handed_back(now) for d in drones):
+            break
+        lag = now - time.monotonic()
+        if lag > 0:
+            time.sleep(lag)
+        elif lag < -0.5:  # far behind (a stalled machine): do not burst to catch up
+            t0 += -lag
+    for d in drones:
+        d.sock.close()
+
+
+def parse_drone(text: str) -> tuple[str, int, list[float], float]:
+    name, port, x, y, z, yaw = text.split(",")
+    return name, int(port), [float(x), float(y), float(z)], float(yaw)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--drone", action="append", required=True, help="NAME,PORT,X,Y,Z,YAW_DEG (repeatable)")
+    ap.add_argument("--mocap-port", type=int, required=True)
+    ap.add_argument("--firmware", default="2026.04", help="the release whose thrust map the drones have")
+    args = ap.parse_args()
+    fleet = [SitlDrone.start(n, p, x, yaw, args.firmware) for n, p, x, yaw in map(parse_drone, args.drone)]
+    print("sitl: " + ", ".join(f"{d.name} at {d.uri}" for d in fleet) + f"; poses to :{args.mocap_port}", flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())  # swarm run ends it with SIGTERM: a clean end
+    try:
+        run(fleet, args.mocap_port, done)
+    except KeyboardInterrupt:
+        pass
+    for d in fleet:
+        print(f"sitl: {d.name} ended {d.firmware.state.value}; supervisor events {d.firmware.events}", flush=True)
+    sys.exit(0)

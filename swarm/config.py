@@ -251,7 +251,9 @@ class TimeSettings(_Strict):
     physics_hz: float = Field(240.0, gt=0)
     control_hz: float = Field(120.0, gt=0)  # must divide physics_hz
     lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
-    command_timeout_s: float = Field(0.05, gt=0)  # realtime: an older command is replaced by braking
+    # realtime, rotor level: an older command is replaced by braking (the attitude level, a
+    # Crazyflie's, gets the firmware's watchdog instead: level out at 500 ms, motors off at 2 s)
+    command_timeout_s: float = Field(0.05, gt=0)
     start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
     land_timeout_s: float = Field(15.0, gt=0)  # after the end: how long real drones get to land
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the
@@ -298,7 +300,10 @@ class FailureSettings(_Strict):
     neighbour_growth_mps: float = Field(0.5, ge=0)  # radius growth per second of age
     neighbour_hard_limit_s: float = Field(1.0, gt=0)  # older, or liveliness gone: on_lost
     on_lost: Literal["keep_stopped", "drop"] = "keep_stopped"
-    on_agent_death: Literal["land", "motors_off"] = "land"  # what the world does with its drone
+    # what the world does with a dead agent's simulated drone: land it, stop its motors, or
+    # (firmware) fly it as the Crazyflie firmware does with no setpoints: its last setpoint,
+    # levelled out with its thrust from 500 ms, motors off from 2 s (swarm.crazyflie_fw)
+    on_agent_death: Literal["land", "motors_off", "firmware"] = "land"
 
 
 class NeighbourSettings(_Strict):

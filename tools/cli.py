@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -349,6 +350,56 @@ def scenario(kind: str, n: int, radius: float | None, density: float, perturb: f
         click.echo(f"wrote {out}")
     else:
         click.echo(text, nl=False)
+
+
+@cli.group()
+def cf() -> None:
+    """Real Crazyflies through cflib: scan, status, recover, reboot (agents.cf_admin)."""
+
+
+@cf.command("scan")
+def cf_scan() -> None:
+    """List the Crazyflies cflib finds (radios, USB, UDP stand-ins on 19850-19859)."""
+    from agents.cf_admin import scan
+
+    found = scan()
+    click.echo("\n".join(found) if found else "no Crazyflie found")
+
+
+def _cf_call(what: Callable[[], object]) -> object:
+    try:
+        return what()
+    except (OSError, ValueError) as exc:  # (TimeoutError is an OSError)
+        click.echo(f"swarm cf: {exc}", err=True)
+        sys.exit(2)
+
+
+@cf.command("status")
+@click.argument("uri")
+def cf_status(uri: str) -> None:
+    """The supervisor's state bits of the drone at URI."""
+    from agents.cf_admin import status
+
+    click.echo(", ".join(_cf_call(lambda: status(uri))) or "(no state bit set)")  # type: ignore[arg-type]
+
+
+@cf.command("recover")
+@click.argument("uri")
+def cf_recover(uri: str) -> None:
+    """Recover a crashed (tumbled) drone that is upright again; prints its states after."""
+    from agents.cf_admin import recover
+
+    click.echo(", ".join(_cf_call(lambda: recover(uri))) or "(no state bit set)")  # type: ignore[arg-type]
+
+
+@cf.command("reboot")
+@click.argument("uri")
+def cf_reboot(uri: str) -> None:
+    """Power-cycle the drone (a locked one needs this) through its Crazyradio."""
+    from agents.cf_admin import reboot
+
+    _cf_call(lambda: reboot(uri))
+    click.echo(f"{uri}: rebooted")
 
 
 def main() -> None:

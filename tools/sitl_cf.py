@@ -12,7 +12,8 @@ one, as the radio does, and decoded:
   as it arrives (thrust lock, inverted yaw rate, the release's thrust map, the cap);
 * port 7 (generic commander), type 0: the stop setpoint; type 4 on channel 2: notify-stop;
 * port 6 channel 1 type 8, ``<Bfffffff``: an external pose (recorded; the body is ground truth);
-* port 9 channel 1: supervisor command 3 (emergency stop) or 2 (recover);
+* port 9 channel 1: supervisor command 3 (emergency stop) or 2 (recover, answered);
+  port 9 channel 0 command 0x0C: the state bitfield, answered (crtp_supervisor.c);
   port 6 channel 1 type 3: the older emergency stop.
 
 The firmware's supervisor (watchdog 500 ms / 2 s, locked, crashed) decides what the
@@ -92,11 +93,12 @@ class SitlDrone:
             except OSError:
                 return
             if data:
-                self.decode(data, time.monotonic())
+                answer = self.decode(data, time.monotonic())
                 if not self.deaf:
-                    self.sock.sendto(b"\xf3", addr)  # an empty packet back (port 15, channel 3)
+                    self.sock.sendto(answer or b"\xf3", addr)  # the answer, or an empty packet (port 15, ch 3)
 
-    def decode(self, data: bytes, now: float) -> None:
+    def decode(self, data: bytes, now: float) -> bytes | None:
+        """Act on one packet; returns the firmware's answer packet, if it sends one."""
         h, body = data[0], data[1:]
         port, ch = (h >> 4) & 0x0F, h & 0x03
         fw = self.firmware
@@ -113,8 +115,21 @@ class SitlDrone:
                 self.poses.append(struct.unpack("<Bfffffff", body)[1:])
             elif (port == 9 and ch == 1 and body[:1] == b"\x03") or (port == 6 and ch == 1 and body[:1] == b"\x03"):
                 fw.emergency_stop(now)
-            elif port == 9 and ch == 1 and body[:1] == b"\x02":
-                fw.recover(now, self.tilt_rad() > math.radians(60))
+            elif port == 9 and ch == 1 and body[:1] == b"\x02":  # crtp_supervisor.c: [cmd | 0x80, success, !crashed]
+                ok = fw.recover(now, self.tilt_rad() > math.radians(60))
+                return bytes([0x90 | 0x0C | 1, 0x82, ok, fw.state.value != "crashed"])
+            elif port == 9 and ch == 0 and body[:1] == b"\x0c":  # CMD_GET_STATE_BITFIELD: [0x8C, uint16 LE]
+                return bytes([0x90 | 0x0C | 0, 0x8C]) + struct.pack("<H", self.bitfield(now))
+        return None
+
+    def bitfield(self, now: float) -> int:
+        """The supervisor's info bits (crtp_supervisor.c, cflib's Supervisor.STATES order)."""
+        st = self.firmware.state.value
+        tumbled = self.tilt_rad() > math.radians(60)
+        bits = {0: st == "ready" and not tumbled, 2: True,  # auto-armed, as the Crazyflie 2.x is
+                3: st in ("ready", "flying", "level_out", "landed"), 4: st in ("flying", "level_out"),
+                5: tumbled, 6: st == "locked", 7: st == "crashed"}  # fmt: skip
+        return sum(1 << b for b, on in bits.items() if on)
 
     def handed_back(self, now: float) -> bool:
         """Its client is done with it: handed back (notify-stop), or silent for 3 s after talking."""

@@ -34,6 +34,7 @@ import numpy as np
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, onboard_rotor_thrusts
+from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
 from swarm.messages import encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.rotation import quat_to_R
@@ -80,11 +81,18 @@ def _impact(pair: tuple[str, str], index: dict[str, int], v_w: np.ndarray) -> bo
     return i is None or float(np.linalg.norm(v_w[i])) >= GROUND_IMPACT_MPS
 
 
-def _setpoint(slot: DroneSlot) -> tuple[float, ...] | np.ndarray:
-    """Roll, pitch [rad], yaw rate [rad/s], thrust [N]: the agent's, or level hover
-    before its first command."""
+def _setpoint(slot: DroneSlot, t_s: float) -> tuple[float, ...] | np.ndarray:
+    """Roll, pitch [rad], yaw rate [rad/s], thrust [N] at sim time ``t_s``: level hover
+    before the agent's first command, then its newest command as the Crazyflie firmware
+    flies it (swarm.crazyflie_fw): as it is while younger than 500 ms, levelled out with
+    its thrust until 2 s, then motors off."""
     if slot.command is None:
         return (0.0, 0.0, 0.0, slot.model.params.weight_N)
+    age = t_s - slot.command_t_s
+    if age > WDT_SHUTDOWN_S:
+        return (0.0, 0.0, 0.0, 0.0)
+    if age > WDT_STABILIZE_S:
+        return (0.0, 0.0, 0.0, float(slot.command[3]))
     return slot.command
 
 
@@ -109,6 +117,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     slots: dict[str, DroneSlot] = {}
     real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
     unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
+    firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
     for a in cfg.agents:
         model = QuadModel(a.quad_params())
         sim.add_drone(
@@ -355,15 +364,15 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                     if est is not None:
                         sim.set_pose(a, est.x_w, est.q)
                 stale = set()
-                if not lockstep:  # realtime: a command older than the timeout is not flown
+                if not lockstep:  # realtime: a rotor command older than the timeout is not flown
                     stale = {
                         a for a in names
-                        if not slots[a].dead and slots[a].command is not None
+                        if not slots[a].dead and slots[a].command is not None and slots[a].level is CommandLevel.ROTORS
                         and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
                     }  # fmt: skip
                 f_all = np.zeros((len(flown), 4))  # rotor thrusts [N]
                 att = [
-                    i for i, a in enumerate(flown) if not slots[a].dead and a not in stale
+                    i for i, a in enumerate(flown) if (not slots[a].dead or firmware_death) and a not in stale
                     and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
                 ]  # fmt: skip
                 if att:
@@ -374,9 +383,9 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                             *(np.stack([slots[a].onboard.consts[c][0] for a in att_names]) for c in range(4)),
                             np.array([slots[a].onboard.consts[4][0] for a in att_names]),
                         )  # fmt: skip
-                    for a in att_names:
-                        slots[a].yaw_sp_rad += (slots[a].command[2] if slots[a].command is not None else 0.0) * sim.dt_s
-                    sp = np.array([_setpoint(slots[a]) for a in att_names])
+                    sp = np.array([_setpoint(slots[a], sim.t_s) for a in att_names])
+                    for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
+                        slots[a].yaw_sp_rad += yaw_rate * sim.dt_s
                     f_all[att] = onboard_rotor_thrusts(
                         fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1],
                         np.array([slots[a].yaw_sp_rad for a in att_names]), sp[:, 3], *consts,

@@ -87,3 +87,31 @@ def test_a_drone_that_does_not_answer_fails_the_run_in_seconds_naming_it(start_r
     reason = h.wait()
     assert time.monotonic() - t0 < 20.0
     assert reason.startswith("agent-") and "not reached" in reason and silent.crazyflie.uri in reason, reason
+
+
+def test_a_simulated_drone_whose_agent_dies_meets_the_firmware_watchdog(start_run):
+    """on_agent_death: firmware: the world flies the dead agent's Crazyflie as its firmware
+    would with no setpoints: the last setpoint, level from 500 ms with its thrust, motors off
+    from 2 s (supervisor.c); then it falls."""
+    cfg = scenario(
+        "swap_2.yaml", name="fw_death", duration_s=8.0, stop_when_all_reached=False,
+        failure={"on_agent_death": "firmware"},
+        agents=[
+            {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+            {"id": "cf3", "start": [2.0, 3.0, 1.5], "goal": [2.0, 2.0, 1.5], "speed_mps": 0.3},
+        ],
+    )  # fmt: skip
+    h = start_run(cfg, "fw")
+    h.wait_sim_time(1.0)
+    h.kill("agent-cf3", signal.SIGKILL)
+    assert h.wait() == "completed"
+    records = read_records(h.out / "run.mcap")
+    last_cmd = max(r["t"] for r in records if r["kind"] == "command" and r["src"] == "cf3")
+    clocks = sorted((r for r in records if r["kind"] == "clock"), key=lambda r: r["t"])
+    t = np.array([r["t"] for r in clocks])  # the roster holds every drone, a dead agent's too
+    zs = np.array([np.asarray(r["xvr"]).reshape(-1, 7)[r["ids"].index("cf3"), 2] for r in clocks])
+    z = lambda at: float(np.interp(at, t, zs))  # noqa: E731
+    assert abs(z(last_cmd + 1.9) - z(last_cmd)) < 0.15  # held up by its last thrust, levelled out
+    assert z(last_cmd + 2.0) - z(last_cmd + 2.6) > 0.8  # motors off at 2 s: it falls (g t^2 / 2 = 1.8 m)
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["lost_agents"] == ["cf3"] and m["agents"]["cf1"]["reached_goal"]

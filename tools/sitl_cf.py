@@ -67,6 +67,8 @@ class SitlDrone:
     last_packet_s: float = 0.0  # monotonic time of the newest packet
     deaf: bool = False
     lock: threading.Lock = field(default_factory=threading.Lock)
+    _done: threading.Event = field(default_factory=threading.Event)
+    _thread: threading.Thread | None = None
 
     @classmethod
     def start(cls, name: str, port: int, x_w: list[float], yaw_deg: float, firmware: str = "2026.04") -> SitlDrone:
@@ -77,25 +79,33 @@ class SitlDrone:
         yaw = math.radians(yaw_deg)
         state = QuadState(np.asarray(x_w, float), np.zeros(3), euler_to_quat(0.0, 0.0, yaw), np.zeros(3))
         d = cls(name, s, Firmware(firmware), state, model, AttitudeController(model), yaw)
-        threading.Thread(target=d._serve, name=f"sitl-{name}", daemon=True).start()
+        d._thread = threading.Thread(target=d._serve, name=f"sitl-{name}", daemon=True)
+        d._thread.start()
         return d
+
+    def close(self) -> None:
+        """End the serving thread, which releases the port."""
+        self._done.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
 
     @property
     def uri(self) -> str:
         return f"udp://127.0.0.1:{self.sock.getsockname()[1]}"
 
     def _serve(self) -> None:
-        while True:
+        while not self._done.is_set():
             try:
                 data, addr = self.sock.recvfrom(64)
             except TimeoutError:
                 continue
             except OSError:
-                return
+                break
             if data:
                 answer = self.decode(data, time.monotonic())
                 if not self.deaf:
                     self.sock.sendto(answer or b"\xf3", addr)  # the answer, or an empty packet (port 15, ch 3)
+        self.sock.close()
 
     def decode(self, data: bytes, now: float) -> bytes | None:
         """Act on one packet; returns the firmware's answer packet, if it sends one."""
@@ -195,7 +205,7 @@ def run(drones: list[SitlDrone], mocap_port: int, stop: threading.Event) -> None
         elif lag < -0.5:  # far behind (a stalled machine): do not burst to catch up
             t0 += -lag
     for d in drones:
-        d.sock.close()
+        d.close()
 
 
 def parse_drone(text: str) -> tuple[str, int, list[float], float]:

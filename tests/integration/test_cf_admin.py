@@ -29,7 +29,7 @@ def drone():
     yield d
     stop.set()
     t.join(2.0)
-    d.sock.close()
+    d.close()
 
 
 def _free_udp_port() -> int:

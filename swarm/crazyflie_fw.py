@@ -114,6 +114,10 @@ class Firmware:
         self._sp_t = -math.inf  # time of the newest setpoint [s]
         self._thrust_t = -math.inf  # last time a motor was above idle [s]
         self.events: list[tuple[float, str]] = []  # (t, what) for tests and logs
+        # the decoded setpoint as the firmware logs it (stabilizer.c, log group ctrltarget):
+        # roll [deg], pitch [deg] (the wire's, i.e. cflib's negation of the caller's), yaw rate
+        # [deg/s] (the wire's negated), thrust (the command after the lock and the cap)
+        self.ctrltarget = {"roll": 0.0, "pitch": 0.0, "yaw": 0.0, "thrust": 0.0}
 
     def _to(self, state: SupervisorState, t: float) -> None:
         if state is not self.state:
@@ -125,6 +129,7 @@ class Firmware:
         if thrust == 0:
             self.thrust_locked = False
         cmd = 0 if self.thrust_locked or thrust < RPYT_MIN_THRUST else min(thrust, RPYT_MAX_THRUST)
+        self.ctrltarget = {"roll": roll_deg, "pitch": pitch_wire_deg, "yaw": -yaw_wire_dps, "thrust": float(cmd)}
         self._sp = Output(
             math.radians(roll_deg), math.radians(-pitch_wire_deg), math.radians(-yaw_wire_dps),
             collective_thrust_N(cmd, self.firmware, self.propellers),

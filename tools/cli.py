@@ -392,6 +392,31 @@ def cf_recover(uri: str) -> None:
     click.echo(", ".join(_cf_call(lambda: recover(uri))) or "(no state bit set)")  # type: ignore[arg-type]
 
 
+@cf.command("check")
+@click.argument("uri")
+@click.option("--firmware", default="2026.04", show_default=True, help="the release on the drone (its thrust map)")
+@click.option("--pwm-per-newton", type=float, default=None, help="a calibration of your own instead")
+def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
+    """PROPELLERS OFF: send a known setpoint sequence and compare what the firmware decoded
+    (its ctrltarget log) with what its rules say it must: signs and thrust on your drone."""
+    from agents.cf_admin import check
+    from swarm.config import ThrustCalibration
+
+    try:
+        cal = ThrustCalibration(firmware=firmware, pwm_per_newton=pwm_per_newton)
+    except ValueError as exc:
+        click.echo(f"swarm cf check: {exc}", err=True)
+        sys.exit(2)
+    rows = _cf_call(lambda: check(uri, cal))
+    bad = 0
+    for r in rows:  # type: ignore[attr-defined]
+        fw = ", ".join(f"{k} {v:.3g}" for k, v in r["firmware"].items()) or "(nothing logged)"
+        want = ", ".join(f"{k} {v:.3g}" for k, v in r["expected"].items())
+        click.echo(f"{'ok  ' if r['ok'] else 'FAIL'} {r['step']}: firmware holds {fw}; its rules say {want}")
+        bad += not r["ok"]
+    sys.exit(1 if bad else 0)
+
+
 @cf.command("reboot")
 @click.argument("uri")
 def cf_reboot(uri: str) -> None:

@@ -12,6 +12,8 @@ one, as the radio does, and decoded:
   as it arrives (thrust lock, inverted yaw rate, the release's thrust map, the cap);
 * port 7 (generic commander), type 0: the stop setpoint; type 4 on channel 2: notify-stop;
 * port 6 channel 1 type 8, ``<Bfffffff``: an external pose (recorded; the body is ground truth);
+* port 5 (logging): the TOC (v2) and blocks of the decoded setpoint, ``ctrltarget.roll``,
+  ``.pitch``, ``.yaw`` and ``.thrust``, as stabilizer.c logs them (``swarm cf check`` reads them);
 * port 9 channel 1: supervisor command 3 (emergency stop) or 2 (recover, answered);
   port 9 channel 0 command 0x0C: the state bitfield, answered (crtp_supervisor.c);
   port 6 channel 1 type 3: the older emergency stop.
@@ -48,6 +50,9 @@ from swarm.rotation import euler_to_quat, quat_to_R
 
 PHYSICS_HZ = 500.0
 MOCAP_HZ = 100.0
+LOG_TOC = [("ctrltarget", "roll"), ("ctrltarget", "pitch"), ("ctrltarget", "yaw"), ("ctrltarget", "thrust")]
+"""The log variables the stand-in serves (all float, type 7): the decoded setpoint."""
+LOG_TOC_CRC = 0x5C3F0001
 
 
 @dataclass
@@ -69,6 +74,9 @@ class SitlDrone:
     lock: threading.Lock = field(default_factory=threading.Lock)
     _done: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
+    _addr: tuple = ("127.0.0.1", 0)  # the client's address (cflib's UDP socket)
+    log_blocks: dict[int, list[int]] = field(default_factory=dict)  # block id -> TOC ids
+    log_running: dict[int, tuple[float, float, tuple]] = field(default_factory=dict)  # id -> (period s, next t, addr)
 
     @classmethod
     def start(cls, name: str, port: int, x_w: list[float], yaw_deg: float, firmware: str = "2026.04") -> SitlDrone:
@@ -102,6 +110,7 @@ class SitlDrone:
             except OSError:
                 break
             if data:
+                self._addr = addr
                 answer = self.decode(data, time.monotonic())
                 if not self.deaf:
                     self.sock.sendto(answer or b"\xf3", addr)  # the answer, or an empty packet (port 15, ch 3)
@@ -130,7 +139,52 @@ class SitlDrone:
                 return bytes([0x90 | 0x0C | 1, 0x82, ok, fw.state.value != "crashed"])
             elif port == 9 and ch == 0 and body[:1] == b"\x0c":  # CMD_GET_STATE_BITFIELD: [0x8C, uint16 LE]
                 return bytes([0x90 | 0x0C | 0, 0x8C]) + struct.pack("<H", self.bitfield(now))
+            elif port == 5:
+                return self._log(ch, body, now)
         return None
+
+    def _log(self, ch: int, body: bytes, now: float) -> bytes | None:
+        """The logging port as log.c serves it: the TOC (v2) of :data:`LOG_TOC`, blocks
+        created, started, stopped and reset; the data go out in :meth:`log_data`."""
+        hdr = bytes([0x50 | 0x0C | ch])
+        if ch == 0 and body[:1] == b"\x03":  # CMD_GET_INFO_V2: items (uint16), CRC (uint32), limits
+            return hdr + struct.pack("<BHIBB", 3, len(LOG_TOC), LOG_TOC_CRC, 16, 16)
+        if ch == 0 and body[:1] == b"\x02" and len(body) >= 3:  # CMD_GET_ITEM_V2: id, type, group\0name\0
+            i = struct.unpack("<H", body[1:3])[0]
+            if i < len(LOG_TOC):
+                group, name = LOG_TOC[i]
+                return hdr + struct.pack("<BHB", 2, i, 7) + group.encode() + b"\0" + name.encode() + b"\0"
+        if ch == 1 and body[:1] == b"\x05":  # reset: every block gone
+            self.log_blocks.clear()
+            self.log_running.clear()
+            return hdr + bytes([5, 0, 0])
+        if ch == 1 and body[:1] in (b"\x06", b"\x00") and len(body) >= 2:  # create (v2: 3 bytes per variable)
+            block, spec = body[1], body[2:]
+            self.log_blocks[block] = [struct.unpack("<H", spec[k + 1 : k + 3])[0] for k in range(0, len(spec) - 2, 3)]
+            return hdr + bytes([body[0], block, 0])
+        if ch == 1 and body[:1] == b"\x03" and len(body) >= 3:  # start, period in 10 ms
+            self.log_running[body[1]] = (max(body[2], 1) * 0.01, now, self._addr)
+            return hdr + bytes([3, body[1], 0])
+        if ch == 1 and body[:1] in (b"\x04", b"\x02") and len(body) >= 2:  # stop, delete
+            self.log_running.pop(body[1], None)
+            return hdr + bytes([body[0], body[1], 0])
+        return None
+
+    def log_data(self, now: float) -> None:
+        """Send each started block's values when its period is due (channel 2)."""
+        for block, (period, due, addr) in list(self.log_running.items()):
+            if now < due:
+                continue
+            self.log_running[block] = (period, due + period, addr)
+            ms = int(now * 1000) & 0xFFFFFF
+            values = [self.firmware.ctrltarget[LOG_TOC[i][1]] for i in self.log_blocks.get(block, [])]
+            pk = bytes([0x50 | 0x0C | 2, block, ms & 0xFF, (ms >> 8) & 0xFF, ms >> 16]) + struct.pack(
+                f"<{len(values)}f", *values
+            )
+            try:
+                self.sock.sendto(pk, addr)
+            except OSError:
+                pass
 
     def bitfield(self, now: float) -> int:
         """The supervisor's info bits (crtp_supervisor.c, cflib's Supervisor.STATES order)."""
@@ -191,6 +245,7 @@ def run(drones: list[SitlDrone], mocap_port: int, stop: threading.Event) -> None
         now = t0 + k * dt
         for d in drones:
             d.step(now, dt)
+            d.log_data(now)
         if k % every == 0:
             frame = [[d.name, *map(float, d.state.x_w), *map(float, d.state.q)] for d in drones]
             try:

@@ -78,3 +78,14 @@ def test_reboot_and_status_fail_clearly_where_they_cannot_work():
     assert res.returncode == 2 and "Crazyradio" in res.stderr
     res = swarm_cf("status", "udp://127.0.0.1:19859")  # nothing there
     assert res.returncode == 2 and "udp://127.0.0.1:19859" in res.stderr
+
+
+def test_check_reads_back_what_the_firmware_decoded_and_it_follows_the_rules(drone):
+    """swarm cf check (propellers off): the known sequence, read back through cflib's log
+    subsystem (ctrltarget), agrees with the firmware's rules: roll as sent, pitch negated,
+    yaw rate counter-clockwise as asked, thrust unlocked at the command sent."""
+    res = swarm_cf("check", drone.uri)
+    assert res.returncode == 0, res.stdout + res.stderr
+    lines = res.stdout.strip().splitlines()
+    assert len(lines) == 4 and all(line.startswith("ok") for line in lines), lines
+    assert "pitch -10" in lines[1] and "yaw 30" in lines[2]

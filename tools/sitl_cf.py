@@ -56,8 +56,22 @@ LOG_TOC_CRC = 0x5C3F0001
 
 
 @dataclass
+class Setpoint:
+    """A legacy setpoint as it arrived, for tests: roll [deg], pitch [deg] as the caller of
+    cflib's ``send_setpoint`` meant it (cflib negates it on the wire), yaw rate [deg/s] as
+    on the wire, thrust command."""
+
+    t: float
+    roll_deg: float
+    pitch_deg: float
+    yawrate_dps: float
+    thrust: int
+
+
+@dataclass
 class SitlDrone:
-    """One stand-in Crazyflie: its socket, its firmware and its body."""
+    """One stand-in Crazyflie: its socket, its firmware and its body. Without :func:`run`
+    stepping it, it still decodes, answers and records every packet (the tests' stand-in)."""
 
     name: str
     sock: socket.socket
@@ -67,10 +81,13 @@ class SitlDrone:
     att: AttitudeController
     yaw_sp_rad: float
     packets: int = 0
+    setpoints: list[Setpoint] = field(default_factory=list)
     poses: list[tuple[float, ...]] = field(default_factory=list)
+    stops: list[float] = field(default_factory=list)  # monotonic times of stop setpoints
+    estops: list[float] = field(default_factory=list)  # and of emergency stops
     notify_stops: int = 0
     last_packet_s: float = 0.0  # monotonic time of the newest packet
-    deaf: bool = False
+    _deaf: threading.Event = field(default_factory=threading.Event)
     lock: threading.Lock = field(default_factory=threading.Lock)
     _done: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
@@ -79,17 +96,36 @@ class SitlDrone:
     log_running: dict[int, tuple[float, float, tuple]] = field(default_factory=dict)  # id -> (period s, next t, addr)
 
     @classmethod
-    def start(cls, name: str, port: int, x_w: list[float], yaw_deg: float, firmware: str = "2026.04") -> SitlDrone:
+    def start(
+        cls, name: str = "cf", port: int = 0, x_w: list[float] | None = None, yaw_deg: float = 0.0,
+        firmware: str = "2026.04",
+    ) -> SitlDrone:  # fmt: skip
+        """Bind 127.0.0.1:``port`` (0: a free one, see :attr:`uri`) and serve it."""
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.bind(("127.0.0.1", port))
         s.settimeout(0.05)
         model = QuadModel()
         yaw = math.radians(yaw_deg)
-        state = QuadState(np.asarray(x_w, float), np.zeros(3), euler_to_quat(0.0, 0.0, yaw), np.zeros(3))
+        x0 = np.zeros(3) if x_w is None else np.asarray(x_w, float)
+        state = QuadState(x0, np.zeros(3), euler_to_quat(0.0, 0.0, yaw), np.zeros(3))
         d = cls(name, s, Firmware(firmware), state, model, AttitudeController(model), yaw)
         d._thread = threading.Thread(target=d._serve, name=f"sitl-{name}", daemon=True)
         d._thread.start()
         return d
+
+    def deaf(self) -> None:
+        """Stop answering: to cflib the link is lost (the packets still arrive)."""
+        self._deaf.set()
+
+    def wait_for(self, what: str, n: int = 1, timeout_s: float = 20.0) -> bool:
+        """Wait until ``len(self.<what>) >= n`` (polling its own list, not the network)."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            with self.lock:
+                if len(getattr(self, what)) >= n:
+                    return True
+            time.sleep(0.01)
+        return False
 
     def close(self) -> None:
         """End the serving thread, which releases the port."""
@@ -112,7 +148,7 @@ class SitlDrone:
             if data:
                 self._addr = addr
                 answer = self.decode(data, time.monotonic())
-                if not self.deaf:
+                if not self._deaf.is_set():
                     self.sock.sendto(answer or b"\xf3", addr)  # the answer, or an empty packet (port 15, ch 3)
         self.sock.close()
 
@@ -125,14 +161,18 @@ class SitlDrone:
             self.packets += 1
             self.last_packet_s = now
             if port == 3 and ch == 0 and len(body) == 14:
-                fw.rpyt(now, *struct.unpack("<fffH", body))
+                r, p, y, thr = struct.unpack("<fffH", body)
+                self.setpoints.append(Setpoint(now, r, -p, y, thr))
+                fw.rpyt(now, r, p, y, thr)
             elif port == 7 and ch == 0 and body[:1] == b"\x00":
+                self.stops.append(now)
                 fw.stop(now)
             elif port == 7 and ch == 2 and body[:1] == b"\x00":
                 self.notify_stops += 1  # META_COMMAND_CHANNEL, TYPE_META_COMMAND_NOTIFY_SETPOINT_STOP
             elif port == 6 and ch == 1 and body[:1] == b"\x08" and len(body) == 29:
                 self.poses.append(struct.unpack("<Bfffffff", body)[1:])
             elif (port == 9 and ch == 1 and body[:1] == b"\x03") or (port == 6 and ch == 1 and body[:1] == b"\x03"):
+                self.estops.append(now)
                 fw.emergency_stop(now)
             elif port == 9 and ch == 1 and body[:1] == b"\x02":  # crtp_supervisor.c: [cmd | 0x80, success, !crashed]
                 ok = fw.recover(now, self.tilt_rad() > math.radians(60))

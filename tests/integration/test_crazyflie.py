@@ -1,7 +1,8 @@
 """A real-Crazyflie agent against a stand-in drone, with no hardware.
 
 The agent process is the real one (``swarm agent``): it starts its cflib link guard,
-which talks CRTP over cflib's UDP driver to the stand-in (tests/standin_cf.py). The
+which talks CRTP over cflib's UDP driver to a stand-in (tools/sitl_cf.py, not stepped: it
+decodes, answers and records, and its firmware model judges). The
 test plays the world: it declares the world's liveliness and publishes the clock and
 the motion-capture measurements over Zenoh at 100 Hz. Every wait is on a condition
 (packets at the stand-in, messages on the bus) with a deadline.
@@ -26,7 +27,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump, resolve
 from swarm.messages import decode, encode
 from tools.launch import free_port
-from tools.standin_cf import StandIn
+from tools.sitl_cf import SitlDrone as StandIn
 
 ROOT = Path(__file__).resolve().parents[2]
 

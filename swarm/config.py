@@ -98,7 +98,7 @@ class TiebreakSettings(_Strict):
     gives every agent the same turning sense, a roundabout the live rows admit."""
 
     kind: Literal["none", "right_hand"] = "right_hand"
-    trigger_m: float = Field(2.0, gt=0)  # m: other agents closer than this, and in front, count
+    trigger_m: float = Field(1.2, gt=0)  # m: other agents closer than this, and in front, count
     speed_mps: float = Field(0.3, gt=0)  # largest sideways velocity added to the reference
 
     @property

@@ -207,6 +207,12 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             if slot is None or slot.dead:
                 counter.drop("command from unknown or dead agent")
                 continue
+            if str(s.key_expr) != keys.command(m.src):  # a header naming another agent than its key
+                counter.drop("command whose sender is not its key's agent")
+                continue
+            if m.k > k_now + 1 or abs(m.t - m.k * dt_ctrl) > 2.0 * dt_ctrl:  # not an answer to a tick we sent
+                counter.drop("command for a tick or time the world has not reached")
+                continue
             if m["status"] != "ok":
                 slot.infeasible += 1
             slot.solo = m["status"] != "ok"

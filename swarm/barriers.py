@@ -49,6 +49,15 @@ every agent deflects the same way round, and the pair's two rows are mirror imag
 (``d_ji = -d_ij``), so each agent's half-space holds the other's. ``d*`` is moved into
 ``D`` and blended to the exact gradient ``w/|w|`` as ``|w|`` grows from ``w_lo`` to
 ``w_hi``: above ``w_hi`` the live row is the exact, unsmoothed C3BF row.
+
+Inside the cone (h < 0) at speed, where the exact row's gradient along the cone's axis is
+about ``r^2 / (2|p|)`` long and only asks to brake, a live row is the barrier
+``H = (r/|p|)(s w_perp - r w_par)`` (:func:`cone_row`; ``w_par`` the approach speed,
+``w_perp`` the speed across p). Its safe set is the cone's, ``H <= h`` (Cauchy-Schwarz),
+it equals h with the same gradient on the cone, and its lateral gradient is ``r`` long: a
+head-on pair swerves. Its class-K gain is at least ``RECOVERY_PER_CONTACT`` over the time
+to contact (coefficient ``RATE``). Within ``AXIS_BAND`` of the axis, where the lateral
+speed is noise, it holds the generator on the side rule's side instead.
 """
 
 from __future__ import annotations

@@ -72,7 +72,8 @@ def test_at_rest_every_admitted_acceleration_keeps_the_exact_cone(p, r, a, a_ref
     acc = satisfying(n_w, 0.0, acc)  # any relative acceleration the row admits
     P, A = proj(a, p), proj(a, acc)
     s = math.sqrt(P @ P - r * r)
-    assert P @ A + s * np.linalg.norm(A) >= -1e-9 * (1 + np.linalg.norm(A))
+    # (on the cone's boundary, where the half-space touches it, the two terms cancel: a tolerance of their size)
+    assert P @ A + s * np.linalg.norm(A) >= -1e-8 * (1 + np.linalg.norm(P)) * (1 + np.linalg.norm(A))
 
 
 @settings(max_examples=400, deadline=None)
@@ -83,7 +84,7 @@ def test_at_rest_a_static_row_admits_the_reference_where_the_cone_does(p, r, a, 
     P, A = proj(a, p), proj(a, a_ref)
     s = math.sqrt(P @ P - r * r)
     rows = live(p, np.zeros(3), r, a, a_ref)
-    if np.linalg.norm(A) < 1e-6:  # no reference to aim at: today's row, d = 0
+    if A @ A <= 1e-12:  # no reference to aim at (the kernel's rule): today's row, d = 0
         assert not rows.d[0].any()
     elif P @ A + s * np.linalg.norm(A) >= 0:  # the exact cone allows it
         assert rows.dh_dw[0] @ a_ref >= -1e-9 * (1 + np.linalg.norm(a_ref))
@@ -127,7 +128,7 @@ def cone_H(p, w, r, a):
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), acc=vec)
 def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a_ref, acc):
     p = outside(p, r, a)
-    assume(p is not None and np.linalg.norm(proj(a, w)) >= LIVE_W_HI_MPS and exact_h(p, w, r, a) >= 0)
+    assume(p is not None and np.linalg.norm(proj(a, w)) >= 1.01 * LIVE_W_HI_MPS and exact_h(p, w, r, a) >= 0)
     rows = live(p, w, r, a, a_ref)
     assert rows.h[0] == np.float64(exact_h(p, w, r, a)) or abs(rows.h[0] - exact_h(p, w, r, a)) < 1e-12 * (
         1 + abs(rows.h[0])
@@ -143,7 +144,7 @@ def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a
 @settings(max_examples=400, deadline=None)
 @given(
     p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), frac=st.floats(0.0, 0.99),
-    speed=st.floats(LIVE_W_HI_MPS, 3.0), t_dir=vec, axial=st.floats(-2, 2),
+    speed=st.floats(1.01 * LIVE_W_HI_MPS, 3.0), t_dir=vec, axial=st.floats(-2, 2),  # clear of the blend's edge
 )  # fmt: skip
 def test_inside_the_cone_at_speed_the_row_is_h_with_the_same_cone(p, r, a, a_ref, frac, speed, t_dir, axial):
     p = outside(p, r, a)

@@ -194,8 +194,8 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noq
         d[0], d[1], d[2] = 0.0, 0.0, 0.0
     ww = W[0] * W[0] + W[1] * W[1] + W[2] * W[2]
     nw = math.sqrt(ww)
-    if nw <= _TINY:  # at rest relative to it: any |d| <= 1 keeps h_d = 0 = h
-        return 0.0
+    if nw <= _TINY:  # at rest relative to it: any |d| <= 1 keeps h_d = 0 = h (to 1e-12)
+        return d[0] * W[0] + d[1] * W[1] + d[2] * W[2]
     u = np.empty(3)
     for k in range(3):
         u[k] = W[k] / nw

@@ -251,9 +251,12 @@ class TimeSettings(_Strict):
     physics_hz: float = Field(240.0, gt=0)
     control_hz: float = Field(120.0, gt=0)  # must divide physics_hz
     lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
-    # realtime, rotor level: an older command is replaced by braking (the attitude level, a
-    # Crazyflie's, gets the firmware's watchdog instead: level out at 500 ms, motors off at 2 s)
+    # realtime, rotor level (or late_command: brake): an older command is replaced by braking
     command_timeout_s: float = Field(0.05, gt=0)
+    # realtime, attitude level: a late command as the Crazyflie firmware treats it (firmware:
+    # held, levelled out with its thrust from 500 ms, motors off from 2 s), or brake: a hover
+    # after command_timeout_s, kinder than any firmware, for a machine that stalls its agents
+    late_command: Literal["firmware", "brake"] = "firmware"
     start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
     land_timeout_s: float = Field(15.0, gt=0)  # after the end: how long real drones get to land
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the

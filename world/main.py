@@ -373,7 +373,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 if not lockstep:  # realtime: a rotor command older than the timeout is not flown
                     stale = {
                         a for a in names
-                        if not slots[a].dead and slots[a].command is not None and slots[a].level is CommandLevel.ROTORS
+                        if not slots[a].dead and slots[a].command is not None
+                        and (slots[a].level is CommandLevel.ROTORS or cfg.time.late_command == "brake")
                         and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
                     }  # fmt: skip
                 f_all = np.zeros((len(flown), 4))  # rotor thrusts [N]

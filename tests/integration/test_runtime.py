@@ -66,7 +66,8 @@ def _cpus_of(pid: int) -> set[frozenset[int]]:
 def test_circle_8_realtime_completes_without_collision_with_each_process_on_its_cpu(start_run):
     from tools.launch import cpu_plan
 
-    cfg = scenario("circle_8.yaml", time={"mode": "realtime"})
+    # (late commands brake, as before the firmware's watchdog: this test is of realtime and CPU placement)
+    cfg = scenario("circle_8.yaml", time={"mode": "realtime", "late_command": "brake"})
     assert cfg.time.pin_cpus  # the default
     h = start_run(cfg)
     h.wait_sim_time(0.0)  # every process is up and running its loop

@@ -262,7 +262,7 @@ class TimeSettings(_Strict):
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the
     # last, agents round-robin). With more processes than cores, a process that stays on
     # one core keeps its caches and is not moved around by the scheduler: at 16 agents on
-    # 2 cores realtime went from 95-96.5 to 99.6-99.8 % of ticks on time (see the README)
+    # 2 cores realtime went from 95-96.5 to 99.6-99.8 % of ticks on time (see docs/benchmarks.md)
     pin_cpus: bool = True
 
     @model_validator(mode="after")

@@ -265,7 +265,10 @@ def rows_kernel(
                 acc += Aa[k, j] * u_ref[j]
             own_ref[k] = acc
     static_ref = own_ref
-    if with_ref and live[0] != 0.0 and kind == 0:
+    any_static = False
+    for i in range(n):
+        any_static = any_static or not is_nb[sel[i]]
+    if with_ref and live[0] != 0.0 and kind == 0 and any_static:  # (only obstacle rows share a target)
         static_ref = free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, own_ref, live[2])
     for i in range(n):
         o = sel[i]

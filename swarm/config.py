@@ -8,6 +8,7 @@ the file, the field path and the reason (:class:`ConfigError`). Validation uses 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
@@ -38,8 +39,23 @@ class TimeMode(StrEnum):
     """The world runs on the wall clock; agents run on each new measurement."""
 
 
+_NUMBERS = (float, int, float | None, int | None)
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _numbers_are_numbers(cls, data: Any) -> Any:
+        """A number field takes a number, not ``true`` (which pydantic reads as 1) or a
+        string (``"5"``): a YAML typo must not fly as a different value."""
+        if isinstance(data, dict):
+            for name, f in cls.model_fields.items():
+                v = data.get(name)
+                if f.annotation in _NUMBERS and (isinstance(v, bool | str)):
+                    raise ValueError(f"{name}: must be a number, got {v!r}")
+        return data
 
 
 def _finite(v: Any) -> Any:
@@ -342,11 +358,30 @@ class MocapSettings(_Strict):
     velocity_filter_s: float = Field(0.02, ge=0)  # time constant of the velocity / body-rate low-pass
 
 
+MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
+AGENTS_PER_CPU = 32  # lockstep runs of 64 agents on 2 CPUs are measured (docs/benchmarks.md); more is untried
+
+
+def machine_cpus() -> int:
+    """CPUs this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+class LimitSettings(_Strict):
+    """What the machine is trusted to carry; raise it knowingly."""
+
+    max_agents: int | None = Field(None, gt=0)  # None: AGENTS_PER_CPU per CPU of this machine
+
+    @property
+    def agents(self) -> int:
+        return self.max_agents or AGENTS_PER_CPU * machine_cpus()
+
+
 class ScenarioConfig(_Strict):
     version: Literal[1]
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
     seed: int = 0
-    duration_s: float = Field(gt=0)
+    duration_s: float = Field(gt=0, le=MAX_DURATION_S)
     goal_tolerance_m: float = Field(0.15, gt=0)
     stop_when_all_reached: bool = True
     time: TimeSettings = TimeSettings()
@@ -358,6 +393,54 @@ class ScenarioConfig(_Strict):
     obstacles: list[ObstacleConfig] = []
     mocap: MocapSettings | None = None  # required when any agent is a real Crazyflie
     gui: bool = False
+    limits: LimitSettings = LimitSettings()
+
+    @model_validator(mode="after")
+    def _machine(self) -> ScenarioConfig:
+        n, cap = len(self.agents), self.limits.agents
+        if n > cap:
+            raise ValueError(
+                f"agents: {n} agents are more than this machine is trusted to run ({cap}: {AGENTS_PER_CPU} per CPU "
+                f"on {machine_cpus()} CPUs); set limits.max_agents: {n} to try anyway"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _physical(self) -> ScenarioConfig:
+        """Starts, goals and waypoints a drone can be at: above the floor, clear of the
+        obstacles (at t = 0 for the start; static ones for the path) and of each other's
+        safety radius (body radius plus the larger margin)."""
+        radius = [a.airframe.params().body_radius_m for a in self.agents]
+        for i, a in enumerate(self.agents):
+            if a.start[2] < 0.0:
+                raise ValueError(f"agents.{i}.start: {a.start} is below the floor (z < 0)")
+            floor = a.filter.floor_z_m if a.filter.enabled else None
+            for j, pt in enumerate(a.path()[1:]):
+                field_ = "goal" if a.goal is not None else f"waypoints.{j}"
+                if pt[2] < 0.0 or (floor is not None and pt[2] < floor):
+                    raise ValueError(f"agents.{i}.{field_}: {pt} is below the floor "
+                                     f"({'z < 0' if pt[2] < 0.0 else f'filter.floor_z_m {floor} m'})")  # fmt: skip
+            for o in self.obstacles:
+                keep = radius[i] + a.filter.margin_m
+                if _surface_distance(o, a.start) < keep:
+                    raise ValueError(f"agents.{i}.start: {a.start} is within {keep:.3f} m of obstacle {o.id!r} "
+                                     "(inside it or its safety radius)")  # fmt: skip
+                if any(o.velocity):
+                    continue
+                for j, pt in enumerate(a.path()[1:]):
+                    if _surface_distance(o, pt) < keep:
+                        field_ = "goal" if a.goal is not None else f"waypoints.{j}"
+                        raise ValueError(f"agents.{i}.{field_}: {pt} is within {keep:.3f} m of obstacle {o.id!r} "
+                                         "(inside it or its safety radius)")  # fmt: skip
+        for i, a in enumerate(self.agents):
+            for j in range(i):
+                b = self.agents[j]
+                keep = radius[i] + radius[j] + max(a.filter.margin_m, b.filter.margin_m)
+                for what, p, q in (("start", a.start, b.start), ("goal", a.final_goal, b.final_goal)):
+                    if math.dist(p, q) < keep:
+                        raise ValueError(f"agents.{i}.{what}: {a.id} at {p} and {b.id} at {q} are closer than "
+                                         f"their safety radii ({keep:.3f} m)")  # fmt: skip
+        return self
 
     @model_validator(mode="after")
     def _real_drones(self) -> ScenarioConfig:
@@ -411,6 +494,17 @@ class ScenarioConfig(_Strict):
         raise ConfigError(f"no agent with id {agent_id!r} (have {[a.id for a in self.agents]})")
 
 
+def _surface_distance(o: ObstacleConfig, pt: list[float]) -> float:
+    """Distance [m] from ``pt`` (world) to the surface of obstacle ``o`` at t = 0
+    (negative inside); a cylinder is its infinite axis, as the barrier treats it."""
+    d = np.asarray(pt, float) - np.asarray(o.center, float)
+    if o.shape == "cylinder":
+        ax = np.asarray(o.axis, float)
+        ax = ax / np.linalg.norm(ax)
+        d = d - (d @ ax) * ax
+    return float(np.linalg.norm(d)) - o.radius_m
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for k, v in over.items():
@@ -430,6 +524,12 @@ def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
     if not isinstance(types, dict):
         raise ConfigError(f"{source}: agent_types: must be a mapping")
     agents = raw.get("agents")
+    limits = raw.get("limits")
+    cap = limits.get("max_agents") if isinstance(limits, dict) else None
+    cap = cap if isinstance(cap, int) and not isinstance(cap, bool) and cap > 0 else AGENTS_PER_CPU * machine_cpus()
+    if isinstance(agents, list) and len(agents) > cap:  # before validating thousands of them
+        raise ConfigError(f"{source}: agents: {len(agents)} agents are more than this machine is trusted to run "
+                          f"({cap}); set limits.max_agents: {len(agents)} to try anyway")  # fmt: skip
     if isinstance(agents, list):
         layered = []
         for i, a in enumerate(agents):
@@ -445,11 +545,21 @@ def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
         return ScenarioConfig.model_validate(raw)
     except ValidationError as exc:
         first = exc.errors()[0]
-        path = ".".join(str(p) for p in first["loc"]) or "(top level)"
+        path = ".".join(str(p) for p in first["loc"])
+        msg = first["msg"].removeprefix("Value error, ")
+        if first["type"] == "value_error" and ": " in msg and msg.split(": ", 1)[0].replace(".", "").isidentifier():
+            # our validators name the field below the model they check: "agents.3.start: ..."
+            inner, msg = msg.split(": ", 1)
+            path = f"{path}.{inner}" if path else inner
+        path = path or "(top level)"
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-        raise ConfigError(f"{source}: {path}: {first['msg']}{more}") from None
+        raise ConfigError(f"{source}: {path}: {msg}{more}") from None
     except ValueError as exc:  # raised by our own models (e.g. QuadParams)
         raise ConfigError(f"{source}: {exc}") from None
+
+
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+MAX_CONFIG_BYTES = 1 << 20  # a 64-agent scenario is about 10 KB; every process of a run reads the file
 
 
 def load(path: str | Path, overrides: dict[str, Any] | None = None) -> ScenarioConfig:
@@ -457,11 +567,20 @@ def load(path: str | Path, overrides: dict[str, Any] | None = None) -> ScenarioC
     (e.g. ``{"time": {"mode": "realtime"}}`` from the command line)."""
     p = Path(path)
     try:
-        text = p.read_text()
+        size = p.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{p}: {size} bytes is larger than a scenario file may be ({MAX_CONFIG_BYTES} bytes)")
+        data = p.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read ({exc.strerror})") from None
     try:
-        raw = yaml.safe_load(text)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a YAML text file (byte {exc.start} is not UTF-8)") from None
+    if "\x00" in text:
+        raise ConfigError(f"{p}: not a YAML text file (it holds NUL bytes)")
+    try:
+        raw = yaml.load(text, Loader=_YAML_LOADER)  # a safe loader (libyaml when present)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{p}: not valid YAML ({exc})") from None
     if overrides:

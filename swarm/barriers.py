@@ -132,14 +132,16 @@ def _generator(P, V, pp, s, a, t, d):  # noqa: ANN001, ANN202
         t[k] = V[k] - vp * P[k]
     nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
     nv = math.sqrt(V[0] * V[0] + V[1] * V[1] + V[2] * V[2])
-    if nt <= 1e-9 * nv or nt == 0.0:
+    # V within 1e-6 rad of P's line: the side rule (t would be V's rounding error, magnified by 1/nt)
+    if nt <= 1e-6 * nv or nt == 0.0:
         _unit_side(P, pp, a, t)
     else:
         for k in range(3):
             t[k] /= nt
     tp = (t[0] * P[0] + t[1] * P[1] + t[2] * P[2]) / pp  # re-orthogonalise (t of a near-parallel V)
+    ta = t[0] * a[0] + t[1] * a[1] + t[2] * a[2]  # and keep it across a cylinder's axis (a = 0: a sphere)
     for k in range(3):
-        t[k] -= tp * P[k]
+        t[k] -= tp * P[k] + ta * a[k]
     nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
     cphi, sphi = s / rp, math.sqrt(max(pp - s * s, 0.0)) / rp
     for k in range(3):

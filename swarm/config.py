@@ -12,7 +12,7 @@ import os
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
@@ -266,15 +266,18 @@ class TimeSettings(_Strict):
     mode: TimeMode = TimeMode.LOCKSTEP
     physics_hz: float = Field(240.0, gt=0)
     control_hz: float = Field(120.0, gt=0)  # must divide physics_hz
-    lockstep_timeout_s: float = Field(5.0, gt=0)  # wall time the world waits for a late agent
+    lockstep_timeout_s: float = Field(5.0, gt=0, le=600)  # wall time the world waits for a late agent
+    # a lockstep tick that waits longer than this share of lockstep_timeout_s is a stall: logged
+    # with the agents it waited for, counted in the status (the progress bar) and metrics.json
+    stall_warn_fraction: float = Field(0.2, gt=0, le=1)
     # realtime, rotor level (or late_command: brake): an older command is replaced by braking
     command_timeout_s: float = Field(0.05, gt=0)
     # realtime, attitude level: a late command as the Crazyflie firmware treats it (firmware:
     # held, levelled out with its thrust from 500 ms, motors off from 2 s), or brake: a hover
     # after command_timeout_s, kinder than any firmware, for a machine that stalls its agents
     late_command: Literal["firmware", "brake"] = "firmware"
-    start_timeout_s: float = Field(60.0, gt=0)  # wall time to wait for every process to come up
-    land_timeout_s: float = Field(15.0, gt=0)  # after the end: how long real drones get to land
+    start_timeout_s: float = Field(60.0, gt=0, le=3600)  # wall time to wait for every process to come up
+    land_timeout_s: float = Field(15.0, gt=0, le=600)  # after the end: how long real drones get to land
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the
     # last, agents round-robin). With more processes than cores, a process that stays on
     # one core keeps its caches and is not moved around by the scheduler: at 16 agents on
@@ -295,6 +298,39 @@ class TimeSettings(_Strict):
         return round(self.physics_hz / self.control_hz)
 
 
+class TlsFiles(NamedTuple):
+    root_ca: Path  # the certificate authority every process trusts
+    certificate: Path  # this machine's certificate (signed by root_ca; names network.host)
+    private_key: Path
+
+
+class TlsSettings(_Strict):
+    """Zenoh's TLS transport: links encrypted, each side proving who it is by certificate
+    (``mutual``: the connecting side too). With no files given, ``swarm run`` makes a
+    certificate authority and a certificate for ``network.host`` for the run
+    (``swarm.access.make_tls``); across machines, give every machine the files of one
+    authority (``swarm secrets`` writes them once, to copy)."""
+
+    enabled: bool = False
+    root_ca: str | None = None  # PEM files; relative paths are from the working directory
+    certificate: str | None = None
+    private_key: str | None = None
+    mutual: bool = True
+
+    @model_validator(mode="after")
+    def _all_or_none(self) -> TlsSettings:
+        given = [f for f in (self.root_ca, self.certificate, self.private_key) if f]
+        if given and len(given) != 3:
+            raise ValueError("network.tls: give root_ca, certificate and private_key together, or none of them")
+        return self
+
+    def files(self, secrets: Path) -> TlsFiles:
+        """The files the processes use: the given ones, or the run's own in ``secrets``."""
+        if self.root_ca and self.certificate and self.private_key:
+            return TlsFiles(Path(self.root_ca), Path(self.certificate), Path(self.private_key))
+        return TlsFiles(secrets / "ca.pem", secrets / "cert.pem", secrets / "key.pem")
+
+
 class NetworkSettings(_Strict):
     """Zenoh. Default: peers on loopback, multicast scouting off, every process
     connecting to the world's listener (``port`` 0 lets ``swarm run`` pick a free one)."""
@@ -303,6 +339,11 @@ class NetworkSettings(_Strict):
     host: str = "127.0.0.1"
     port: int = Field(0, ge=0, le=65535)
     connect: list[str] = []  # extra endpoints (a router, other machines)
+    # each run's processes authenticate with credentials of their own (Zenoh usrpwd) and may
+    # publish only under their own keys (Zenoh access control; swarm.access); false: anyone
+    # who reaches the ports may join the run
+    access_control: bool = True
+    tls: TlsSettings = TlsSettings()
     topology: Literal["auto", "mesh", "star"] = "auto"
     """Which processes link to which (``swarm.transport.process_config``). ``mesh``: every
     process listens and Zenoh's gossip links every pair, so any peer that joins sees all

@@ -22,8 +22,9 @@ import numpy as np
 
 from swarm.model import all_finite
 
-VERSION = 4  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 5  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
+# 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -46,9 +47,13 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
     "status": {
         "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
-        "dropped": "i", "live": "ls", "done": "b", "infeasible": "i",
+        "dropped": "i", "live": "ls", "done": "b", "infeasible": "i", "stalls": "i", "dead": "ls",
     },
-    "collision": {"a": "s", "b": "s"},
+    # a contact that began at this tick; dead: one of the two is a dead agent's drone (landing,
+    # or left to the firmware), counted apart from collisions among live agents
+    "collision": {"a": "s", "b": "s", "dead": "b"},
+    # a lockstep tick that waited longer than time.stall_warn_s for these agents' commands
+    "stall": {"agents": "ls", "wait_s": "f"},
 }  # fmt: skip
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over

@@ -70,7 +70,9 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     min_h: dict[str, float] = defaultdict(lambda: math.inf)
     solve_us: dict[str, list[float]] = defaultdict(list)
     statuses: list[dict[str, Any]] = []
-    collisions: list[dict[str, Any]] = []
+    collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
+    dead_contacts: list[dict[str, Any]] = []  # of a dead agent's drone
+    stalls: list[dict[str, Any]] = []
     for r in records:
         kind = r["kind"]
         if kind == "measurement":
@@ -87,7 +89,9 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         elif kind == "status":
             statuses.append(r)
         elif kind == "collision":
-            collisions.append(r)
+            (dead_contacts if r.get("dead") else collisions).append(r)
+        elif kind == "stall":
+            stalls.append({"t_s": r["t"], "k": r["k"], "agents": r["agents"], "wait_s": r["wait_s"]})
 
     min_sep, min_clear = math.inf, math.inf
     for k, bodies in by_tick.items():
@@ -133,11 +137,16 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         "mode": cfg.time.mode.value,
         "collisions": len(collisions),
         "collision_pairs": sorted({f"{c['a']}|{c['b']}" for c in collisions}),
+        "dead_agent_contacts": len(dead_contacts),  # a dead agent's drone touched something (apart from collisions)
+        "dead_agent_contact_pairs": sorted({f"{c['a']}|{c['b']}" for c in dead_contacts}),
+        "stalls": len(stalls),  # lockstep ticks that waited longer than time.stall_warn_fraction of the timeout
+        "stall_events": stalls,
         "min_separation_m": _finite_or_none(min_sep),
         "min_obstacle_clearance_m": _finite_or_none(min_clear),
         "all_reached_goal": all(v["reached_goal"] for v in agents.values()),
         "deadlocked_agents": sorted(k for k, v in agents.items() if v["deadlock_at_s"] is not None),
         "duration_s": float(final.get("t", 0.0)),
+        "finished": bool(final.get("done", False)),  # the world's last status said the run is over
         "real_time_factor": float(final.get("rtf", 0.0)),
         "late_ticks": int(final.get("late", 0)),
         "dropped_messages": int(final.get("dropped", 0))

@@ -16,10 +16,12 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from swarm import access
 from swarm.messages import DecodeError, Message, decode
 
 if TYPE_CHECKING:
@@ -50,6 +52,10 @@ class Keys:
     @property
     def collision(self) -> str:
         return f"{self.root}/world/collision"
+
+    @property
+    def stall(self) -> str:
+        return f"{self.root}/world/stall"
 
     def state(self, agent_id: str) -> str:
         return f"{self.root}/agent/{agent_id}/state"
@@ -95,6 +101,13 @@ def session_config(
     conf.insert_json5("scouting/multicast/enabled", "false")
     if not gossip:
         conf.insert_json5("scouting/gossip/enabled", "false")
+    else:
+        # of two peers that gossip told about each other, only the one with the greater id
+        # opens their link. Zenoh's default (both open it) makes a duplicate link, which with
+        # user-password authentication is refused, now and then leaving the pair unlinked
+        # (eclipse-zenoh/zenoh#2577; measured: 3 of 60 pairs unlinked, 0 of 80 with this)
+        strategy = {"peer": {"to_router": "always", "to_peer": "greater-zid"}}
+        conf.insert_json5("scouting/gossip/autoconnect_strategy", json.dumps(strategy))
     if lowlatency:
         conf.insert_json5("transport/unicast/lowlatency", "true")
         conf.insert_json5("transport/unicast/qos/enabled", "false")
@@ -104,8 +117,8 @@ def session_config(
     return conf
 
 
-def world_endpoint(host: str, port: int) -> str:
-    return f"tcp/{host}:{port}"
+def world_endpoint(host: str, port: int, proto: str = "tcp") -> str:
+    return f"{proto}/{host}:{port}"
 
 
 class Role(StrEnum):
@@ -121,7 +134,53 @@ class Role(StrEnum):
 HUBS = (Role.WORLD, Role.RECORDER, Role.LAUNCHER)  # a star's listeners, on port, port + 1, port + 2
 
 
-def process_config(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
+@dataclass(frozen=True)
+class Access:
+    """The credentials one process of a run uses (:mod:`swarm.access`): its user name,
+    the run's secrets folder, and what the access-control rules need to know."""
+
+    run: str
+    user: str
+    secrets: Path  # the folder with users.txt (and the run's TLS files, if made per run)
+    agent_ids: tuple[str, ...]
+
+    @classmethod
+    def of(cls, cfg: ScenarioConfig, run: str, role: Role, secrets: Path, agent_id: str | None = None) -> Access:
+        user = access.agent_user(agent_id) if role is Role.AGENT and agent_id else role.value
+        return cls(run, user, secrets, tuple(a.id for a in cfg.agents))
+
+
+def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool) -> None:
+    """Add the run's authentication, access control and TLS to ``conf``."""
+    auth: dict[str, str] = {"user": acc.user, "password": access.password(acc.secrets, acc.user)}
+    if listens:  # who may link to this session: the run's processes alone
+        auth["dictionary_file"] = str(acc.secrets / access.USERS_FILE)
+    conf.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD)
+    conf.insert_json5("access_control", json.dumps(rules))
+    tls = cfg.network.tls
+    if tls.enabled:
+        files = tls.files(acc.secrets)
+        for key, path in (("root_ca_certificate", files.root_ca), ("listen_certificate", files.certificate),
+                          ("listen_private_key", files.private_key), ("connect_certificate", files.certificate),
+                          ("connect_private_key", files.private_key)):  # fmt: skip
+            conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
+        conf.insert_json5("transport/link/tls/enable_mtls", json.dumps(tls.mutual))
+        conf.insert_json5("transport/link/tls/verify_name_on_connect", "true")
+
+
+def process_config(cfg: ScenarioConfig, role: Role, acc: Access | None = None) -> zenoh.Config:
+    """:func:`links`, with the run's credentials when ``acc`` is given (``swarm run``
+    always gives them unless ``network.access_control`` is off)."""
+    conf = links(cfg, role)
+    if acc is not None:
+        ends = json.loads(conf.get_json("listen/endpoints"))
+        listens = bool(ends) and isinstance(ends, list)
+        _secure(conf, cfg, acc, listens)
+    return conf
+
+
+def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     """Config of one process from the scenario's network settings and its resolved
     topology (``ScenarioConfig.topology``; ``NetworkSettings.topology`` says what each is).
 
@@ -136,16 +195,18 @@ def process_config(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     peers; links made only by explicit connects in one direction came up complete in 40 of
     40.)"""
     network = cfg.network
+    proto = "tls" if network.tls.enabled else "tcp"
     if cfg.topology == "star":
-        ends = [world_endpoint(network.host, network.port + i) for i in range(len(HUBS))]
+        ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(HUBS))]
         if role in HUBS:
             i = HUBS.index(role)
             return session_config(listen=[ends[i]], connect=ends[i + 1 :], gossip=False, lowlatency=True)
         return session_config(listen=[], connect=ends, gossip=False, lowlatency=True)
-    endpoint = world_endpoint(network.host, network.port)
+    endpoint = world_endpoint(network.host, network.port, proto)
     if role is Role.WORLD:
         return session_config(mode="peer", listen=[endpoint], connect=list(network.connect))
-    return session_config(mode=network.mode, listen=[f"tcp/{network.host}:0"], connect=[endpoint, *network.connect])
+    own = [f"{proto}/{network.host}:0"]
+    return session_config(mode=network.mode, listen=own, connect=[endpoint, *network.connect])
 
 
 @dataclass

@@ -41,6 +41,13 @@ def _load_or_exit(path: str, over: dict[str, Any]) -> ScenarioConfig:
         sys.exit(2)
 
 
+_SECRETS = click.option(
+    "--secrets",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="the run's credentials folder (swarm run makes one; swarm secrets writes one)",
+)
+
+
 def run_scenario(
     cfg: ScenarioConfig,
     out: Path,
@@ -49,6 +56,7 @@ def run_scenario(
     progress: bool = True,
     stop_on_agent_death: bool = False,
     run_id: str | None = None,
+    secrets: Path | None = None,
 ) -> tuple[int, dict[str, Any]]:
     """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -61,7 +69,9 @@ def run_scenario(
     stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     old = {sig: signal.signal(sig, lambda s, f: interrupted.__setitem__("now", True)) for sig in stop_signals}
     try:
-        handle = RunHandle.start(cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted["now"])
+        handle = RunHandle.start(
+            cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted["now"], secrets=secrets
+        )
     except BaseException:
         for sig, handler in old.items():
             signal.signal(sig, handler)
@@ -82,6 +92,10 @@ def run_scenario(
                 if st:
                     sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
                     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
+                    if st.get("stalls"):
+                        info += f"  [yellow]stalls {st['stalls']}[/]"
+                    if st.get("dead"):
+                        info += f"  [red]dead {','.join(st['dead'])}[/]"
                     bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
                 if interrupted["now"]:
                     reason = "interrupted"
@@ -94,7 +108,7 @@ def run_scenario(
         handle.finish(reason or "interrupted")
         for sig, handler in old.items():
             signal.signal(sig, handler)
-    return (0 if handle.reason == "completed" else 1), handle.metrics()
+    return (0 if handle.reason == "completed" else 1), handle.result
 
 
 def _pin_cpu() -> None:
@@ -122,6 +136,7 @@ def cli() -> None:
 @click.option("--stop-on-agent-death", is_flag=True, help="stop the run when any agent process dies")
 @click.option("--no-progress", is_flag=True)
 @click.option("--run-id", help="Zenoh run id (default: <name>-<random>); keys live under swarm/<run-id>/")
+@_SECRETS
 def run(
     config: str,
     mode: str | None,
@@ -130,14 +145,16 @@ def run(
     stop_on_agent_death: bool,
     no_progress: bool,
     run_id: str | None,
+    secrets: Path | None,
 ) -> None:
     """Run a scenario: world, one process per agent, recorder."""
     cfg = _load_or_exit(config, _overrides(mode))
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     code, metrics = run_scenario(
-        cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death, run_id=run_id
-    )
-    if metrics:
+        cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death, run_id=run_id,
+        secrets=secrets,
+    )  # fmt: skip
+    if metrics.get("agents"):
         keys = ("collisions", "min_separation_m", "min_obstacle_clearance_m", "all_reached_goal", "duration_s",
                 "real_time_factor", "late_ticks", "dropped_messages", "lost_agents", "stop_reason")  # fmt: skip
         for k in keys:
@@ -156,6 +173,25 @@ def _process_args(config: str, run_id: str | None, port: int | None, mode: str |
     return cfg, run_id or cfg.name
 
 
+def _zenoh_config(cfg: ScenarioConfig, run: str, role: Any, secrets: Path | None, agent_id: str | None = None) -> Any:
+    """The process's Zenoh config with the run's credentials; exit 2 when access control
+    is on and they are missing or unreadable."""
+    from swarm import transport as tp
+    from swarm.access import SecretsError
+
+    if not cfg.network.access_control:
+        return tp.process_config(cfg, role)
+    if secrets is None:
+        click.echo("config error: network.access_control is on: pass --secrets DIR (the run's credentials, "
+                   "written by swarm run or swarm secrets)", err=True)  # fmt: skip
+        sys.exit(2)
+    try:
+        return tp.process_config(cfg, role, tp.Access.of(cfg, run, role, secrets, agent_id))
+    except SecretsError as exc:
+        click.echo(f"config error: {exc}", err=True)
+        sys.exit(2)
+
+
 @cli.command()
 @click.argument("config")
 @click.option("--run", "run_id", help="run id shared by all processes (default: the scenario name)")
@@ -165,16 +201,19 @@ def _process_args(config: str, run_id: str | None, port: int | None, mode: str |
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
 @click.option("--gui", is_flag=True)
 @click.option("--expect", multiple=True, help="other processes to wait for, e.g. recorder")
+@_SECRETS
 def world(
-    config: str, run_id: str | None, port: int | None, mode: str | None, gui: bool, expect: tuple[str, ...]
-) -> None:
+    config: str, run_id: str | None, port: int | None, mode: str | None, gui: bool, expect: tuple[str, ...],
+    secrets: Path | None,
+) -> None:  # fmt: skip
     """Start the world process alone (runs spread over machines)."""
     _pin_cpu()
     from swarm import transport as tp
     from world.main import main as world_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
-    os._exit(world_main(cfg, run_name, tp.process_config(cfg, tp.Role.WORLD), gui=gui, expect=expect))
+    conf = _zenoh_config(cfg, run_name, tp.Role.WORLD, secrets)
+    os._exit(world_main(cfg, run_name, conf, gui=gui, expect=expect))
 
 
 @cli.command()
@@ -183,7 +222,10 @@ def world(
 @click.option("--run", "run_id")
 @click.option("--port", type=int)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
-def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode: str | None) -> None:
+@_SECRETS
+def agent(
+    config: str, agent_id: str, run_id: str | None, port: int | None, mode: str | None, secrets: Path | None
+) -> None:
     """Start one agent process alone."""
     _pin_cpu()
     from agents.agent import main as agent_main
@@ -195,7 +237,8 @@ def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode
     except ConfigError as exc:
         click.echo(f"config error: {exc}", err=True)
         sys.exit(2)
-    os._exit(agent_main(cfg, agent_id, run_name, tp.process_config(cfg, tp.Role.AGENT)))
+    conf = _zenoh_config(cfg, run_name, tp.Role.AGENT, secrets, agent_id)
+    os._exit(agent_main(cfg, agent_id, run_name, conf))
 
 
 @cli.command()
@@ -203,7 +246,8 @@ def agent(config: str, agent_id: str, run_id: str | None, port: int | None, mode
 @click.option("--out", required=True, type=click.Path(path_type=Path))
 @click.option("--run", "run_id")
 @click.option("--port", type=int)
-def record(config: str, out: Path, run_id: str | None, port: int | None) -> None:
+@_SECRETS
+def record(config: str, out: Path, run_id: str | None, port: int | None, secrets: Path | None) -> None:
     """Start the recorder alone."""
     _pin_cpu()
     from swarm import transport as tp
@@ -216,7 +260,22 @@ def record(config: str, out: Path, run_id: str | None, port: int | None) -> None
         target.write_text(dump(cfg))
     real = any(a.backend == "crazyflie" for a in cfg.agents)
     linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
-    os._exit(record_main(run_name, out, tp.process_config(cfg, tp.Role.RECORDER), linger_s))
+    conf = _zenoh_config(cfg, run_name, tp.Role.RECORDER, secrets)
+    os._exit(record_main(run_name, out, conf, linger_s))
+
+
+@cli.command()
+@click.argument("config")
+@click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
+def secrets(config: str, out: Path) -> None:
+    """Write credentials (and, with network.tls on and no files given, a certificate
+    authority and certificate) for runs of CONFIG into OUT, to hand to processes started
+    by hand on several machines with --secrets OUT. Copy OUT only to machines you trust."""
+    from tools.launch import ensure_secrets
+
+    cfg = _load_or_exit(config, {})
+    ensure_secrets(cfg, out)
+    click.echo(f"credentials: {out}")
 
 
 @cli.command()

@@ -12,7 +12,6 @@ import contextlib
 import json
 import math
 import os
-import secrets
 import signal
 import socket
 import subprocess
@@ -21,8 +20,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from secrets import token_hex
 from typing import Any
 
+from swarm import access
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
 from swarm.messages import DecodeError, decode
@@ -42,6 +43,17 @@ def free_port(host: str = "127.0.0.1", span: int = len(tp.HUBS)) -> int:
             except (OSError, OverflowError):  # taken, or past 65535: try another
                 continue
             return port
+
+
+def ensure_secrets(cfg: ScenarioConfig, folder: Path) -> Path:
+    """``folder`` holding the run's credentials, and its own TLS certificates when
+    ``network.tls`` is on without files: written unless it already holds them."""
+    if not (folder / access.USERS_FILE).exists():
+        access.make_secrets(folder, [a.id for a in cfg.agents])
+    tls = cfg.network.tls
+    if tls.enabled and not tls.root_ca and not (folder / "ca.pem").exists():
+        access.make_tls(folder, [cfg.network.host])
+    return folder
 
 
 def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
@@ -94,34 +106,42 @@ class Progress:
 class RunHandle:
     """A started run. Use :meth:`start`, then :meth:`wait` (or :meth:`poll` in a loop)."""
 
-    def __init__(self, cfg: ScenarioConfig, out: Path, run: str) -> None:
+    def __init__(self, cfg: ScenarioConfig, out: Path, run: str, secrets: Path | None = None) -> None:
         self.cfg, self.out, self.run = cfg, out, run
+        self.secrets = secrets  # the run's credentials (swarm.access), None with network.access_control off
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.progress = Progress()
         self.reason: str | None = None
+        self.result: dict[str, Any] = {}  # metrics.json as finish() wrote it
         self._session: Any = None
 
     @classmethod
     def start(
         cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None,
-        cancelled: Callable[[], bool] = lambda: False,
+        cancelled: Callable[[], bool] = lambda: False, secrets: Path | None = None,
     ) -> RunHandle:  # fmt: skip
         """Start the recorder, the world and the first agent, wait for that agent's
         liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
-        the other agents. An exception while starting stops what was started."""
+        the other agents. An exception while starting stops what was started.
+
+        With ``network.access_control`` (the default) the run's credentials are in
+        ``secrets`` (default ``out/secrets``; made there unless it already holds them,
+        see :func:`ensure_secrets`)."""
         port = cfg.network.port or free_port(cfg.network.host)
         cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
         sitl = cfg.mocap is not None and cfg.mocap.type == "sitl"
         if sitl:
             cfg = _with_sitl_port(cfg)
-        h = cls(cfg, out, run_id or f"{cfg.name}-{secrets.token_hex(3)}")
         out.mkdir(parents=True, exist_ok=True)
+        if cfg.network.access_control:
+            secrets = ensure_secrets(cfg, secrets or out / "secrets")
+        h = cls(cfg, out, run_id or f"{cfg.name}-{token_hex(3)}", secrets if cfg.network.access_control else None)
         (out / "logs").mkdir(exist_ok=True)
         cfg_path = out / "config.yaml"
         cfg_path.write_text(dump(cfg))
-        common = [str(cfg_path), "--run", h.run]
+        common = [str(cfg_path), "--run", h.run, *(["--secrets", str(h.secrets)] if h.secrets else [])]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
-        h._session = tp.open_session(tp.process_config(cfg, tp.Role.LAUNCHER))
+        h._session = tp.open_session(tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER)))
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
             h._start_sitl()
@@ -139,6 +159,10 @@ class RunHandle:
             h._stop_all()
             raise
         return h
+
+    def access(self, role: tp.Role, agent_id: str | None = None) -> tp.Access | None:
+        """The credentials of a process of this run (None: access control is off)."""
+        return None if self.secrets is None else tp.Access.of(self.cfg, self.run, role, self.secrets, agent_id)
 
     def _start_sitl(self) -> None:
         """Start the software-in-the-loop Crazyflies of the real agents and wait until each
@@ -233,7 +257,7 @@ class RunHandle:
             self.progress.t_s, self.progress.status = m.t, m.body
         ex = self.exited()
         if "world" in ex:
-            return "completed" if ex["world"] == 0 else f"world exited with {ex['world']}"
+            return "completed" if ex["world"] == 0 else self._cause("world", ex["world"])
         if "recorder" in ex:
             if ex["recorder"] == 0 and self.progress.status.get("done"):
                 # the world said done and the recorder finished its tail: the world is exiting
@@ -241,14 +265,23 @@ class RunHandle:
                     code = self.procs["world"].wait(30)
                 except subprocess.TimeoutExpired:
                     return "the world did not exit after it reported done"
-                return "completed" if code == 0 else f"world exited with {code}"
-            return f"recorder exited with {ex['recorder']}"
+                return "completed" if code == 0 else self._cause("world", code)
+            return self._cause("recorder", ex["recorder"]) + " (the run was stopped there)"
         dead = [n for n in ex if n.startswith("agent-")]
         if dead and not self.progress.status:  # before the world's first status: it could not start
             return f"{dead[0]} exited with {ex[dead[0]]} while starting: {self._last_line(dead[0])}"
         if dead and stop_on_agent_death:
             return f"{dead[0]} died"
         return None
+
+    def _cause(self, name: str, code: int) -> str:
+        """One line: which process ended the run, how, at what sim time, and its last word."""
+        try:
+            how = f"killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
+        except ValueError:  # not a signal Python knows
+            how = f"killed by signal {-code}"
+        at = f" at t = {self.progress.t_s:.2f} s" if self.progress.status else " before the first tick"
+        return f"{name} {how}{at}: {self._last_line(name)}"
 
     def _last_line(self, name: str) -> str:
         """The last line a process wrote to its log (why it stopped, as it said it)."""
@@ -297,7 +330,7 @@ class RunHandle:
                 self._wait_procs(["sitl"], 10.0)
         self._stop_all()
         self.reason = reason
-        self.metrics()
+        self.result = self.metrics()
         return reason
 
     def _stop_all(self) -> None:
@@ -315,19 +348,19 @@ class RunHandle:
             _signal_group(p, signal.SIGKILL)
 
     def metrics(self) -> dict[str, Any]:
+        """Write ``metrics.json`` from what the recording holds, whatever stopped the run
+        (``complete`` says whether it is the whole run)."""
         from tools.runfiles import write_metrics
 
-        if not (self.out / "run.mcap").exists():
-            return {}
+        codes = {n: p.returncode for n, p in self.procs.items()}
         try:
-            m = write_metrics(self.out)
-        except Exception as exc:  # a run cut short may leave a partial file
-            print(f"could not compute metrics: {exc}", file=sys.stderr)
-            return {}
-        m["stop_reason"] = self.reason
-        m["exit_codes"] = {n: p.returncode for n, p in self.procs.items()}
-        (self.out / "metrics.json").write_text(json.dumps(m, indent=2))
-        return m
+            return write_metrics(self.out, self.reason, exit_codes=codes)
+        except Exception as exc:  # the config or the recorder's file unreadable: still say why the run stopped
+            m = {"complete": False, "stop_reason": self.reason, "exit_codes": codes,
+                 "error": f"could not compute metrics: {type(exc).__name__}: {exc}"}  # fmt: skip
+            print(m["error"], file=sys.stderr)
+            (self.out / "metrics.json").write_text(json.dumps(m, indent=2))
+            return m
 
     def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
         """Send ``sig`` to one child's process group (fault injection)."""

@@ -155,6 +155,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     pub_clock = session.declare_publisher(keys.clock)
     pub_status = session.declare_publisher(keys.status)
     pub_coll = session.declare_publisher(keys.collision)
+    pub_stall = session.declare_publisher(keys.stall)
     others_alive: set[str] = set()
 
     # --- motion capture for the real drones: measurements at the capture rate --------
@@ -260,7 +261,10 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     status_every = max(1, round(cfg.time.control_hz / STATUS_HZ))
     sub = cfg.time.substeps
     lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-    collisions = 0
+    collisions = 0  # contacts among live agents' drones (and obstacles)
+    dead_contacts = 0  # contacts of a dead agent's drone (landing, or left to the firmware)
+    stalls = 0  # lockstep ticks that waited longer than stall_warn_s
+    stall_warn_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s
     touching: set[tuple[str, str]] = set()
     min_sep, min_clear, late = math.inf, math.inf, 0
     wall0 = time.monotonic()
@@ -327,7 +331,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 status = dict(
                     rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
                     collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
-                    infeasible=sum(sl.infeasible for sl in slots.values()),
+                    infeasible=sum(sl.infeasible for sl in slots.values()), stalls=stalls,
+                    dead=[a for a in names if slots[a].dead],
                 )  # fmt: skip
                 seq += 1
                 pub_status.put(encode("status", run, "world", seq, t, k, **status))
@@ -341,21 +346,34 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             t_pub_end = time.perf_counter()
             phase["publish"] += t_pub_end - t_phase
             if lockstep:
-                wait_until = time.monotonic() + cfg.time.lockstep_timeout_s
+                wait_from = time.monotonic()
+                wait_until = wait_from + cfg.time.lockstep_timeout_s
+                held: list[str] = []  # the agents still missing when the wait became a stall
                 while True:
                     poll_liveliness()
                     waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
                     if not waiting or stop:
                         break
-                    if time.monotonic() > wait_until:
+                    now = time.monotonic()
+                    if not held and now - wait_from > stall_warn_s:
+                        held = waiting
+                        print(f"world: tick {k} (t = {t:.2f} s) has waited {now - wait_from:.2f} s for {waiting}",
+                              file=sys.stderr)  # fmt: skip
+                    if now > wait_until:
                         late += len(waiting)
                         for a in waiting:
                             slots[a].sent_at.pop(k, None)
                         break
                     # wake once the missing commands can all be here (not on each one), at the
                     # latest after 20 ms to look at liveliness
-                    cmd_in.wait_for(len(waiting), min(wait_until, time.monotonic() + 0.02))
+                    cmd_in.wait_for(len(waiting), min(wait_until, now + 0.02))
                     poll_commands(k)
+                if held:
+                    stalls += 1
+                    waited = time.monotonic() - wait_from
+                    print(f"world: tick {k} stalled {waited:.2f} s on {held}", file=sys.stderr)
+                    seq += 1
+                    pub_stall.put(encode("stall", run, "world", seq, t, k, agents=held, wait_s=waited))
             t_wait_end = time.perf_counter()
             phase["wait"] += t_wait_end - t_pub_end
             for j in range(sub):
@@ -415,9 +433,13 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
                 sim.apply_rotors_all(flown, f_all, fs)
                 pairs = {p for p in sim.step() if "ground" not in p or _impact(p, index, ds.v_w)}
                 for pair in pairs - touching:
-                    collisions += 1
+                    dead = any(x in slots and slots[x].dead for x in pair)
+                    if dead:
+                        dead_contacts += 1
+                    else:
+                        collisions += 1
                     seq += 1
-                    pub_coll.put(encode("collision", run, "world", seq, sim.t_s, k, a=pair[0], b=pair[1]))
+                    pub_coll.put(encode("collision", run, "world", seq, sim.t_s, k, a=pair[0], b=pair[1], dead=dead))
                 touching = pairs
             phase["physics"] += time.perf_counter() - t_wait_end
             if not lockstep:
@@ -442,7 +464,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     lat = [x for s in slots.values() for x in s.latencies_s]
     answered = sum(s.answered for s in slots.values())
     summary = {
-        "ticks": k, "t_s": k * dt_ctrl, "collisions": collisions, "late": late,
+        "ticks": k, "t_s": k * dt_ctrl, "collisions": collisions, "dead_agent_contacts": dead_contacts,
+        "stalls": stalls, "late": late,
         "on_time_fraction": sum(s.on_time for s in slots.values()) / (answered + late) if answered + late else None,
         "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
         "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,

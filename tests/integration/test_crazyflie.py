@@ -26,7 +26,7 @@ from agents.crazyflie import thrust_command
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump, resolve
 from swarm.messages import decode, encode
-from tools.launch import free_port
+from tools.launch import ensure_secrets, free_port
 from tools.sitl_cf import SitlDrone as StandIn
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -47,9 +47,10 @@ def real_config(uri: str, port: int, **cf: object) -> ScenarioConfig:
 class FakeWorld:
     """The world's side of one agent: liveliness, clock and measurements at 100 Hz."""
 
-    def __init__(self, cfg: ScenarioConfig, run: str) -> None:
+    def __init__(self, cfg: ScenarioConfig, run: str, secrets: Path) -> None:
         self.cfg, self.run, self.keys = cfg, run, tp.Keys(run)
-        self.session = tp.open_session(tp.process_config(cfg, tp.Role.WORLD))
+        acc = tp.Access.of(cfg, run, tp.Role.WORLD, secrets)
+        self.session = tp.open_session(tp.process_config(cfg, tp.Role.WORLD, acc))
         self.token = tp.declare_liveliness(self.session, self.keys.alive("world"))
         self.pub_meas = self.session.declare_publisher(self.keys.measurement("cf1"))
         self.pub_clock = self.session.declare_publisher(self.keys.clock)
@@ -100,11 +101,12 @@ def rig(tmp_path):
         run = f"cf-{os.getpid()}-{len(made)}"
         path = tmp_path / f"cfg{len(made)}.yaml"
         path.write_text(dump(cfg))
-        world = FakeWorld(cfg, run)
+        secrets = ensure_secrets(cfg, tmp_path / f"secrets{len(made)}")  # as `swarm secrets` writes them
+        world = FakeWorld(cfg, run, secrets)
         log = open(tmp_path / f"agent{len(made)}.log", "wb")  # noqa: SIM115
         agent = subprocess.Popen(
             [sys.executable, "-m", "tools.cli", "agent", str(path), "--id", "cf1", "--run", run,
-             "--port", str(cfg.network.port)],
+             "--port", str(cfg.network.port), "--secrets", str(secrets)],
             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
         )  # fmt: skip
         made.append((standin, world, agent, log))

@@ -1,33 +1,142 @@
-"""A forged command from an outside session (issue 20's attack): a header naming another
-agent than its key, or a tick and time the world has not reached, with zero thrust. The
-world drops and counts both, and the victim flies on. (Who may publish on an agent's key
-at all is for Zenoh's access control, not yet set up: a plausible forged command on the
-victim's own key is still flown.)"""
+"""Forged commands (issue 20's attack) against real runs.
+
+* From the launcher's own session (allowed to publish anywhere in its run): a header naming
+  another agent than its key, or a tick and time the world has not reached, with zero
+  thrust. The world drops and counts both, and the victim flies on.
+* From a session without the run's credentials: it cannot link to any process, so it
+  neither hears the run nor reaches it.
+* From a session with another agent's credentials (a compromised or buggy agent), a
+  plausible command (the victim's id, the next tick, its time): Zenoh's access control at
+  the world refuses it, and the victim's flight is the same, to the bit, as a run without
+  the attack (lockstep). With access control off, the same attack brings the victim down:
+  the test can fail.
+"""
 
 from __future__ import annotations
 
 import json
+import threading
+import time
 
 import numpy as np
 
-from swarm.messages import encode
+from swarm import transport as tp
+from swarm.messages import decode, encode
+from tools.launch import RunHandle
 
 from .conftest import scenario
+
+ZERO_THRUST = dict(level="attitude", u=np.array([0.0, 0.0, 0.0, 0.0]), intervention=0.0, status="ok", solve_us=0.0,
+                   row_ids=[], h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
 
 
 def test_forged_commands_are_dropped_and_the_victim_flies_on(start_run):
     h = start_run(scenario("swap_2.yaml"), "forged")
     h.wait_sim_time(1.0)
-    body = dict(level="attitude", u=np.array([0.0, 0.0, 0.0, 0.0]), intervention=0.0, status="ok", solve_us=0.0,
-                row_ids=[], h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
     evil = h.session.declare_publisher(f"swarm/{h.run}/agent/evil/command")
     own = h.session.declare_publisher(f"swarm/{h.run}/agent/cf1/command")
     for i in range(5):
-        evil.put(encode("command", h.run, "cf1", 10**9 + i, 1.2, 120, **body))  # header says cf1, key says evil
-        own.put(encode("command", h.run, "cf1", 10**9 + i, 1e9, 10**9, **body))  # a tick from the far future
+        evil.put(encode("command", h.run, "cf1", 10**9 + i, 1.2, 120, **ZERO_THRUST))  # header cf1, key evil
+        own.put(encode("command", h.run, "cf1", 10**9 + i, 1e9, 10**9, **ZERO_THRUST))  # a tick from the far future
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["all_reached_goal"], m
     assert m["agents"]["cf1"]["path_length_m"] > 3.5  # it flew its swap, never brought down
     log = (h.out / "logs" / "world.log").read_text()
     assert "sender is not its key's agent" in log or m["dropped_messages"] >= 10, log[-2000:]
+
+
+class Attacker:
+    """A session that answers every clock of the run with a zero-thrust command for
+    ``victim`` on the victim's own key, for the next tick at its exact time: the most
+    plausible forgery there is."""
+
+    def __init__(self, h: RunHandle, conf, victim: str) -> None:  # noqa: ANN001
+        self.h, self.victim = h, victim
+        self.session = tp.open_session(conf)
+        keys = tp.Keys(h.run)
+        self.clock = tp.open_channel(self.session, keys.clock)
+        self.pub = self.session.declare_publisher(keys.command(victim))
+        self.heard = self.sent = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        dt = 1.0 / self.h.cfg.time.control_hz
+        while not self._stop.is_set():
+            s = tp.wait_sample(self.clock, time.monotonic() + 0.05)
+            if s is None:
+                continue
+            self.heard += 1
+            k = decode(tp.payload(s), self.h.run, ("clock",), ("done",)).k
+            self.pub.put(encode("command", self.h.run, self.victim, 10**6 + k, (k + 1) * dt, k + 1, **ZERO_THRUST))
+            self.sent += 1
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.session.close()
+
+
+def _attacked(start_run, name: str, access_control: bool, credentials_of: str | None) -> tuple[dict, Attacker]:  # noqa: ANN001
+    cfg = scenario("swap_2.yaml", name=name, network={"access_control": access_control})
+    h = start_run(cfg, name)
+    acc = h.access(tp.Role.AGENT, credentials_of) if credentials_of else None
+    attacker = Attacker(h, tp.process_config(h.cfg, tp.Role.OBSERVER, acc), "cf1")
+    try:
+        assert h.wait() == "completed"
+    finally:
+        attacker.stop()
+    return json.loads((h.out / "metrics.json").read_text()), attacker
+
+
+def test_another_agents_credentials_cannot_command_a_drone(start_run):
+    clean = start_run(scenario("swap_2.yaml", name="clean"), "clean")
+    assert clean.wait() == "completed"
+    ref = json.loads((clean.out / "metrics.json").read_text())
+
+    m, attacker = _attacked(start_run, "acl", True, "cf2")
+    assert attacker.heard > 50 and attacker.sent > 50  # it is in the run: it hears the clock and publishes
+    assert m["collisions"] == 0 and m["all_reached_goal"]
+    for key in ("path_length_m", "min_h", "time_to_goal_s", "max_path_deviation_m"):
+        assert m["agents"]["cf1"][key] == ref["agents"]["cf1"][key], key  # not one forged command was flown
+
+    # the same attack without access control: the forged commands are flown and cf1 is brought down
+    m, attacker = _attacked(start_run, "open", False, None)
+    assert attacker.sent > 50
+    assert not m["agents"]["cf1"]["reached_goal"] or m["agents"]["cf1"]["path_length_m"] != ref["agents"]["cf1"][
+        "path_length_m"
+    ]  # fmt: skip
+
+
+def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_run):
+    # realtime: the run lasts while the outsiders try (a lockstep swap_2 is over in under a second)
+    cfg = scenario("swap_2.yaml", name="outsider", time={"mode": "realtime", "late_command": "brake"})
+    h = start_run(cfg, "outsider")
+    h.wait_sim_time(0.5)
+    wrong = tp.Access(h.run, "agent-cf2", h.out / "wrong", tuple(a.id for a in cfg.agents))
+    (h.out / "wrong").mkdir(mode=0o700)
+    (h.out / "wrong" / "users.txt").write_text("agent-cf2:not-the-password\n")
+    (h.out / "wrong" / "users.txt").chmod(0o600)
+    outsiders = []
+    for acc in (None, wrong):  # no credentials at all; a wrong password
+        s = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc))
+        sub = tp.open_channel(s, f"swarm/{h.run}/**")
+        pub = s.declare_publisher(tp.Keys(h.run).command("cf1"))
+        outsiders.append((s, sub, pub))
+    puts = 0
+    for _ in range(20):  # on each of 20 world status messages (about 2 s of the run)
+        h.wait_sim_time(h.progress.t_s + 0.02)
+        for _s, _sub, pub in outsiders:
+            pub.put(encode("command", h.run, "cf1", 1, h.progress.t_s, int(h.progress.t_s * 100), **ZERO_THRUST))
+        puts += 1
+    assert h.wait() == "completed"
+    own = tp.Keys(h.run).command("cf1")
+    for s, sub, _pub in outsiders:
+        assert list(s.info.peers_zid()) == []  # no process of the run let it link
+        heard = [str(x.key_expr) for x in tp.drain(sub)]
+        assert heard == [own] * puts  # its own puts (a session hears itself), nothing of the run
+        s.close()
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["all_reached_goal"] and m["collisions"] == 0

@@ -203,16 +203,18 @@ def _processes_mentioning(text: str) -> list[int]:
 def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
     from swarm import transport as tp
     from swarm.config import dump, load
-    from tools.launch import free_port
+    from tools.launch import ensure_secrets, free_port
 
     out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
     cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
-    session = tp.open_session(tp.process_config(cfg, tp.Role.OBSERVER))
+    secrets = ensure_secrets(cfg, tmp_path / "secrets")  # the run's credentials, so that this test may listen
+    session = tp.open_session(tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER,
+                                                                                   secrets)))  # fmt: skip
     status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
         [sys.executable, "-m", "tools.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
-         "--no-progress", "--run-id", run_id],
+         "--no-progress", "--run-id", run_id, "--secrets", str(secrets)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
     )  # fmt: skip
     try:

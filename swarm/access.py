@@ -1,0 +1,179 @@
+"""Who may do what in a run: per-run credentials and Zenoh access-control rules.
+
+Zenoh does the enforcing (its user-password authentication and its access control, see
+https://zenoh.io/docs/manual/access-control/); this module only says what to enforce:
+
+* every process of a run authenticates with its own user name and a random password of
+  that run (``secrets/users.txt``, readable by the run's owner alone); a session without
+  them cannot link to any process of the run, so it can neither publish nor subscribe;
+* every session checks each message it receives (ingress): nothing outside the run's
+  keys, and a command for agent ``cf4`` (``swarm/<run>/agent/cf4/command``) only from
+  ``cf4`` itself or the launcher (the user's own ``swarm run``); see :func:`acl` for
+  what Zenoh can and cannot check on which side of a link.
+
+Over TCP the credentials cross the wire in Zenoh's challenge-response, never the
+password itself; between machines use ``network.tls`` as well (encryption and server
+authentication by certificate).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import stat
+from pathlib import Path
+from typing import Any
+
+USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
+LAUNCHER, WORLD, RECORDER, OBSERVER = "launcher", "world", "recorder", "observer"
+
+
+def agent_user(agent_id: str) -> str:
+    """The user name of agent ``agent_id`` (prefixed: an agent may be called ``world``)."""
+    return f"agent-{agent_id}"
+
+
+def run_users(agent_ids: list[str]) -> list[str]:
+    return [LAUNCHER, WORLD, RECORDER, OBSERVER, *(agent_user(a) for a in agent_ids)]
+
+
+def make_secrets(folder: Path, agent_ids: list[str]) -> Path:
+    """Write a fresh password for every process of a run into ``folder/users.txt``
+    (``folder`` mode 0700, the file 0600) and return the folder."""
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    os.chmod(folder, 0o700)
+    path = folder / USERS_FILE
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        for user in run_users(agent_ids):
+            f.write(f"{user}:{secrets.token_urlsafe(24)}\n")
+    return folder
+
+
+class SecretsError(RuntimeError):
+    """The run's credentials are missing, unreadable or open to other users."""
+
+
+def password(folder: Path, user: str) -> str:
+    """``user``'s password from ``folder/users.txt``; refuses a file others may read."""
+    path = folder / USERS_FILE
+    try:
+        mode = path.stat().st_mode
+        text = path.read_text()
+    except OSError as exc:
+        raise SecretsError(f"{path}: cannot read the run's credentials ({exc.strerror})") from None
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise SecretsError(f"{path}: readable by other users (mode {stat.filemode(mode)}); it must be 0600")
+    for line in text.splitlines():
+        name, _, pw = line.partition(":")
+        if name == user and pw:
+            return pw
+    raise SecretsError(f"{path}: no credentials for {user!r}")
+
+
+def acl(run: str, agent_ids: list[str], flies_commands: bool) -> dict[str, Any]:
+    """Zenoh's ``access_control`` section of one process of a run.
+
+    Deny by default. Anyone linked may subscribe and query in the run, and publish the
+    world's messages, the agents' states and liveliness tokens. In the process that
+    ``flies_commands`` (the world) only agent ``X`` and the launcher may publish under
+    ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
+    any linked session may.
+
+    The split follows what Zenoh's user-password authentication can know: the side that
+    accepts a link learns who connected, the side that opened it does not (it chose whom to
+    connect to: the world's endpoint, or a peer the run's gossip named), and which side of
+    two gossiping peers opens their link is Zenoh's choice. The world accepts every
+    agent's link (each agent connects to it), so its command rules always hold; every
+    other message needs the run's credentials to be sent at all."""
+    root = f"swarm/{run}"
+    listen = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query", "declare_queryable",
+              "reply"]  # fmt: skip
+    publish = ["put", "delete", "liveliness_token"]
+    shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/alive/*"]
+    if not flies_commands:
+        shared.append(f"{root}/agent/*/command")
+    rules: list[dict[str, Any]] = [
+        {
+            "id": "send",
+            "permission": "allow",
+            "flows": ["egress"],
+            "messages": [*listen, *publish],
+            "key_exprs": [f"{root}/**"],
+        },  # fmt: skip
+        {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": listen, "key_exprs": [f"{root}/**"]},
+        {"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish, "key_exprs": shared},
+        {
+            "id": LAUNCHER,
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": publish,
+            "key_exprs": [f"{root}/**"],
+        },  # fmt: skip
+    ]
+    # a subject with no property is any linked session (both ends of every link)
+    subjects: list[dict[str, Any]] = [{"id": "anyone"}, {"id": LAUNCHER, "usernames": [LAUNCHER]}]
+    policies: list[dict[str, Any]] = [
+        {"rules": ["send", "listen", "shared"], "subjects": ["anyone"]},
+        {"rules": [LAUNCHER], "subjects": [LAUNCHER]},
+    ]
+    for a in agent_ids:
+        u = agent_user(a)
+        rules.append({"id": u, "permission": "allow", "flows": ["ingress"], "messages": publish,
+                      "key_exprs": [f"{root}/agent/{a}/**"]})  # fmt: skip
+        subjects.append({"id": u, "usernames": [u]})
+        policies.append({"rules": [u], "subjects": [u]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def make_tls(folder: Path, hosts: list[str], days: int = 30) -> None:
+    """A certificate authority of its own and one certificate it signs, naming ``hosts``
+    (IP addresses or DNS names), in ``folder``: ``ca.pem``, ``cert.pem``, ``key.pem``
+    (the key 0600). Every process of the run uses the one certificate to listen and to
+    connect (mutual TLS), and trusts only this authority."""
+    import datetime
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    now = datetime.datetime.now(datetime.UTC)
+    until = now + datetime.timedelta(days=days)
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "c3swarm run CA")])
+    ca = (
+        x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name).public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number()).not_valid_before(now).not_valid_after(until)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
+                                     content_commitment=False, key_encipherment=False, data_encipherment=False,
+                                     key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
+        .sign(ca_key, hashes.SHA256())
+    )  # fmt: skip
+    names: list[x509.GeneralName] = []
+    for h in dict.fromkeys([*hosts, "localhost", "127.0.0.1"]):
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(h)))
+        except ValueError:
+            names.append(x509.DNSName(h))
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "c3swarm")]))
+        .issuer_name(ca_name).public_key(key.public_key()).serial_number(x509.random_serial_number())
+        .not_valid_before(now).not_valid_after(until)
+        .add_extension(x509.SubjectAlternativeName(names), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                       critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )  # fmt: skip
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    (folder / "cert.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    fd = os.open(folder / "key.pem", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                  serialization.NoEncryption()))  # fmt: skip

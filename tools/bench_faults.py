@@ -1,0 +1,234 @@
+"""Fault benchmark: one real run per fault, injected at t = 2 s of a swarm on a collision
+course (a 2-drone swap with a third drone crossing it). Prints one JSON line per case:
+how long the fault took to be seen, and what the run did.
+
+    python -m tools.bench_faults                  # every case (about 2 min on 2 cores)
+    python -m tools.bench_faults --case recorder_kill --mode realtime
+
+Keys (stable): case, mode, detected_ms (fault to the first sign the system saw it: the
+world's log line, the launcher's stop; null where nothing is to be seen), outcome (one
+line), stop_reason, complete, collisions, dead_agent_contacts, stalls, lost_agents,
+reached (agents at their goal), sent (forgeries sent; null for other cases) and
+victim_unaffected (forgeries: lockstep, the victim's path is the one of a run without the
+attack to the bit; realtime, it reached its goal without contact).
+
+Cases: agent_kill, agent_stop (SIGSTOP for 3 s, then SIGCONT), recorder_kill, world_kill,
+world_stop (1 s), forged_command (another agent's credentials, the victim's next tick),
+outsider (no credentials), bad_config (the slowest refusal over the malformed configs of
+the tests).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm import transport as tp
+from swarm.config import ScenarioConfig, load
+from swarm.messages import decode, encode
+from tools.launch import RunHandle
+
+ROOT = Path(__file__).resolve().parents[1]
+FAULT_AT_S = 2.0
+AGENTS = [
+    {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+    {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
+    {"id": "cf3", "start": [2.0, 2.0, 1.0], "goal": [2.0, -2.0, 1.0], "speed_mps": 0.5},
+]
+ZERO = dict(level="attitude", u=np.zeros(4), intervention=0.0, status="ok", solve_us=0.0, row_ids=[],
+            h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
+
+
+def _config(mode: str, **over: Any) -> ScenarioConfig:
+    base = {"name": "faults", "duration_s": 10.0, "agents": AGENTS, "time": {"mode": mode, "late_command": "brake"}}
+    return load(ROOT / "configs" / "swap_2.yaml", {**base, **over})
+
+
+def _log_time(path: Path, pattern: str, since: float, timeout_s: float = 10.0) -> float | None:
+    """Wall time [s] when ``pattern`` first appears in ``path`` (polled every 5 ms)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and re.search(pattern, path.read_text(errors="replace")):
+            return time.time() - since
+        time.sleep(0.005)
+    return None
+
+
+def _summary(case: str, cfg: ScenarioConfig, h: RunHandle, detected_s: float | None, outcome: str,
+             **extra: Any) -> dict[str, Any]:  # fmt: skip
+    m = h.result
+    return {
+        "case": case, "mode": cfg.time.mode.value,
+        "detected_ms": None if detected_s is None else round(detected_s * 1e3, 1), "outcome": outcome,
+        "stop_reason": m.get("stop_reason"), "complete": m.get("complete"), "collisions": m.get("collisions"),
+        "dead_agent_contacts": m.get("dead_agent_contacts"), "stalls": m.get("stalls"),
+        "lost_agents": m.get("lost_agents"),
+        "reached": sorted(a for a, v in m.get("agents", {}).items() if v["reached_goal"]), "sent": None,
+        "victim_unaffected": None, **extra,
+    }  # fmt: skip
+
+
+def agent_kill(out: Path, mode: str) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    h.wait_sim_time(FAULT_AT_S)
+    t0 = time.time()
+    h.kill("agent-cf3", signal.SIGKILL)
+    seen = _log_time(h.out / "logs" / "world.log", r"agent cf3 gone", t0)
+    h.wait()
+    return _summary("agent_kill", cfg, h, seen, "the world lands cf3's drone; cf1 and cf2 fly on")
+
+
+def agent_stop(out: Path, mode: str) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    h.wait_sim_time(FAULT_AT_S)
+    t0 = time.time()
+    h.kill("agent-cf3", signal.SIGSTOP)
+    pattern = r"has waited [0-9.]+ s for \['cf3'\]" if mode == "lockstep" else r"$^"
+    seen = _log_time(h.out / "logs" / "world.log", pattern, t0, 3.0) if mode == "lockstep" else None
+    time.sleep(max(0.0, 3.0 - (time.time() - t0)))  # the fault: 3 s stopped
+    h.kill("agent-cf3", signal.SIGCONT)
+    h.wait()
+    what = "the world waits, logs the stall, and goes on" if mode == "lockstep" else "cf3's drone brakes"
+    return _summary("agent_stop", cfg, h, seen, what)
+
+
+def recorder_kill(out: Path, mode: str) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    h.wait_sim_time(FAULT_AT_S)
+    t0 = time.time()
+    h.kill("recorder", signal.SIGKILL)
+    while (reason := h.poll(wait_s=0.002)) is None:
+        pass
+    seen = time.time() - t0
+    h.finish(reason)
+    rec = h.result.get("recording", {})
+    return _summary("recorder_kill", cfg, h, seen, f"run stopped; metrics from the cut file, up to t = "
+                    f"{rec.get('recorded_until_s')} s", recorded_until_s=rec.get("recorded_until_s"))  # fmt: skip
+
+
+def world_kill(out: Path, mode: str) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    h.wait_sim_time(FAULT_AT_S)
+    t0 = time.time()
+    h.kill("world", signal.SIGKILL)
+    while (reason := h.poll(wait_s=0.002)) is None:
+        pass
+    seen = time.time() - t0
+    h.finish(reason)
+    return _summary("world_kill", cfg, h, seen, "run stopped with the cause in one line")
+
+
+def world_stop(out: Path, mode: str) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    h.wait_sim_time(FAULT_AT_S)
+    h.kill("world", signal.SIGSTOP)
+    time.sleep(1.0)  # the fault: the world frozen for 1 s
+    h.kill("world", signal.SIGCONT)
+    h.wait()
+    return _summary("world_stop", cfg, h, None, "the world resumes; agents wait for its next tick")
+
+
+def _attack(out: Path, mode: str, case: str, credentials_of: str | None) -> dict[str, Any]:
+    cfg = _config(mode)
+    h = RunHandle.start(cfg, out)
+    acc = h.access(tp.Role.AGENT, credentials_of) if credentials_of else None
+    session = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc))
+    clock = tp.open_channel(session, tp.Keys(h.run).clock)
+    pub = session.declare_publisher(tp.Keys(h.run).command("cf1"))
+    sent, heard = 0, 0
+    dt = 1.0 / cfg.time.control_hz
+    stop = threading.Event()
+
+    def attack() -> None:
+        nonlocal sent, heard
+        while not stop.is_set():
+            s = tp.wait_sample(clock, time.monotonic() + 0.05)
+            k = decode(tp.payload(s), h.run, ("clock",), ("done",)).k if s is not None else int(h.progress.t_s / dt)
+            heard += s is not None
+            pub.put(encode("command", h.run, "cf1", 10**6 + k, (k + 1) * dt, k + 1, **ZERO))
+            sent += 1
+
+    th = threading.Thread(target=attack, daemon=True)
+    th.start()
+    h.wait()
+    stop.set()
+    th.join(5.0)
+    linked = len(list(session.info.peers_zid()))
+    session.close()
+    res = _summary(case, cfg, h, None, f"zero-thrust commands for cf1's next tick; heard {heard} clocks; "
+                   f"linked to {linked} processes")  # fmt: skip
+    res["sent"] = sent
+    victim = h.result["agents"]["cf1"]
+    if mode == "lockstep":
+        clean = RunHandle.start(cfg, out.with_name(out.name + "-clean"))
+        clean.wait()
+        ref = clean.result["agents"]["cf1"]
+        same = ("path_length_m", "min_h", "time_to_goal_s", "max_path_deviation_m")  # not the solve times
+        res["victim_unaffected"] = all(victim[k] == ref[k] for k in same)
+    else:
+        res["victim_unaffected"] = bool(victim["reached_goal"] and h.result["collisions"] == 0)
+    return res
+
+
+def forged_command(out: Path, mode: str) -> dict[str, Any]:
+    return _attack(out, mode, "forged_command", "cf2")
+
+
+def outsider(out: Path, mode: str) -> dict[str, Any]:
+    return _attack(out, mode, "outsider", None)
+
+
+def bad_config(out: Path, mode: str) -> dict[str, Any]:
+    from tests.test_config_faults import _write_bad_files  # the malformed configs the tests refuse
+
+    out.mkdir(parents=True, exist_ok=True)
+    slowest, codes = 0.0, set()
+    for _case, (path, _needle) in _write_bad_files(out).items():
+        t0 = time.monotonic()
+        p = subprocess.run([sys.executable, "-m", "tools.cli", "run", str(path), "--out", str(out / "never")],
+                           capture_output=True, timeout=60, cwd=ROOT)  # fmt: skip
+        slowest = max(slowest, time.monotonic() - t0)
+        codes.add(p.returncode)
+    return {"case": "bad_config", "mode": mode, "detected_ms": round(slowest * 1e3, 1),
+            "outcome": f"every one refused with exit {sorted(codes)}, nothing started", "stop_reason": None,
+            "complete": None, "collisions": None, "dead_agent_contacts": None, "stalls": None, "lost_agents": None,
+            "reached": None, "sent": None, "victim_unaffected": None}  # fmt: skip
+
+
+CASES: dict[str, Callable[[Path, str], dict[str, Any]]] = {
+    f.__name__: f
+    for f in (agent_kill, agent_stop, recorder_kill, world_kill, world_stop, forged_command, outsider, bad_config)
+}
+
+
+def main(cases: list[str], modes: list[str], out: Path) -> None:
+    for case in cases:
+        for mode in modes:
+            print(json.dumps(CASES[case](out / f"{case}-{mode}", mode)), flush=True)
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--case", action="append", choices=sorted(CASES), help="default: every case")
+    ap.add_argument("--mode", action="append", choices=["lockstep", "realtime"], help="default: both")
+    ap.add_argument("--out", type=Path, default=None, help="run folders (default: a temporary folder)")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        main(args.case or list(CASES), args.mode or ["lockstep", "realtime"], args.out or Path(tmp))

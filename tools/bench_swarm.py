@@ -1,7 +1,7 @@
 """Benchmark of whole swarms as real processes, printed as JSON lines.
 
     python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 10]
-        [--sources agents,world] [--topology auto|mesh|star]
+        [--sources agents,world] [--topology auto|mesh|star] [--access-control on|off]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
@@ -39,13 +39,14 @@ def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
 
 
 def bench_one(
-    n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents", topology: str = "auto"
-) -> dict:
+    n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents", topology: str = "auto",
+    access_control: bool = True,
+) -> dict:  # fmt: skip
     settings = SwapSettings(rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
                             mode=mode, neighbours=source)  # fmt: skip
     raw = circle_swap(n, max(2.0, 0.35 * n), settings, name=f"bench_{n}_{mode}")
     raw["stop_when_all_reached"] = False
-    raw["network"] = {"topology": topology}
+    raw["network"] = {"topology": topology, "access_control": access_control}
     cfg = resolve(raw, f"circle_{n}")
     h = RunHandle.start(cfg, out / f"circle_{n}_{mode}_{source}_{cfg.topology}")
     reason = h.wait()
@@ -55,7 +56,7 @@ def bench_one(
     cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
     return {
         "agents": n, "mode": mode, "rate_hz": rate_hz, "neighbour_source": source,
-        "topology": cfg.topology,
+        "topology": cfg.topology, "access_control": access_control,
         "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
         "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
         "cpu_percent_per_agent": round(float(np.mean(cpu)), 1),
@@ -76,12 +77,15 @@ def main() -> None:
     ap.add_argument("--sources", default="agents,world", help="neighbour sources (see NeighbourSettings)")
     ap.add_argument("--topology", default="auto", choices=["auto", "mesh", "star"],
                     help="which processes link to which (see NetworkSettings.topology)")  # fmt: skip
+    ap.add_argument("--access-control", choices=["on", "off"], default="on",
+                    help="Zenoh authentication and access control (network.access_control)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
     args = ap.parse_args()
     for n in (int(x) for x in args.agents.split(",")):
         for mode in args.modes.split(","):
             for source in args.sources.split(","):
-                row = bench_one(n, mode, args.rate, args.seconds, args.out, source, args.topology)
+                row = bench_one(n, mode, args.rate, args.seconds, args.out, source, args.topology,
+                                args.access_control == "on")  # fmt: skip
                 print(json.dumps(row), flush=True)
 
 

@@ -281,16 +281,23 @@ class RunHandle:
         except ValueError:  # not a signal Python knows
             how = f"killed by signal {-code}"
         at = f" at t = {self.progress.t_s:.2f} s" if self.progress.status else " before the first tick"
-        return f"{name} {how}{at}: {self._last_line(name)}"
+        said = self._own_line(name)
+        return f"{name} {how}{at}" + (f": {said}" if said else "")
+
+    def _log_lines(self, name: str) -> list[str]:
+        try:
+            return (self.out / "logs" / f"{name}.log").read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return []
+
+    def _own_line(self, name: str) -> str | None:
+        """The last line a process wrote about itself ("agent cf1: ..."), or None."""
+        own = [ln for ln in self._log_lines(name) if ln.startswith(name.replace("-", " ", 1) + ":")]
+        return own[-1] if own else None
 
     def _last_line(self, name: str) -> str:
-        """The last line a process wrote to its log (why it stopped, as it said it)."""
-        try:
-            lines = (self.out / "logs" / f"{name}.log").read_text(errors="replace").strip().splitlines()
-        except OSError:
-            return "(no log)"
-        own = [ln for ln in lines if ln.startswith(name.replace("-", " ", 1) + ":")]  # "agent cf1: ..."
-        return (own or lines or ["(empty log)"])[-1]
+        """Why a process stopped, as it said it: its own last line, else its log's last line."""
+        return self._own_line(name) or (self._log_lines(name) or ["(empty log)"])[-1]
 
     def wait_sim_time(self, t_s: float, timeout_s: float = 120.0) -> None:
         """Block until a world status message reports sim time ``t_s`` [s] or later;

@@ -140,3 +140,39 @@ def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_
         s.close()
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["all_reached_goal"] and m["collisions"] == 0
+
+
+def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_path):
+    from swarm import access
+
+    cfg = scenario("swap_2.yaml", name="tls", network={"tls": {"enabled": True}},
+                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    h = start_run(cfg, "tls")
+    h.wait_sim_time(0.5)
+    assert h.secrets is not None and (h.secrets / "ca.pem").exists()
+    acc = h.access(tp.Role.OBSERVER)
+    plain = h.cfg.model_copy(update={"network": h.cfg.network.model_copy(update={"tls": type(h.cfg.network.tls)()})})
+    other_ca = tmp_path / "other"
+    access.make_tls(other_ca, ["127.0.0.1"])
+    for f in ("ca.pem", "cert.pem", "key.pem"):
+        assert (other_ca / f).exists()
+    users = (h.secrets / "users.txt").read_bytes()
+    (other_ca / "users.txt").write_bytes(users)
+    (other_ca / "users.txt").chmod(0o600)
+    stranger = tp.Access(h.run, "observer", other_ca, acc.agent_ids)  # the right password, another authority
+    sessions = {
+        "tls": tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc)),
+        "plain tcp": tp.open_session(tp.process_config(plain, tp.Role.OBSERVER, acc)),
+        "another CA": tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, stranger)),
+    }
+    subs = {n: tp.open_channel(s, tp.Keys(h.run).status) for n, s in sessions.items()}
+    first = tp.wait_sample(subs["tls"], time.monotonic() + 30.0)
+    assert first is not None  # the run's own certificates and credentials: it hears the run
+    assert h.wait() == "completed"
+    for name in ("plain tcp", "another CA"):
+        assert list(sessions[name].info.peers_zid()) == [], name
+        assert subs[name].try_recv() is None, name
+    for s in sessions.values():
+        s.close()
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["all_reached_goal"] and m["collisions"] == 0

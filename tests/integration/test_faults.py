@@ -9,6 +9,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from swarm.metrics import compute
@@ -118,3 +119,29 @@ def test_a_dead_agents_falling_drone_is_counted_apart_from_collisions(start_run)
     assert m["collisions"] == 0, m["collision_pairs"]
     assert m["dead_agent_contacts"] >= 1 and m["dead_agent_contact_pairs"] == ["cf3|ground"], m
     assert m["agents"]["cf1"]["reached_goal"] and m["agents"]["cf2"]["reached_goal"]
+
+
+def _stopped_for(h, name: str, wall_s: float) -> None:  # noqa: ANN001
+    """SIGSTOP ``name`` for ``wall_s`` of wall time, then SIGCONT (the fault is the pause)."""
+    h.kill(name, signal.SIGSTOP)
+    try:
+        time.sleep(wall_s)
+    finally:
+        h.kill(name, signal.SIGCONT)
+
+
+def test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing(start_run):
+    cfg = scenario("swap_2.yaml", name="pause", duration_s=8.0, agents=THREE)
+    clean = start_run(cfg, "clean")
+    assert clean.wait() == "completed"
+    ref = _metrics(clean.out)
+    for name in ("world", "recorder"):
+        h = start_run(cfg, f"{name}-stopped")
+        h.wait_sim_time(2.0)
+        _stopped_for(h, name, 1.0)
+        assert h.wait() == "completed", name
+        m = _metrics(h.out)
+        assert m["complete"] is True and m["lost_agents"] == [] and m["collisions"] == 0, (name, m)
+        for a in ("cf1", "cf2", "cf3"):  # lockstep: the same flight, to the bit, and the whole of it recorded
+            for key in ("path_length_m", "min_h", "time_to_goal_s"):
+                assert m["agents"][a][key] == ref["agents"][a][key], (name, a, key)

@@ -71,28 +71,28 @@ def password(folder: Path, user: str) -> str:
     raise SecretsError(f"{path}: no credentials for {user!r}")
 
 
-def acl(run: str, agent_ids: list[str], flies_commands: bool) -> dict[str, Any]:
-    """Zenoh's ``access_control`` section of one process of a run.
+def acl(run: str, agent_ids: list[str], flies_commands: bool, identified: bool = False) -> dict[str, Any]:
+    """Zenoh's ``access_control`` section of one process of a run. Deny by default; anyone
+    linked may subscribe and query in the run; the launcher may publish anywhere in it.
 
-    Deny by default. Anyone linked may subscribe and query in the run, and publish the
-    world's messages, the agents' states and liveliness tokens. In the process that
-    ``flies_commands`` (the world) only agent ``X`` and the launcher may publish under
+    ``identified`` (mutual TLS with a certificate per process, :func:`make_tls`): both ends
+    of every link know who the other is, so every process accepts from each sender only
+    its own keys: the world ``world/**``, agent ``X`` ``agent/X/**``, each process its own
+    liveliness token.
+
+    Otherwise (user-password authentication alone) the side that accepts a link learns who
+    connected, but the side that opened it does not (it chose whom to connect to: the
+    world's endpoint, or a peer the run's gossip named), and which of two gossiping peers
+    opens their link is Zenoh's choice. So anyone linked may publish the world's messages,
+    the agents' states and liveliness tokens; in the process that ``flies_commands`` (the
+    world, which accepts every agent's link) only agent ``X`` may publish under
     ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
-    any linked session may.
-
-    The split follows what Zenoh's user-password authentication can know: the side that
-    accepts a link learns who connected, the side that opened it does not (it chose whom to
-    connect to: the world's endpoint, or a peer the run's gossip named), and which side of
-    two gossiping peers opens their link is Zenoh's choice. The world accepts every
-    agent's link (each agent connects to it), so its command rules always hold; every
-    other message needs the run's credentials to be sent at all."""
+    any linked session may."""
     root = f"swarm/{run}"
     listen = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query", "declare_queryable",
               "reply"]  # fmt: skip
     publish = ["put", "delete", "liveliness_token"]
-    shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/alive/*"]
-    if not flies_commands:
-        shared.append(f"{root}/agent/*/command")
+    who = "cert_common_names" if identified else "usernames"
     rules: list[dict[str, Any]] = [
         {
             "id": "send",
@@ -102,42 +102,46 @@ def acl(run: str, agent_ids: list[str], flies_commands: bool) -> dict[str, Any]:
             "key_exprs": [f"{root}/**"],
         },  # fmt: skip
         {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": listen, "key_exprs": [f"{root}/**"]},
-        {"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish, "key_exprs": shared},
-        {
-            "id": LAUNCHER,
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": publish,
-            "key_exprs": [f"{root}/**"],
-        },  # fmt: skip
     ]
     # a subject with no property is any linked session (both ends of every link)
-    subjects: list[dict[str, Any]] = [{"id": "anyone"}, {"id": LAUNCHER, "usernames": [LAUNCHER]}]
-    policies: list[dict[str, Any]] = [
-        {"rules": ["send", "listen", "shared"], "subjects": ["anyone"]},
-        {"rules": [LAUNCHER], "subjects": [LAUNCHER]},
-    ]
-    for a in agent_ids:
-        u = agent_user(a)
-        rules.append({"id": u, "permission": "allow", "flows": ["ingress"], "messages": publish,
-                      "key_exprs": [f"{root}/agent/{a}/**"]})  # fmt: skip
-        subjects.append({"id": u, "usernames": [u]})
-        policies.append({"rules": [u], "subjects": [u]})
+    subjects: list[dict[str, Any]] = [{"id": "anyone"}]
+    policies: list[dict[str, Any]] = [{"rules": ["send", "listen"], "subjects": ["anyone"]}]
+    own = {LAUNCHER: [f"{root}/**"], **{agent_user(a): [f"{root}/agent/{a}/**"] for a in agent_ids}}
+    if identified:
+        own |= {WORLD: [f"{root}/world/**", f"{root}/alive/world"], RECORDER: [f"{root}/alive/recorder"]}
+        own |= {agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}"] for a in agent_ids}
+    else:
+        shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/alive/*"]
+        if not flies_commands:
+            shared.append(f"{root}/agent/*/command")
+        rules.append({"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish,
+                      "key_exprs": shared})  # fmt: skip
+        policies[0]["rules"].append("shared")
+    for user, keys in own.items():
+        rules.append({"id": user, "permission": "allow", "flows": ["ingress"], "messages": publish, "key_exprs": keys})
+        subjects.append({"id": user, who: [user]})
+        policies.append({"rules": [user], "subjects": [user]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def make_tls(folder: Path, hosts: list[str], days: int = 30) -> None:
-    """A certificate authority of its own and one certificate it signs, naming ``hosts``
-    (IP addresses or DNS names), in ``folder``: ``ca.pem``, ``cert.pem``, ``key.pem``
-    (the key 0600). Every process of the run uses the one certificate to listen and to
-    connect (mutual TLS), and trusts only this authority."""
+def cert_file(folder: Path, user: str) -> tuple[Path, Path]:
+    """(certificate, private key) of ``user`` in a run's secrets folder (``make_tls``)."""
+    return folder / "tls" / f"{user}.pem", folder / "tls" / f"{user}.key"
+
+
+def make_tls(folder: Path, hosts: list[str], users: list[str], days: int = 30) -> None:
+    """A certificate authority of the run's own (``folder/ca.pem``) and, for every user of
+    the run, a certificate it signs whose common name is the user's name and whose
+    subject names are ``hosts`` (IP addresses or DNS names), in ``folder/tls/`` (keys
+    0600). Each process listens and connects with its own certificate (mutual TLS), so
+    both ends of every link know who the other is, and the access-control rules can name
+    the sender of every message (:func:`acl` with ``identified``)."""
     import datetime
-    import ipaddress
 
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+    from cryptography.x509.oid import NameOID
 
     now = datetime.datetime.now(datetime.UTC)
     until = now + datetime.timedelta(days=days)
@@ -152,28 +156,44 @@ def make_tls(folder: Path, hosts: list[str], days: int = 30) -> None:
                                      key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
         .sign(ca_key, hashes.SHA256())
     )  # fmt: skip
-    names: list[x509.GeneralName] = []
+    (folder / "tls").mkdir(mode=0o700, parents=True, exist_ok=True)
+    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    names = _subject_names(hosts)
+    for user in users:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = _leaf(x509.CertificateBuilder(), user, names, key, ca_name, now, until).sign(ca_key, hashes.SHA256())
+        cert_path, key_path = cert_file(folder, user)
+        cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "wb") as f:
+            f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                      serialization.NoEncryption()))  # fmt: skip
+
+
+def _subject_names(hosts: list[str]) -> list[Any]:
+    import ipaddress
+
+    from cryptography import x509
+
+    out: list[Any] = []
     for h in dict.fromkeys([*hosts, "localhost", "127.0.0.1"]):
         try:
-            names.append(x509.IPAddress(ipaddress.ip_address(h)))
+            out.append(x509.IPAddress(ipaddress.ip_address(h)))
         except ValueError:
-            names.append(x509.DNSName(h))
-    key = ec.generate_private_key(ec.SECP256R1())
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "c3swarm")]))
-        .issuer_name(ca_name).public_key(key.public_key()).serial_number(x509.random_serial_number())
+            out.append(x509.DNSName(h))
+    return out
+
+
+def _leaf(b: Any, user: str, names: list[Any], key: Any, ca_name: Any, now: Any, until: Any) -> Any:
+    from cryptography import x509
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    return (
+        b.subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, user)])).issuer_name(ca_name)
+        .public_key(key.public_key()).serial_number(x509.random_serial_number())
         .not_valid_before(now).not_valid_after(until)
         .add_extension(x509.SubjectAlternativeName(names), critical=False)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
         .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
                        critical=False)
-        .sign(ca_key, hashes.SHA256())
     )  # fmt: skip
-    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
-    (folder / "cert.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    fd = os.open(folder / "key.pem", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                  serialization.NoEncryption()))  # fmt: skip

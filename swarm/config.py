@@ -300,16 +300,18 @@ class TimeSettings(_Strict):
 
 class TlsFiles(NamedTuple):
     root_ca: Path  # the certificate authority every process trusts
-    certificate: Path  # this machine's certificate (signed by root_ca; names network.host)
+    certificate: Path  # this process's certificate (signed by root_ca; names network.host)
     private_key: Path
+    own: bool  # a certificate of this process alone (made per run), naming it: it identifies the sender
 
 
 class TlsSettings(_Strict):
     """Zenoh's TLS transport: links encrypted, each side proving who it is by certificate
-    (``mutual``: the connecting side too). With no files given, ``swarm run`` makes a
-    certificate authority and a certificate for ``network.host`` for the run
-    (``swarm.access.make_tls``); across machines, give every machine the files of one
-    authority (``swarm secrets`` writes them once, to copy)."""
+    (``mutual``: the connecting side too). With no files given, ``swarm run`` (or ``swarm
+    secrets``, to copy to other machines) makes a certificate authority and one certificate
+    per process for ``network.host`` (``swarm.access.make_tls``): with ``mutual`` on, both
+    ends of every link then know the other's name, and every message is checked against
+    its sender's own keys. Files given: every process uses them."""
 
     enabled: bool = False
     root_ca: str | None = None  # PEM files; relative paths are from the working directory
@@ -324,11 +326,12 @@ class TlsSettings(_Strict):
             raise ValueError("network.tls: give root_ca, certificate and private_key together, or none of them")
         return self
 
-    def files(self, secrets: Path) -> TlsFiles:
-        """The files the processes use: the given ones, or the run's own in ``secrets``."""
+    def files(self, secrets: Path, user: str) -> TlsFiles:
+        """The files process ``user`` uses: the given ones, or its own in ``secrets``."""
         if self.root_ca and self.certificate and self.private_key:
-            return TlsFiles(Path(self.root_ca), Path(self.certificate), Path(self.private_key))
-        return TlsFiles(secrets / "ca.pem", secrets / "cert.pem", secrets / "key.pem")
+            return TlsFiles(Path(self.root_ca), Path(self.certificate), Path(self.private_key), False)
+        tls = secrets / "tls"
+        return TlsFiles(secrets / "ca.pem", tls / f"{user}.pem", tls / f"{user}.key", True)
 
 
 class NetworkSettings(_Strict):

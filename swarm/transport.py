@@ -156,17 +156,19 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
     if listens:  # who may link to this session: the run's processes alone
         auth["dictionary_file"] = str(acc.secrets / access.USERS_FILE)
     conf.insert_json5("transport/auth/usrpwd", json.dumps(auth))
-    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD)
-    conf.insert_json5("access_control", json.dumps(rules))
     tls = cfg.network.tls
+    identified = False
     if tls.enabled:
-        files = tls.files(acc.secrets)
+        files = tls.files(acc.secrets, acc.user)
         for key, path in (("root_ca_certificate", files.root_ca), ("listen_certificate", files.certificate),
                           ("listen_private_key", files.private_key), ("connect_certificate", files.certificate),
                           ("connect_private_key", files.private_key)):  # fmt: skip
             conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
         conf.insert_json5("transport/link/tls/enable_mtls", json.dumps(tls.mutual))
         conf.insert_json5("transport/link/tls/verify_name_on_connect", "true")
+        identified = files.own and tls.mutual
+    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified)
+    conf.insert_json5("access_control", json.dumps(rules))
 
 
 def process_config(cfg: ScenarioConfig, role: Role, acc: Access | None = None) -> zenoh.Config:

@@ -52,7 +52,7 @@ def ensure_secrets(cfg: ScenarioConfig, folder: Path) -> Path:
         access.make_secrets(folder, [a.id for a in cfg.agents])
     tls = cfg.network.tls
     if tls.enabled and not tls.root_ca and not (folder / "ca.pem").exists():
-        access.make_tls(folder, [cfg.network.host])
+        access.make_tls(folder, [cfg.network.host], access.run_users([a.id for a in cfg.agents]))
     return folder
 
 

@@ -153,9 +153,8 @@ def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_p
     acc = h.access(tp.Role.OBSERVER)
     plain = h.cfg.model_copy(update={"network": h.cfg.network.model_copy(update={"tls": type(h.cfg.network.tls)()})})
     other_ca = tmp_path / "other"
-    access.make_tls(other_ca, ["127.0.0.1"])
-    for f in ("ca.pem", "cert.pem", "key.pem"):
-        assert (other_ca / f).exists()
+    access.make_tls(other_ca, ["127.0.0.1"], ["observer"])
+    assert (other_ca / "ca.pem").exists() and all(f.exists() for f in access.cert_file(other_ca, "observer"))
     users = (h.secrets / "users.txt").read_bytes()
     (other_ca / "users.txt").write_bytes(users)
     (other_ca / "users.txt").chmod(0o600)
@@ -176,3 +175,50 @@ def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_p
         s.close()
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["all_reached_goal"] and m["collisions"] == 0
+
+
+def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]:  # noqa: ANN001
+    """A session with agent cf2's credentials publishes cf1's state and the world's clock
+    (marked), and a probe under its own keys; an observer of the run counts the real cf1
+    states, the forgeries and the probes it hears."""
+    cfg = scenario("swap_2.yaml", name=name, network={"tls": {"enabled": tls}}, duration_s=8.0,
+                   stop_when_all_reached=False, time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    h = start_run(cfg, name)
+    h.wait_sim_time(0.3)
+    forger = tp.open_session(tp.process_config(h.cfg, tp.Role.AGENT, h.access(tp.Role.AGENT, "cf2")))
+    observer = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, h.access(tp.Role.OBSERVER)))
+    keys = tp.Keys(h.run)
+    heard = tp.open_channel(observer, f"{keys.root}/**", 1 << 16)
+    fake_state = encode("state", h.run, "cf1", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
+    probe_key = f"{keys.root}/agent/cf2/probe"
+    for _ in range(100):  # until the forger is linked to the observer (its probes under its own keys arrive)
+        forger.put(probe_key, b"hello")
+        h.wait_sim_time(h.progress.t_s + 0.02)
+        if any(tp.payload(x) == b"hello" for x in tp.drain(heard)):
+            break
+    else:
+        raise AssertionError("the forger never linked to the run")
+    for _ in range(20):
+        h.wait_sim_time(h.progress.t_s + 0.05)
+        forger.put(keys.state("cf1"), fake_state)
+        forger.put(keys.clock, b"forged clock")
+        forger.put(probe_key, b"probe")  # under its own keys: heard
+    assert h.wait() == "completed"
+    real = forged = probes = 0
+    for smp in tp.drain(heard):
+        data = tp.payload(smp)
+        if data in (fake_state, b"forged clock"):
+            forged += 1
+        elif data == b"probe":
+            probes += 1
+        elif str(smp.key_expr) == keys.state("cf1"):
+            real += 1
+    forger.close()
+    observer.close()
+    return real, forged, probes
+
+
+def test_with_a_certificate_per_process_no_one_publishes_anothers_keys(start_run):
+    real, forged, probes = _forged_state_heard(start_run, "identified", tls=True)
+    assert probes == 20  # the forger is in the run: what it publishes under its own keys arrives
+    assert real > 20 and forged == 0  # cf1's own states arrive; cf2's forgeries of them and of the clock do not

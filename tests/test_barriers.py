@@ -91,3 +91,49 @@ def test_edge_cases_are_finite():
         np.testing.assert_array_equal(rows.inside, [False, False, True, True, False, True])
         # inside rows hold the escape barrier: separating at 1 m/s from 0.1 m gives h = 1 - v_esc
         assert rows.h[2] == np.float64(1.0 - 0.3)
+
+
+def _proj(a, v):
+    return v - a * (a @ v)
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=unit_or_zero, gamma_ho=st.floats(0.1, 5.0))
+def test_hocbf_h_is_its_formula_with_its_gain(p, w, r, a, gamma_ho):
+    """HO-CBF: h = <Pp, Pw> + gamma_ho sqrt(|Pp|^2 - r^2) outside the safety radius (a gain
+    ignored or fixed would differ: gamma_ho is drawn)."""
+    P, W = _proj(a, p), _proj(a, w)
+    if P @ P <= (r + 0.05) ** 2:
+        return
+    rows = evaluate_pw(BarrierKind.HOCBF, p[None], w[None], np.array([r]), a[None], gamma_ho=gamma_ho)
+    assert not rows.inside[0]
+    want = P @ W + gamma_ho * np.sqrt(P @ P - r * r)
+    np.testing.assert_allclose(rows.h[0], want, rtol=1e-12, atol=1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.2, 1.0), a=unit_or_zero, kind=st.sampled_from(list(BarrierKind)),
+       depth=st.floats(0.1, 0.9), v_esc=st.floats(0.1, 1.0))  # fmt: skip
+def test_escape_row_inside_the_radius_is_its_formula_and_its_gradients(p, w, r, a, kind, depth, v_esc):
+    """Inside the safety radius every barrier kind holds the escape barrier
+    h = <Pp, Pw>/|Pp| - v_esc (separate at v_esc), with gradients by finite differences."""
+    P = _proj(a, p)
+    if np.linalg.norm(P) < 1e-3:
+        return
+    p = p - P + P / np.linalg.norm(P) * depth * r  # the same direction, at depth * r from the axis or centre
+    P, W = _proj(a, p), _proj(a, w)
+    kw = dict(escape_speed=v_esc, gamma_ho=0.7)
+    rows = evaluate_pw(kind, p[None], w[None], np.array([r]), a[None], **kw)
+    assert rows.inside[0]
+    np.testing.assert_allclose(rows.h[0], P @ W / np.linalg.norm(P) - v_esc, rtol=1e-12, atol=1e-12)
+    d = 1e-6
+    for grad, which in ((rows.dh_dp[0], "p"), (rows.dh_dw[0], "w")):
+        num = np.zeros(3)
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = d
+            if which == "p":
+                num[i] = (h_of(kind, p + e, w, r, a, **kw) - h_of(kind, p - e, w, r, a, **kw)) / (2 * d)
+            else:
+                num[i] = (h_of(kind, p, w + e, r, a, **kw) - h_of(kind, p, w - e, r, a, **kw)) / (2 * d)
+        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)

@@ -214,3 +214,40 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
     dh_dp = w + nw / s * p
     dh_dw = p + s * w / math.sqrt(w @ w + cfg.eps_w_mps**2)
     assert lhs == pytest.approx(dh_dp @ w + dh_dw @ acc + cfg.gamma * ra.h[0], rel=1e-9)
+
+
+def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, float]:  # noqa: ANN001
+    """(stationarity residual, scale) of the filter's QP at ``res.u`` from the QP's own
+    definition, min |u - u_ref|^2 s.t. the barrier rows and the input set, independently
+    of either solver: multipliers of the active constraints by non-negative least squares."""
+    from scipy.optimize import nnls
+
+    rows = filt.rows(state, obs.subset(res.row_index))
+    ins = filt.input_set
+    u, m = res.u, filt.m
+    # every constraint as  a_i . u <= c_i
+    a_all = np.vstack([-rows.Lg_h.reshape(-1, m), ins.C.reshape(-1, m), np.eye(m), -np.eye(m)])
+    c_all = np.concatenate([-rows.lower, ins.d, ins.ub, -ins.lb])
+    scale = 1.0 + np.abs(a_all).sum(axis=1) * (1.0 + np.abs(u).max())
+    active = a_all @ u - c_all >= -1e-7 * scale
+    grad = 2.0 * (u - u_ref)  # of |u - u_ref|^2: the identity cost the filter is defined with
+    if not active.any():
+        return float(np.abs(grad).max()), 1.0 + float(np.abs(u_ref).max())
+    _lam, r = nnls(a_all[active].T, -grad)
+    return float(r), 1.0 + float(np.linalg.norm(grad))
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31), n=st.integers(0, 12), level=st.sampled_from(list(CommandLevel)),
+       kind=st.sampled_from(list(BarrierKind)))  # fmt: skip
+def test_the_command_is_the_optimum_by_the_kkt_conditions(seed, n, level, kind):
+    """Optimality, not only feasibility: at an OK command the cost's gradient is a
+    non-negative combination of the active constraints' normals (KKT), with the cost
+    matrix the filter is defined with (a scaled one would fail)."""
+    state, obs, u_ref = scene(seed, n, level)
+    filt = FILTERS[(level, "daqp", kind)]
+    res = filt.filter(state, u_ref, obs)
+    if res.status is not FilterStatus.OK:
+        return
+    r, scale = kkt_residual(filt, state, obs, u_ref, res)
+    assert r <= 1e-6 * scale, (r, scale)

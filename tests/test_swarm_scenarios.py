@@ -73,7 +73,12 @@ def test_orca_flies_the_same_four_agent_circle(tmp_path):
     assert m["all_reached_goal"] and m["collisions"] == 0 and not m["deadlocked_agents"]
     assert m["min_separation_m"] >= 2 * 0.07  # discs never overlap
     assert (tmp_path / "orca" / "metrics.json").exists()
+    # what ORCA has not got is empty, with its reason, not a constant recorded as a measurement
+    assert m["real_time_factor"] is None and set(m["not_measured"]) == {"min_h", "infeasible_ticks", "real_time_factor"}
+    assert all(a["min_h"] is None and a["infeasible_ticks"] is None for a in m["agents"].values())
+    assert m["stop_reason"] == "every agent at its goal" and m["complete"] is True
     exact = run_orca(resolve(circle_swap(4, 2.0)), tmp_path / "orca_exact")
     assert exact["deadlocked_agents"]  # the exactly symmetric swap is ORCA's classic deadlock
+    assert exact["stop_reason"] == "the scenario's duration"
     with pytest.raises(ValueError, match="planar"):
         run_orca(resolve(sphere_swap(4, 2.0)), tmp_path / "orca_sphere")

@@ -17,6 +17,8 @@ from tools.runfiles import read_config, read_recording
 
 from .conftest import scenario
 
+BODY, MARGIN = 0.07, 0.02  # m: the Crazyflie's bounding radius and the filter's default margin
+
 THREE = [
     {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
     {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
@@ -145,3 +147,31 @@ def test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing(start_ru
         for a in ("cf1", "cf2", "cf3"):  # lockstep: the same flight, to the bit, and the whole of it recorded
             for key in ("path_length_m", "min_h", "time_to_goal_s"):
                 assert m["agents"][a][key] == ref["agents"][a][key], (name, a, key)
+
+
+def _kill_the_hoverer(start_run, name: str, on_lost: str) -> dict:  # noqa: ANN001
+    """cf1 crosses through where ``hover`` holds station; ``hover`` dies at t = 1 s and the
+    firmware keeps its drone there until 2.5 s after (its watchdog: the last setpoint,
+    then levelled out, motors off at 2 s)."""
+    cfg = scenario(
+        "swap_2.yaml", name=name, duration_s=8.0,
+        agents=[{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+                {"id": "hover", "start": [2.0, 0.0, 1.0], "goal": [2.0, 0.0, 1.0]}],
+        failure={"on_agent_death": "firmware", "on_lost": on_lost},
+    )  # fmt: skip
+    h = start_run(cfg, name)
+    h.wait_sim_time(1.0)
+    h.kill("agent-hover", signal.SIGKILL)
+    assert h.wait() == "completed"
+    return _metrics(h.out)
+
+
+def test_a_dead_neighbour_on_the_path_is_kept_as_an_obstacle_and_avoided(start_run):
+    m = _kill_the_hoverer(start_run, "kept", "keep_stopped")
+    assert m["lost_agents"] == ["hover"]
+    assert m["collisions"] == 0 and "cf1|hover" not in m["dead_agent_contact_pairs"], m  # (it falls: ground|hover)
+    assert m["agents"]["cf1"]["reached_goal"]
+    assert m["agents"]["cf1"]["max_path_deviation_m"] >= 2 * BODY + MARGIN - 0.02  # it went around the dead drone
+    # the same with the dead neighbour dropped from the rows: cf1 flies into the drone the firmware holds there
+    m = _kill_the_hoverer(start_run, "dropped", "drop")
+    assert m["dead_agent_contacts"] >= 1 and "cf1|hover" in m["dead_agent_contact_pairs"], m

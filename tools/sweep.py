@@ -249,7 +249,8 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         "max_time_to_goal_s": None if (not times or None in times) else max(times),
         "path_length_ratio": float(np.mean(ratios)) if ratios else None,
         "max_path_deviation_m": max((a["max_path_deviation_m"] for a in agents), default=None),
-        "infeasible_ticks": None if any(a["infeasible_ticks"] is None for a in agents)
+        "infeasible_ticks": None
+        if any(a["infeasible_ticks"] is None for a in agents)
         else sum(a["infeasible_ticks"] for a in agents),  # None: not a measure of the method (ORCA)
         "deadlock": int(bool(metrics.get("deadlocked_agents"))),
         "deadlocked_agents": len(metrics.get("deadlocked_agents", [])),

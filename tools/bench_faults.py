@@ -117,8 +117,9 @@ def recorder_kill(out: Path, mode: str) -> dict[str, Any]:
     seen = time.time() - t0
     h.finish(reason)
     rec = h.result.get("recording", {})
-    return _summary("recorder_kill", cfg, h, seen, f"run stopped; metrics from the cut file, up to t = "
-                    f"{rec.get('recorded_until_s')} s", recorded_until_s=rec.get("recorded_until_s"))  # fmt: skip
+    until = rec.get("recorded_until_s")
+    what = f"run stopped; metrics from the cut file, up to t = {until:.2f} s" if until is not None else "run stopped"
+    return _summary("recorder_kill", cfg, h, seen, what, recorded_until_s=until)
 
 
 def world_kill(out: Path, mode: str) -> dict[str, Any]:
@@ -232,3 +233,19 @@ if __name__ == "__main__":
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         main(args.case or list(CASES), args.mode or ["lockstep", "realtime"], args.out or Path(tmp))
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The markdown table of a run of this benchmark (docs/benchmarks.md quotes it)."""
+    out = ["| case | mode | detected [ms] | outcome | stop reason | complete | collisions | at their goal |",
+           "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        reached = "-" if r["reached"] is None else (", ".join(r["reached"]) or "none")
+        extra = ""
+        if r.get("sent") is not None:
+            extra = f"; {r['sent']} sent, victim unaffected: {'yes' if r['victim_unaffected'] else 'NO'}"
+        cells = [r["case"], r["mode"], "-" if r["detected_ms"] is None else f"{r['detected_ms']:.0f}",
+                 r["outcome"] + extra, r["stop_reason"] or "-", "-" if r["complete"] is None else str(r["complete"]),
+                 "-" if r["collisions"] is None else str(r["collisions"]), reached]  # fmt: skip
+        out.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    return "\n".join(out)

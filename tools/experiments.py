@@ -1,8 +1,17 @@
-"""Regenerate the measurements behind EXPERIMENTS.md (issue 4): every paper scenario under
-C3BF and HO-CBF, a report of each C3BF run, and the obstacle-speed, approach-angle and
-gain sweeps. Figures and tables are copied into ``docs/experiments/``.
+"""Regenerate the measurements that EXPERIMENTS.md, the README and docs/benchmarks.md quote,
+from the current code, into ``docs/experiments/`` (each data file stamped with the commit
+and the settings that made it, ``stamp.json`` per part):
 
-    python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only paper|sweeps]
+* ``paper``: every paper scenario under C3BF and HO-CBF, a report of each C3BF run;
+* ``sweeps``: the obstacle-speed, approach-angle and gain sweeps;
+* ``compare``: the README's table (``swarm compare`` on ``single_static_sphere.yaml``);
+* ``liveness``: EXPERIMENTS.md section 4 (``tools.bench_liveness``, with ORCA);
+* ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``).
+
+    python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...]
+
+Tables in the documents that quote a data file say so (``<!-- data: FILE -->`` above them);
+``tests/test_docs_figures.py`` checks that every number in such a table is in its file.
 """
 
 from __future__ import annotations
@@ -10,6 +19,9 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import subprocess
+import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -30,6 +42,50 @@ SWEEPS = {
 }
 
 
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def stamp(part: str, **settings: object) -> None:
+    """``docs/experiments/<part>.stamp.json``: the commit (and whether the tree had changes)
+    and the settings a part's data were made with."""
+    git = ["git", "-C", str(ROOT)]
+    commit = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run([*git, "status", "--porcelain", "--", "swarm", "agents", "world", "tools"],
+                                capture_output=True, text=True).stdout.strip())  # fmt: skip
+    info = {"part": part, "commit": commit, "uncommitted_changes": dirty, "made": time.strftime("%Y-%m-%d %H:%M"),
+            **settings}  # fmt: skip
+    (DOCS / f"{part}.stamp.json").write_text(json.dumps(info, indent=2) + "\n")
+
+
+def compare_table(out: Path, jobs: int) -> None:
+    """The README's table: one scenario, C3BF, HO-CBF and no filter."""
+    del jobs
+    cfg = load(CONFIGS / "single_static_sphere.yaml")
+    rows = compare(cfg, ["c3bf", "hocbf", "none"], out / "compare")
+    (DOCS / "compare.json").write_text(json.dumps(rows, indent=2))
+    (DOCS / "compare.md").write_text(markdown(cfg.name, rows))
+    stamp("compare", config="configs/single_static_sphere.yaml", filters=["c3bf", "hocbf", "none"])
+
+
+def _tool_lines(module: str, args: list[str], dest: Path) -> None:
+    """Run ``python -m module args`` and keep its JSON lines in ``dest``."""
+    p = subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, cwd=ROOT, check=True)
+    dest.write_text("".join(ln + "\n" for ln in p.stdout.splitlines() if ln.startswith("{")))
+
+
+def liveness(out: Path, jobs: int) -> None:
+    args = ["--seeds", "2", "--jobs", str(jobs)]
+    _tool_lines("tools.bench_liveness", args, DOCS / "liveness.jsonl")
+    stamp("liveness", command=["python", "-m", "tools.bench_liveness", *args])
+
+
+def faults(out: Path, jobs: int) -> None:
+    del jobs
+    args = ["--out", str(out / "faults")]
+    _tool_lines("tools.bench_faults", args, DOCS / "bench_faults.jsonl")
+    stamp("faults", command=["python", "-m", "tools.bench_faults"])
+
+
 def paper(out: Path, jobs: int) -> None:
     names = sorted(p.stem for p in (CONFIGS / "paper").glob("*.yaml"))
 
@@ -44,6 +100,7 @@ def paper(out: Path, jobs: int) -> None:
         results = dict(pool.map(one, names))
     (DOCS / "paper.json").write_text(json.dumps(results, indent=2))
     (DOCS / "paper.md").write_text("\n".join(markdown(n, results[n]) for n in names))
+    stamp("paper", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"])
 
 
 def sweeps(out: Path, jobs: int) -> None:
@@ -54,16 +111,60 @@ def sweeps(out: Path, jobs: int) -> None:
         dest.mkdir(parents=True, exist_ok=True)
         for f in [*(out / f"sweep_{name}").glob("*.png"), out / f"sweep_{name}" / "results.csv"]:
             shutil.copy(f, dest / f.name)
+    stamp("sweeps", config="configs/sweeps/head_on.yaml", axes=SWEEPS)
 
+
+def _jsonl(path: Path) -> list[dict]:
+    return [json.loads(ln) for ln in path.read_text().splitlines() if ln.strip()]
+
+
+def _compare_table(path: Path) -> str:
+    return "\n".join(markdown("", json.loads(path.read_text())).splitlines()[2:]).strip()
+
+
+def _faults_table(path: Path) -> str:
+    from tools.bench_faults import table
+
+    return table(_jsonl(path))
+
+
+# generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->
+GENERATED = {"compare": (DOCS / "compare.json", _compare_table), "faults": (DOCS / "bench_faults.jsonl", _faults_table)}
+DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
+_BLOCK = r"(<!-- generated: (\w+) -->\n)(.*?)\n?<!-- end generated -->"
+
+
+def documents(write: bool) -> list[str]:
+    """Each generated block of the documents against its data; with ``write`` the blocks are
+    rewritten from the data. Returns the blocks that differ (before any rewrite)."""
+    import re
+
+    stale = []
+    for doc in DOCUMENTS:
+        text = doc.read_text()
+
+        def fill(m: re.Match[str], doc: Path = doc) -> str:
+            path, render = GENERATED[m.group(2)]
+            fresh = render(path)
+            if fresh != m.group(3).strip():
+                stale.append(f"{doc.name}: {m.group(2)}")
+            return m.group(1) + fresh + "\n<!-- end generated -->"
+
+        new = re.sub(_BLOCK, fill, text, flags=re.S)
+        if write and new != text:
+            doc.write_text(new)
+    return stale
+
+
+PARTS = {"paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults}
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("runs/experiments"))
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--only", choices=["paper", "sweeps"])
+    ap.add_argument("--only", choices=sorted(PARTS), action="append", help="default: every part")
     args = ap.parse_args()
     DOCS.mkdir(parents=True, exist_ok=True)
-    if args.only in (None, "paper"):
-        paper(args.out, args.jobs)
-    if args.only in (None, "sweeps"):
-        sweeps(args.out, args.jobs)
+    for part in args.only or list(PARTS):
+        PARTS[part](args.out, args.jobs)
+    documents(write=True)  # the documents' generated tables from the new data

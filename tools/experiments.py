@@ -128,8 +128,56 @@ def _faults_table(path: Path) -> str:
     return table(_jsonl(path))
 
 
+def _paper_table(path: Path) -> str:
+    """EXPERIMENTS.md section 1's figures: per scenario, C3BF and HO-CBF side by side."""
+    data = json.loads(path.read_text())
+
+    def num(v: object, fmt: str) -> str:
+        return "-" if v is None else format(v, fmt)
+
+    head = ("| scenario | C3BF collisions | C3BF closest to an obstacle [m] | C3BF closest between agents [m] | "
+            "C3BF time to goal [s] | C3BF infeasible ticks | HO-CBF collisions | HO-CBF closest to an obstacle [m] | "
+            "HO-CBF closest between agents [m] | HO-CBF time to goal [s] | HO-CBF infeasible ticks |")  # fmt: skip
+    out = [head, "|" + "---|" * 11]
+    for name in sorted(data):
+        cells = [name]
+        for r in sorted(data[name], key=lambda r: r["filter"]):  # c3bf, hocbf
+            cells += [str(r["collisions"]), num(r["min_clearance_m"], ".3f"), num(r["min_separation_m"], ".3f"),
+                      num(r["max_time_to_goal_s"], ".2f"), num(r["infeasible_ticks"], "d")]  # fmt: skip
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def _liveness_table(path: Path) -> str:
+    """EXPERIMENTS.md section 4's table, one row per line of ``tools.bench_liveness``."""
+    out = ["| family | scene | rho | start | runs | success | collisions | deadlocks | infeasible ticks | "
+           "mean / worst time ratio | ORCA: success, deadlocks, mean ratio |", "|" + "---|" * 11]  # fmt: skip
+    for r in _jsonl(path):
+        start = "random field" if r["family"] == "sphere_field" else ("exact" if r["exact"] else "perturbed")
+        rho = f"{r['rho']:g}"
+        ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f} / {r['worst_time_ratio']:.2f}"
+        o = r["orca"]
+        orca = (
+            "-"
+            if o is None
+            else (
+                f"{o['success_rate']:.2f}, {o['deadlocks']}, "
+                + ("-" if o["mean_time_ratio"] is None else f"{o['mean_time_ratio']:.2f}")
+            )
+        )
+        cells = [r["family"], r["scene"], rho, start, str(r["runs"]), f"{r['success_rate']:.2f}", str(r["collisions"]),
+                 str(r["deadlocks"]), str(r["infeasible_ticks"]), ratio, orca]  # fmt: skip
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 # generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->
-GENERATED = {"compare": (DOCS / "compare.json", _compare_table), "faults": (DOCS / "bench_faults.jsonl", _faults_table)}
+GENERATED = {
+    "compare": (DOCS / "compare.json", _compare_table),
+    "faults": (DOCS / "bench_faults.jsonl", _faults_table),
+    "paper": (DOCS / "paper.json", _paper_table),
+    "liveness": (DOCS / "liveness.jsonl", _liveness_table),
+}
 DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
 _BLOCK = r"(<!-- generated: (\w+) -->\n)(.*?)\n?<!-- end generated -->"
 

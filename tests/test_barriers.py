@@ -18,6 +18,20 @@ def h_of(kind, p, w, r, a, **kw):
     return evaluate_pw(kind, p[None], w[None], np.array([r]), a[None], **kw).h[0]
 
 
+def assert_gradients(rows, kind, p, w, r, a, d=1e-6, **kw):
+    """dh/dp and dh/dw of the row against central differences of h."""
+    for grad, which in ((rows.dh_dp[0], "p"), (rows.dh_dw[0], "w")):
+        num = np.zeros(3)
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = d
+            if which == "p":
+                num[i] = (h_of(kind, p + e, w, r, a, **kw) - h_of(kind, p - e, w, r, a, **kw)) / (2 * d)
+            else:
+                num[i] = (h_of(kind, p, w + e, r, a, **kw) - h_of(kind, p, w - e, r, a, **kw)) / (2 * d)
+        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)
+
+
 @settings(max_examples=300, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=unit_or_zero, kind=st.sampled_from(list(BarrierKind)))
 def test_gradients_match_finite_differences(p, w, r, a, kind):
@@ -30,17 +44,7 @@ def test_gradients_match_finite_differences(p, w, r, a, kind):
     kw = dict(eps=1e-3, gamma_ho=0.7)
     rows = evaluate_pw(kind, p[None], w[None], np.array([r]), a[None], **kw)
     assert not rows.inside[0]
-    d = 1e-6
-    for grad, which in ((rows.dh_dp[0], "p"), (rows.dh_dw[0], "w")):
-        num = np.zeros(3)
-        for i in range(3):
-            e = np.zeros(3)
-            e[i] = d
-            if which == "p":
-                num[i] = (h_of(kind, p + e, w, r, a, **kw) - h_of(kind, p - e, w, r, a, **kw)) / (2 * d)
-            else:
-                num[i] = (h_of(kind, p, w + e, r, a, **kw) - h_of(kind, p, w - e, r, a, **kw)) / (2 * d)
-        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)
+    assert_gradients(rows, kind, p, w, r, a, **kw)
 
 
 def test_c3bf_matches_the_formula_and_the_cone():
@@ -126,14 +130,4 @@ def test_escape_row_inside_the_radius_is_its_formula_and_its_gradients(p, w, r, 
     rows = evaluate_pw(kind, p[None], w[None], np.array([r]), a[None], **kw)
     assert rows.inside[0]
     np.testing.assert_allclose(rows.h[0], P @ W / np.linalg.norm(P) - v_esc, rtol=1e-12, atol=1e-12)
-    d = 1e-6
-    for grad, which in ((rows.dh_dp[0], "p"), (rows.dh_dw[0], "w")):
-        num = np.zeros(3)
-        for i in range(3):
-            e = np.zeros(3)
-            e[i] = d
-            if which == "p":
-                num[i] = (h_of(kind, p + e, w, r, a, **kw) - h_of(kind, p - e, w, r, a, **kw)) / (2 * d)
-            else:
-                num[i] = (h_of(kind, p, w + e, r, a, **kw) - h_of(kind, p, w - e, r, a, **kw)) / (2 * d)
-        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)
+    assert_gradients(rows, kind, p, w, r, a, **kw)

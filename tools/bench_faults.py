@@ -106,16 +106,22 @@ def agent_stop(out: Path, mode: str) -> dict[str, Any]:
     return _summary("agent_stop", cfg, h, seen, what)
 
 
-def recorder_kill(out: Path, mode: str) -> dict[str, Any]:
+def _kill_and_time(out: Path, mode: str, name: str) -> tuple[ScenarioConfig, RunHandle, float]:
+    """SIGKILL ``name`` at the fault time; (config, run, seconds until the launcher stopped the run)."""
     cfg = _config(mode)
     h = RunHandle.start(cfg, out)
     h.wait_sim_time(FAULT_AT_S)
     t0 = time.time()
-    h.kill("recorder", signal.SIGKILL)
+    h.kill(name, signal.SIGKILL)
     while (reason := h.poll(wait_s=0.002)) is None:
         pass
     seen = time.time() - t0
     h.finish(reason)
+    return cfg, h, seen
+
+
+def recorder_kill(out: Path, mode: str) -> dict[str, Any]:
+    cfg, h, seen = _kill_and_time(out, mode, "recorder")
     rec = h.result.get("recording", {})
     until = rec.get("recorded_until_s")
     what = f"run stopped; metrics from the cut file, up to t = {until:.2f} s" if until is not None else "run stopped"
@@ -123,15 +129,7 @@ def recorder_kill(out: Path, mode: str) -> dict[str, Any]:
 
 
 def world_kill(out: Path, mode: str) -> dict[str, Any]:
-    cfg = _config(mode)
-    h = RunHandle.start(cfg, out)
-    h.wait_sim_time(FAULT_AT_S)
-    t0 = time.time()
-    h.kill("world", signal.SIGKILL)
-    while (reason := h.poll(wait_s=0.002)) is None:
-        pass
-    seen = time.time() - t0
-    h.finish(reason)
+    cfg, h, seen = _kill_and_time(out, mode, "world")
     return _summary("world_kill", cfg, h, seen, "run stopped with the cause in one line")
 
 

@@ -171,12 +171,36 @@ def _liveness_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _sweep_table(path: Path) -> str:
+    """One sweep's ``results.csv`` as a table: its axes, then the outcome of each run."""
+    import csv
+
+    rows = list(csv.DictReader(path.open()))
+    header = list(rows[0])
+    axes = header[1 : header.index("success")]
+
+    def num(v: str, fmt: str) -> str:
+        return "-" if v in ("", "None") else format(float(v), fmt)
+
+    out = ["| " + " | ".join([*axes, "success", "collisions", "closest to the obstacle [m]", "time to goal [s]",
+                               "largest path deviation [m]", "infeasible ticks"]) + " |",
+           "|" + "---|" * (len(axes) + 6)]  # fmt: skip
+    for r in rows:
+        cells = [r[a] for a in axes] + [
+            "yes" if r["success"] == "1" else "no", r["collisions"], num(r["min_clearance_m"], ".3f"),
+            num(r["time_to_goal_s"], ".2f"), num(r["max_path_deviation_m"], ".2f"), r["infeasible_ticks"],
+        ]  # fmt: skip
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 # generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->
 GENERATED = {
     "compare": (DOCS / "compare.json", _compare_table),
     "faults": (DOCS / "bench_faults.jsonl", _faults_table),
     "paper": (DOCS / "paper.json", _paper_table),
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
+    **{f"sweep_{n}": (DOCS / f"sweep_{n}" / "results.csv", _sweep_table) for n in SWEEPS},
 }
 DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
 _BLOCK = r"(<!-- generated: (\w+) -->\n)(.*?)\n?<!-- end generated -->"

@@ -233,7 +233,7 @@ class Agent:
         return self._state_body(x_b, v_b), dict(level=level.value, u=cmd, intervention=intervention, **report)
 
 
-def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: ANN001, C901
+def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
     agent = Agent(cfg, agent_id)
     keys = tp.Keys(run)
     lockstep = cfg.time.mode is TimeMode.LOCKSTEP
@@ -285,7 +285,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:  # noqa: AN
             reported_gone.add(name)
             print(f"agent {agent_id}: neighbour {name} gone ({how}) at wall {time.time():.4f}", file=sys.stderr)
 
-    def handle(sample) -> None:  # noqa: ANN001
+    def handle(sample) -> None:
         key = str(sample.key_expr)
         m = tp.decode_sample(sample, run, counter)
         if m is None:

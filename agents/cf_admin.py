@@ -83,8 +83,8 @@ def status(uri: str, timeout_s: float = 3.0) -> list[str]:
     link = _Link(uri)
     try:
         sup = Supervisor(link)
-        bits = sup._fetch_bitfield(timeout_s)  # noqa: SLF001 - cflib's read, with our timeout
-        if not sup._bitfield_received.is_set():  # noqa: SLF001
+        bits = sup._fetch_bitfield(timeout_s)  # cflib's read, with our timeout
+        if not sup._bitfield_received.is_set():
             raise TimeoutError(f"{uri}: no supervisor answer within {timeout_s} s")
         return sup.decode_bitfield(bits)
     finally:

@@ -104,7 +104,7 @@ _TINY = 1e-12
 
 
 @njit(cache=True)
-def _unit_side(P, pp, a, out):  # noqa: ANN001, ANN202
+def _unit_side(P, pp, a, out):
     """``e x p / |e x p|`` into ``out`` (3,): ``e`` = the cylinder axis ``a``, or world up
     for a sphere (world x when ``p`` is nearly vertical). Odd in ``p``."""
     if a[0] == 0.0 and a[1] == 0.0 and a[2] == 0.0:
@@ -122,7 +122,7 @@ def _unit_side(P, pp, a, out):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def _generator(P, V, pp, s, a, t, d):  # noqa: ANN001, ANN202
+def _generator(P, V, pp, s, a, t, d):
     """The cone's boundary generator nearest to direction ``V`` (3,), in the plane of
     ``P`` and ``V`` (the side ``e x p`` when ``V`` is along ``P``), into ``d``; ``t`` is
     scratch (3,). The cone: half-angle ``asin(r/|P|)`` about ``-P``."""
@@ -155,7 +155,7 @@ speed, which there is noise (an exactly symmetric swap measured 1e-5 |w|)."""
 
 
 @njit(cache=True)
-def _inside_direction(P, W, pp, s, a, t, d):  # noqa: ANN001, ANN202
+def _inside_direction(P, W, pp, s, a, t, d):
     """Inside the cone: the generator nearest to ``W``, with the side rule's side ``e x p``
     added to ``W``'s lateral part at ``AXIS_BAND |W|`` (odd in ``P``, ``W``)."""
     nw = math.sqrt(W[0] * W[0] + W[1] * W[1] + W[2] * W[2])
@@ -169,7 +169,7 @@ def _inside_direction(P, W, pp, s, a, t, d):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noqa: ANN001, ANN201
+def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):
     """The live row's direction ``d`` (3,) [unit-free, |d| <= 1, in range(P)] into ``d``,
     for the projected ``P`` = p [m], ``W`` = w [m/s], ``A`` = a_ref [m/s^2] of one row
     (``s = sqrt(|P|^2 - r^2) > 0``, ``pp = |P|^2``). See the module docstring.
@@ -231,7 +231,7 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):  # noq
 
 
 @njit(cache=True)
-def cone_row(r, s, pp, pw, ww):  # noqa: ANN001, ANN201
+def cone_row(r, s, pp, pw, ww):
     """``H = (r/|p|)(s w_perp - r w_par)`` and its coefficients (h, a_p, b_p, a_w, b_w),
     for a row inside the cone off its axis (``w_perp > 0``): ``w_par = -<p,w>/|p|`` is the
     approach speed [m/s], ``w_perp`` the speed across ``p``. ``H <= h`` everywhere (Cauchy-
@@ -248,7 +248,7 @@ def cone_row(r, s, pp, pw, ww):  # noqa: ANN001, ANN201
 
 
 @njit(cache=True, fastmath=False)
-def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a_ref, has_ref, nb):  # noqa: ANN001
+def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a_ref, has_ref, nb):
     """One row. Writes the (projected) p, w and the live direction d into ``Y_out`` (3, 3)
     and ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d, rate`` into ``coef_out`` (9,); returns
     inside. ``rate`` [1/s] is the least class-K gain of the row (non-zero inside the cone).
@@ -328,7 +328,7 @@ def live_settings(on: bool, w_lo_mps: float = LIVE_W_LO_MPS, w_hi_mps: float = L
 
 
 @njit(cache=True)
-def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc, live, a_ref, has_ref, nb):  # noqa: ANN001
+def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc, live, a_ref, has_ref, nb):
     """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
     n = Y.shape[0]
     Y_out = np.empty((n, 3, 3))

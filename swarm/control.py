@@ -105,7 +105,7 @@ class PathTracker:
 
 
 @njit(cache=True)
-def _path_point(W, seg_len, tail, segment, x):  # noqa: ANN001, ANN202
+def _path_point(W, seg_len, tail, segment, x):
     """(segment, closest path point (3,) [m, world], tangent (3,), remaining path [m]) of
     :class:`PathTracker`, starting the search at ``segment`` (it only moves forward)."""
     last = seg_len.shape[0] - 1
@@ -133,7 +133,7 @@ def _path_point(W, seg_len, tail, segment, x):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):  # noqa: ANN001, ANN202
+def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):
     """(segment, v_des (3,) [m/s, world]): the target speed along the path (tapering as
     ``kp * remaining`` near the end) plus ``kp`` times the cross-track error."""
     segment, c, tangent, remaining = _path_point(W, seg_len, tail, segment, x)
@@ -146,7 +146,7 @@ def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):  # noqa: ANN0
 
 
 @njit(cache=True)
-def _desired_accel(v_des, v, gains):  # noqa: ANN001, ANN202
+def _desired_accel(v_des, v, gains):
     """``kd (v_des - v)`` [m/s^2, world], horizontal part clipped to its norm limit and
     vertical part to its limit (``gains`` = kp, kd, max horizontal, max vertical)."""
     kd, a_h, a_v = gains[1], gains[2], gains[3]
@@ -162,7 +162,7 @@ def _desired_accel(v_des, v, gains):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def _tracker_thrust(W, seg_len, tail, segment, x, v, speed, gains, mass, g):  # noqa: ANN001, ANN202
+def _tracker_thrust(W, seg_len, tail, segment, x, v, speed, gains, mass, g):
     """(segment, F_ref (3,) [N, world]) of :meth:`PathTracker.thrust_vector` in one call."""
     segment, v_des = _desired_velocity(W, seg_len, tail, segment, x, speed, gains)
     a = _desired_accel(v_des, v, gains)
@@ -286,7 +286,7 @@ def setpoint_from_thrust_vector(
 
 
 @njit(cache=True)
-def setpoint_vector(F_w, yaw_rad, yaw_des_rad, k_yaw_per_s):  # noqa: ANN001, ANN201
+def setpoint_vector(F_w, yaw_rad, yaw_des_rad, k_yaw_per_s):
     """:func:`setpoint_from_thrust_vector` as an array: (roll [rad], pitch [rad], yaw
     rate [rad/s], thrust [N]), the order a command at the attitude level carries."""
     roll, pitch, thrust = thrust_vector_to_setpoint(F_w, yaw_rad)
@@ -297,7 +297,7 @@ def setpoint_vector(F_w, yaw_rad, yaw_des_rad, k_yaw_per_s):  # noqa: ANN001, AN
 
 
 @njit(cache=True)
-def onboard_rotor_thrusts(q, Omega_b, roll, pitch, yaw, thrust, kR, kOm, J, B_inv, f_max):  # noqa: ANN001, ANN201
+def onboard_rotor_thrusts(q, Omega_b, roll, pitch, yaw, thrust, kR, kOm, J, B_inv, f_max):
     """The geometric attitude law of :class:`AttitudeController` for ``n`` drones at once,
     tracking ``R_des = Rz(yaw) Ry(pitch) Rx(roll)`` with collective ``thrust`` [N].
 

@@ -44,7 +44,7 @@ DEFAULT_BACKEND = "daqp"
 
 
 @njit(cache=True)
-def _residuals(G, b, u, lb, ub, C, d, tol):  # noqa: ANN001, ANN202
+def _residuals(G, b, u, lb, ub, C, d, tol):
     """``c = b - G u`` (>= 0 where a row holds), the rows with ``c <= tol`` (active), and
     the largest violation of a row, bound or input row by ``u`` (0 when all hold)."""
     n, m = G.shape
@@ -69,7 +69,7 @@ def _residuals(G, b, u, lb, ub, C, d, tol):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def _select(c, is_nb, x, r2, max_rows):  # noqa: ANN001, ANN202
+def _select(c, is_nb, x, r2, max_rows):
     """(indices of the rows, ascending; number of non-neighbours): every non-neighbour,
     and the neighbours with ``|c - x|^2 <= r2``, nearest first (stable) while fewer than
     ``max_rows`` rows. The caller raises when the non-neighbours alone are too many."""
@@ -95,7 +95,7 @@ def _select(c, is_nb, x, r2, max_rows):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def _floor_row(attitude, C_row, d, j, z, vz, q, floor_z, k, mass, g, ub):  # noqa: ANN001
+def _floor_row(attitude, C_row, d, j, z, vz, q, floor_z, k, mass, g, ub):
     """Fill the floor row ``C_row u <= d[j]`` (see ``FilterConfig.floor_z_m``) for the
     centre-of-mass height ``z`` [m] and vertical speed ``vz`` [m/s]: ``-F_z <= -need`` at
     the attitude level, ``-R33 sum f <= -need`` at the rotor level (no row when upside
@@ -123,7 +123,7 @@ _BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
 def _prepare(
     check, x, v, q, Om, u_ref, rotor, K, consts, Aa_att, c, cd, cdd, r, axis, is_nb, r2, max_rows,
     floor, floor_z, floor_k, mass, lb, ub, C, d, kind, r_own, rho, gamma, eps, gamma_ho, v_esc, live,
-):  # noqa: ANN001, ANN202  # fmt: skip
+):  # fmt: skip
     """One filter call's work before the QP, in one compiled call: with ``check`` the
     state's finiteness, shapes and quaternion norm and ``u_ref``'s finiteness (a failure
     returns its ``_BAD_*`` code at once; the caller raises the named error) and the

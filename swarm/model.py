@@ -55,7 +55,7 @@ def check_finite(name: str, value: object, shape: tuple[int, ...] | None = None)
 
 
 @njit(cache=True)
-def all_finite(a):  # noqa: ANN001, ANN201
+def all_finite(a):
     """True when every entry of a float array is finite (one compiled pass)."""
     for x in a.flat:
         if not math.isfinite(x):
@@ -70,7 +70,7 @@ Q_RENORM_TOL = 1e-12
 
 
 @njit(cache=True)
-def state_check(x, v, q, Om):  # noqa: ANN001, ANN202
+def state_check(x, v, q, Om):
     """0 if all finite, else 1 + index of the first bad field; and |q|^2."""
     for i, a in enumerate((x, v, q, Om)):
         for e in a:
@@ -80,7 +80,7 @@ def state_check(x, v, q, Om):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def body_centre(x, v, q, Om, l):  # noqa: ANN001, ANN201, E741
+def body_centre(x, v, q, Om, l):  # noqa: E741
     """(x_b (3,) [m, world], v_b (3,) [m/s, world], yaw [rad]) of a state: its body centre
     ``x + l R e3`` (``l`` [m] above the centre of mass), that point's velocity
     ``v + l R (Omega x e3)`` and the ZYX yaw of ``R``."""
@@ -353,7 +353,7 @@ def thrust_vector_accel(params: QuadParams, F_w: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
-def thrust_vector_to_setpoint(F_w, yaw_rad):  # noqa: ANN001, ANN201
+def thrust_vector_to_setpoint(F_w, yaw_rad):
     """Roll, pitch [rad] (ZYX, at the given yaw) and collective thrust [N] that point the
     body z axis along ``F_w`` (3,) [N, world]; the inverse of :func:`setpoint_to_thrust_vector`."""
     fx, fy, fz = F_w[0], F_w[1], F_w[2]

@@ -15,7 +15,7 @@ from swarm.rotation import FloatArray, IntArray
 
 
 @njit(cache=True)
-def _roster_columns(xvr, rows):  # noqa: ANN001, ANN202
+def _roster_columns(xvr, rows):
     """Rows ``rows`` of a roster ``xvr`` (n * 7,) as contiguous centres (k, 3), velocities
     (k, 3) and radii (k,)."""
     k = rows.shape[0]

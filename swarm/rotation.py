@@ -39,7 +39,7 @@ def quat_to_R(q: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
-def quat_to_R_into(q, R):  # noqa: ANN001, ANN201
+def quat_to_R_into(q, R):
     """:func:`quat_to_R` for compiled code: writes the rotation of the scalar-last unit
     quaternion ``q`` (4,) into ``R`` (3, 3) (no allocation per call)."""
     x, y, z, w = q[0], q[1], q[2], q[3]

@@ -55,7 +55,7 @@ class OwnAffine:
 
 
 @njit(cache=True)
-def _own_rotor(x, v, q, Om, K, consts):  # noqa: ANN001
+def _own_rotor(x, v, q, Om, K, consts):
     """Body-centre state and [A | a0_own] at the rotor level; ``consts`` = (l, g, Jx, Jy, Jz)."""
     l, g, Jx, Jy, Jz = consts[0], consts[1], consts[2], consts[3], consts[4]  # noqa: E741
     R = np.empty((3, 3))
@@ -98,7 +98,7 @@ class OwnDynamics:
 
 
 @njit(cache=True)
-def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):  # noqa: ANN001, ANN201
+def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):
     """(xv_b, Aa) of :class:`OwnAffine`: the rotor level's from the state, or at the
     attitude level the body centre ``x + l R e3`` with the centre of mass's velocity and
     the constant ``Aa_att``; ``consts`` = (l, g, Jx, Jy, Jz)."""
@@ -120,7 +120,7 @@ RING = 16
 
 
 @njit(cache=True)
-def _clear_of(v, Ps, ss, axes, m):  # noqa: ANN001, ANN202
+def _clear_of(v, Ps, ss, axes, m):
     """``v`` (3,) lies outside the first ``m`` cones (``Ps`` projected p, ``ss`` s, axes)."""
     for i in range(m):
         a = axes[i]
@@ -137,7 +137,7 @@ def _clear_of(v, Ps, ss, axes, m):  # noqa: ANN001, ANN202
 
 
 @njit(cache=True)
-def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):  # noqa: ANN001, ANN201
+def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):
     """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at.
 
     At rest relative to several obstacles the exact condition asks for one direction of
@@ -221,7 +221,7 @@ def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):  # noqa: ANN
 @njit(cache=True)
 def rows_kernel(
     kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d, live
-):  # noqa: ANN001
+):
     """All rows at once, row i for obstacle ``sel[i]`` (a selection indexes the obstacle
     arrays, no copy; safety radius ``r + r_own``; responsibility share ``rho`` for the
     rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as

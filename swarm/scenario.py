@@ -52,7 +52,7 @@ def min_pair_distance(points_w: FloatArray) -> float:
 
 
 @njit(cache=True)
-def _min_pair_d2(p):  # noqa: ANN001, ANN202
+def _min_pair_d2(p):
     """Smallest squared distance between two rows of ``p`` (n, 3); inf with n < 2."""
     best = np.inf
     n = p.shape[0]

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BASE = yaml.safe_load((ROOT / "configs" / "circle_8.yaml").read_text())
 
 
-def _patched(change) -> dict:  # noqa: ANN001
+def _patched(change) -> dict:
     raw = copy.deepcopy(BASE)
     change(raw)
     return raw

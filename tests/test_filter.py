@@ -216,7 +216,7 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
     assert lhs == pytest.approx(dh_dp @ w + dh_dw @ acc + cfg.gamma * ra.h[0], rel=1e-9)
 
 
-def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, float]:  # noqa: ANN001
+def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, float]:
     """(stationarity residual, scale) of the filter's QP at ``res.u`` from the QP's own
     definition, min |u - u_ref|^2 s.t. the barrier rows and the input set, independently
     of either solver: multipliers of the active constraints by non-negative least squares."""

@@ -185,7 +185,7 @@ def test_gradients_of_the_live_rows_match_finite_differences(p, w, r, a, a_ref):
     assume(p is not None)
     rows = live(p, w, r, a, a_ref)
     d_dir = rows.d[0]
-    P = lambda v: proj(a, v)  # noqa: E731
+    P = lambda v: proj(a, v)
     is_H = rows.coef[0, 7] == 0.0
 
     def h_d(pp, ww):

@@ -223,7 +223,7 @@ class RunHandle:
             sub.undeclare()
 
     def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
-        log = open(self.out / "logs" / f"{name}.log", "wb")  # noqa: SIM115 - owned by the child
+        log = open(self.out / "logs" / f"{name}.log", "wb")  # owned by the child
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         env.pop(CPU_ENV, None)
         if cpu is not None:

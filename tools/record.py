@@ -29,13 +29,13 @@ QUEUE = 1 << 16  # samples Zenoh holds for the recorder between batches (36 per 
 TAIL_S = 0.3  # keep listening this long after the world says done
 
 
-def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:  # noqa: ANN001
+def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:
     """Record until the world disappears, or ``linger_s`` + a short tail after it says
     done (``linger_s``: how long real drones may take to land after the end)."""
     keys = tp.Keys(run)
     stop = StopFlag()
     out_dir.mkdir(parents=True, exist_ok=True)
-    f = open(out_dir / "run.mcap", "wb")  # noqa: SIM115 - closed in finally
+    f = open(out_dir / "run.mcap", "wb")  # closed in finally
     writer = Writer(f, compression=CompressionType.NONE, use_chunking=False)
     writer.start(profile="", library="c3swarm")
     schema = writer.register_schema("c3swarm.message", "jsonschema", json.dumps({"type": "object"}).encode())

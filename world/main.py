@@ -111,7 +111,7 @@ def _velocity_hold(slot: DroneSlot, state: QuadState, v_des_w: np.ndarray) -> np
     return slot.att.from_thrust_vector(state, F)
 
 
-def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[str, ...] = ()) -> int:  # noqa: ANN001, C901
+def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[str, ...] = ()) -> int:
     keys = tp.Keys(run)
     sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
     slots: dict[str, DroneSlot] = {}

@@ -110,7 +110,7 @@ class SitlMocap:
         self.sock.settimeout(timeout_s)
         self.rigidBodies: dict[str, SitlMocap.Body] = {}
 
-    def waitForNextFrame(self) -> None:  # noqa: N802 - libmotioncapture's name
+    def waitForNextFrame(self) -> None:  # libmotioncapture's name
         import msgpack
 
         data = self.sock.recv(65536)  # a TimeoutError is a broken stream to the relay

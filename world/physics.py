@@ -42,7 +42,7 @@ def _quat_z_to(axis: FloatArray) -> list[float]:
 
 
 @njit(cache=True)
-def _frames(a):  # noqa: ANN001, ANN202
+def _frames(a):
     """Rotations body to world (n, 3, 3) and body rates (n, 3) [rad/s, body] of rows
     ``a`` = (position, scalar-last quaternion, velocity, angular velocity [world])."""
     n = a.shape[0]

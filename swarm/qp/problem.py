@@ -23,7 +23,7 @@ _CHECK_MESSAGES = {
 
 
 @njit(cache=True)
-def _check_values(H, q, lb, ub, A, b):  # noqa: ANN001, ANN202
+def _check_values(H, q, lb, ub, A, b):
     for a in (H.ravel(), q, A.ravel()):
         for x in a:
             if not math.isfinite(x):

@@ -103,7 +103,7 @@ def rig(tmp_path):
         path.write_text(dump(cfg))
         secrets = ensure_secrets(cfg, tmp_path / f"secrets{len(made)}")  # as `swarm secrets` writes them
         world = FakeWorld(cfg, run, secrets)
-        log = open(tmp_path / f"agent{len(made)}.log", "wb")  # noqa: SIM115
+        log = open(tmp_path / f"agent{len(made)}.log", "wb")
         agent = subprocess.Popen(
             [sys.executable, "-m", "tools.cli", "agent", str(path), "--id", "cf1", "--run", run,
              "--port", str(cfg.network.port), "--secrets", str(secrets)],

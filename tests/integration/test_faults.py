@@ -123,7 +123,7 @@ def test_a_dead_agents_falling_drone_is_counted_apart_from_collisions(start_run)
     assert m["agents"]["cf1"]["reached_goal"] and m["agents"]["cf2"]["reached_goal"]
 
 
-def _stopped_for(h, name: str, wall_s: float) -> None:  # noqa: ANN001
+def _stopped_for(h, name: str, wall_s: float) -> None:
     """SIGSTOP ``name`` for ``wall_s`` of wall time, then SIGCONT (the fault is the pause)."""
     h.kill(name, signal.SIGSTOP)
     try:
@@ -149,7 +149,7 @@ def test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing(start_ru
                 assert m["agents"][a][key] == ref["agents"][a][key], (name, a, key)
 
 
-def _kill_the_hoverer(start_run, name: str, on_lost: str) -> dict:  # noqa: ANN001
+def _kill_the_hoverer(start_run, name: str, on_lost: str) -> dict:
     """cf1 crosses through where ``hover`` holds station; ``hover`` dies at t = 1 s and the
     firmware keeps its drone there until 2.5 s after (its watchdog: the last setpoint,
     then levelled out, motors off at 2 s)."""

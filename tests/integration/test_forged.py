@@ -51,7 +51,7 @@ class Attacker:
     ``victim`` on the victim's own key, for the next tick at its exact time: the most
     plausible forgery there is."""
 
-    def __init__(self, h: RunHandle, conf, victim: str) -> None:  # noqa: ANN001
+    def __init__(self, h: RunHandle, conf, victim: str) -> None:
         self.h, self.victim = h, victim
         self.session = tp.open_session(conf)
         keys = tp.Keys(h.run)
@@ -79,7 +79,7 @@ class Attacker:
         self.session.close()
 
 
-def _attacked(start_run, name: str, access_control: bool, credentials_of: str | None) -> tuple[dict, Attacker]:  # noqa: ANN001
+def _attacked(start_run, name: str, access_control: bool, credentials_of: str | None) -> tuple[dict, Attacker]:
     cfg = scenario("swap_2.yaml", name=name, network={"access_control": access_control})
     h = start_run(cfg, name)
     acc = h.access(tp.Role.AGENT, credentials_of) if credentials_of else None
@@ -177,7 +177,7 @@ def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_p
     assert m["all_reached_goal"] and m["collisions"] == 0
 
 
-def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]:  # noqa: ANN001
+def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]:
     """A session with agent cf2's credentials publishes cf1's state and the world's clock
     (marked), and a probe under its own keys; an observer of the run counts the real cf1
     states, the forgeries and the probes it hears."""

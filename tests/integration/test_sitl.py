@@ -115,7 +115,7 @@ def test_a_simulated_drone_whose_agent_dies_meets_the_firmware_watchdog(start_ru
     clocks = sorted((r for r in records if r["kind"] == "clock"), key=lambda r: r["t"])
     t = np.array([r["t"] for r in clocks])  # the roster holds every drone, a dead agent's too
     zs = np.array([np.asarray(r["xvr"]).reshape(-1, 7)[r["ids"].index("cf3"), 2] for r in clocks])
-    z = lambda at: float(np.interp(at, t, zs))  # noqa: E731
+    z = lambda at: float(np.interp(at, t, zs))
     assert abs(z(last_cmd + 1.9) - z(last_cmd)) < 0.15  # held up by its last thrust, levelled out
     assert z(last_cmd + 2.0) - z(last_cmd + 2.6) > 0.8  # motors off at 2 s: it falls (g t^2 / 2 = 1.8 m)
     m = json.loads((h.out / "metrics.json").read_text())

@@ -6,7 +6,9 @@ and the settings that made it, ``stamp.json`` per part):
 * ``sweeps``: the obstacle-speed, approach-angle and gain sweeps;
 * ``compare``: the README's table (``swarm compare`` on ``single_static_sphere.yaml``);
 * ``liveness``: EXPERIMENTS.md section 4 (``tools.bench_liveness``, with ORCA);
-* ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``).
+* ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``);
+* ``filter``, ``swarm``: docs/benchmarks.md's filter and swarm tables (``tools.bench_filter``,
+  ``tools.bench_swarm``): timings, so a rerun gives other figures within the machine's noise.
 
     python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...]
 
@@ -84,6 +86,19 @@ def faults(out: Path, jobs: int) -> None:
     args = ["--out", str(out / "faults")]
     _tool_lines("tools.bench_faults", args, DOCS / "bench_faults.jsonl")
     stamp("faults", command=["python", "-m", "tools.bench_faults"])
+
+
+def filter_bench(out: Path, jobs: int) -> None:
+    del out, jobs
+    _tool_lines("tools.bench_filter", [], DOCS / "bench_filter.jsonl")
+    stamp("filter", command=["python", "-m", "tools.bench_filter"])
+
+
+def swarm_bench(out: Path, jobs: int) -> None:
+    del jobs
+    args = ["--out", str(out / "bench_swarm")]
+    _tool_lines("tools.bench_swarm", args, DOCS / "bench_swarm.jsonl")
+    stamp("swarm", command=["python", "-m", "tools.bench_swarm"])
 
 
 def paper(out: Path, jobs: int) -> None:
@@ -194,12 +209,42 @@ def _sweep_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _filter_table(path: Path) -> str:
+    """docs/benchmarks.md's filter table: median / p99 [us] per row count, backend and level."""
+    lines = _jsonl(path)
+    cols = [(b, lv) for b in ("daqp", "osqp") for lv in ("rotors", "attitude")]
+    cell = {(r["rows"], r["backend"], r["level"]): r for r in lines}
+    out = ["| rows | " + " | ".join(f"{b} {lv}" for b, lv in cols) + " | largest violation of an OK command |",
+           "|" + "---|" * (len(cols) + 2)]  # fmt: skip
+    for n in sorted({r["rows"] for r in lines}):
+        got = [cell.get((n, b, lv)) for b, lv in cols]
+        worst = max(r["max_violation"] for r in got if r)
+        out.append(f"| {n} | " + " | ".join("-" if r is None else f"{r['median_us']:.0f} / {r['p99_us']:.0f}"
+                                             for r in got) + f" | {worst:.1e} |")  # fmt: skip
+    return "\n".join(out)
+
+
+def _swarm_table(path: Path) -> str:
+    """docs/benchmarks.md's swarm table, one row per line of ``tools.bench_swarm``."""
+    out = ["| agents | mode | neighbours (topology) | real-time factor | on time | CPU per agent (% of a core) | "
+           "p99 tick latency (ms) | collisions |", "|" + "---|" * 8]  # fmt: skip
+    for r in _jsonl(path):
+        on_time = "-" if r["on_time_fraction"] is None else f"{r['on_time_fraction']:.4f}"
+        lat = "-" if r["p99_tick_latency_ms"] is None else f"{r['p99_tick_latency_ms']:.1f}"
+        out.append(f"| {r['agents']} | {r['mode']} | {r['neighbour_source']} ({r['topology']}) | "
+                   f"{r['real_time_factor']:.2f} | {on_time} | {r['cpu_percent_per_agent']:.0f} | {lat} | "
+                   f"{r['collisions']} |")  # fmt: skip
+    return "\n".join(out)
+
+
 # generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->
 GENERATED = {
     "compare": (DOCS / "compare.json", _compare_table),
     "faults": (DOCS / "bench_faults.jsonl", _faults_table),
     "paper": (DOCS / "paper.json", _paper_table),
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
+    "filter": (DOCS / "bench_filter.jsonl", _filter_table),
+    "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     **{f"sweep_{n}": (DOCS / f"sweep_{n}" / "results.csv", _sweep_table) for n in SWEEPS},
 }
 DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
@@ -228,7 +273,10 @@ def documents(write: bool) -> list[str]:
     return stale
 
 
-PARTS = {"paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults}
+PARTS = {
+    "paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults,
+    "filter": filter_bench, "swarm": swarm_bench,
+}  # fmt: skip
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

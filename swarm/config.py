@@ -281,7 +281,7 @@ class TimeSettings(_Strict):
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the
     # last, agents round-robin). With more processes than cores, a process that stays on
     # one core keeps its caches and is not moved around by the scheduler: at 16 agents on
-    # 2 cores realtime went from 95-96.5 to 99.6-99.8 % of ticks on time (see docs/benchmarks.md)
+    # 2 cores realtime went from 95-96.5 to 99.6-99.8 % of ticks on time (docs/design.md, "One CPU per process")
     pin_cpus: bool = True
 
     @model_validator(mode="after")
@@ -403,7 +403,7 @@ class MocapSettings(_Strict):
 
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
-AGENTS_PER_CPU = 32  # lockstep runs of 64 agents on 2 CPUs are measured (docs/benchmarks.md); more is untried
+AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
 def machine_cpus() -> int:

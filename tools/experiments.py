@@ -7,8 +7,9 @@ and the settings that made it, ``stamp.json`` per part):
 * ``compare``: the README's table (``swarm compare`` on ``single_static_sphere.yaml``);
 * ``liveness``: EXPERIMENTS.md section 4 (``tools.bench_liveness``, with ORCA);
 * ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``);
-* ``filter``, ``swarm``: docs/benchmarks.md's filter and swarm tables (``tools.bench_filter``,
-  ``tools.bench_swarm``): timings, so a rerun gives other figures within the machine's noise.
+* ``filter``, ``swarm``, ``access``: docs/benchmarks.md's filter, swarm and access-control tables
+  (``tools.bench_filter``, ``tools.bench_swarm``): timings, so a rerun gives other figures within
+  the machine's noise.
 
     python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...]
 
@@ -99,6 +100,21 @@ def swarm_bench(out: Path, jobs: int) -> None:
     args = ["--out", str(out / "bench_swarm")]
     _tool_lines("tools.bench_swarm", args, DOCS / "bench_swarm.jsonl")
     stamp("swarm", command=["python", "-m", "tools.bench_swarm"])
+
+
+def access_cost(out: Path, jobs: int) -> None:
+    """Access control on and off, 16 agents with the world's roster, in ABBA order (this
+    machine's speed drifts: only interleaved runs compare)."""
+    del jobs
+    lines: list[str] = []
+    for i, ac in enumerate(("on", "off", "off", "on")):
+        args = ["--agents", "16", "--sources", "world", "--access-control", ac, "--out", str(out / f"access_{i}")]
+        p = subprocess.run([sys.executable, "-m", "tools.bench_swarm", *args], capture_output=True, text=True,
+                           cwd=ROOT, check=True)  # fmt: skip
+        lines += [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
+    (DOCS / "bench_access.jsonl").write_text("".join(ln + "\n" for ln in lines))
+    stamp("access", command=["python", "-m", "tools.bench_swarm", "--agents", "16", "--sources", "world",
+                             "--access-control", "on|off"], order="on, off, off, on")  # fmt: skip
 
 
 def paper(out: Path, jobs: int) -> None:
@@ -237,6 +253,17 @@ def _swarm_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _access_table(path: Path) -> str:
+    """docs/benchmarks.md's access-control table: each run of the ABBA rounds, in order."""
+    out = ["| access control | mode | real-time factor | on time | CPU per agent (% of a core) | "
+           "p99 tick latency (ms) |", "|" + "---|" * 6]  # fmt: skip
+    for r in _jsonl(path):
+        on_time = "-" if r["on_time_fraction"] is None else f"{r['on_time_fraction']:.4f}"
+        out.append(f"| {'on' if r['access_control'] else 'off'} | {r['mode']} | {r['real_time_factor']:.2f} | "
+                   f"{on_time} | {r['cpu_percent_per_agent']:.1f} | {r['p99_tick_latency_ms']:.1f} |")  # fmt: skip
+    return "\n".join(out)
+
+
 # generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->
 GENERATED = {
     "compare": (DOCS / "compare.json", _compare_table),
@@ -245,6 +272,7 @@ GENERATED = {
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
+    "access": (DOCS / "bench_access.jsonl", _access_table),
     **{f"sweep_{n}": (DOCS / f"sweep_{n}" / "results.csv", _sweep_table) for n in SWEEPS},
 }
 DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
@@ -275,7 +303,7 @@ def documents(write: bool) -> list[str]:
 
 PARTS = {
     "paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults,
-    "filter": filter_bench, "swarm": swarm_bench,
+    "filter": filter_bench, "swarm": swarm_bench, "access": access_cost,
 }  # fmt: skip
 
 if __name__ == "__main__":

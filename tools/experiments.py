@@ -240,28 +240,34 @@ def _filter_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _table(head: list[str], rows: list[list[str]]) -> str:
+    """A markdown table."""
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def _maybe(v: float | None, fmt: str) -> str:
+    return "-" if v is None else format(v, fmt)
+
+
 def _swarm_table(path: Path) -> str:
     """docs/benchmarks.md's swarm table, one row per line of ``tools.bench_swarm``."""
-    out = ["| agents | mode | neighbours (topology) | real-time factor | on time | CPU per agent (% of a core) | "
-           "p99 tick latency (ms) | collisions |", "|" + "---|" * 8]  # fmt: skip
-    for r in _jsonl(path):
-        on_time = "-" if r["on_time_fraction"] is None else f"{r['on_time_fraction']:.4f}"
-        lat = "-" if r["p99_tick_latency_ms"] is None else f"{r['p99_tick_latency_ms']:.1f}"
-        out.append(f"| {r['agents']} | {r['mode']} | {r['neighbour_source']} ({r['topology']}) | "
-                   f"{r['real_time_factor']:.2f} | {on_time} | {r['cpu_percent_per_agent']:.0f} | {lat} | "
-                   f"{r['collisions']} |")  # fmt: skip
-    return "\n".join(out)
+    head = ["agents", "mode", "neighbours (topology)", "real-time factor", "on time", "CPU per agent (% of a core)",
+            "p99 tick latency (ms)", "collisions"]  # fmt: skip
+    rows = [[str(r["agents"]), r["mode"], f"{r['neighbour_source']} ({r['topology']})", f"{r['real_time_factor']:.2f}",
+             _maybe(r["on_time_fraction"], ".4f"), f"{r['cpu_percent_per_agent']:.0f}",
+             _maybe(r["p99_tick_latency_ms"], ".1f"), str(r["collisions"])] for r in _jsonl(path)]  # fmt: skip
+    return _table(head, rows)
 
 
 def _access_table(path: Path) -> str:
     """docs/benchmarks.md's access-control table: each run of the ABBA rounds, in order."""
-    out = ["| access control | mode | real-time factor | on time | CPU per agent (% of a core) | "
-           "p99 tick latency (ms) |", "|" + "---|" * 6]  # fmt: skip
-    for r in _jsonl(path):
-        on_time = "-" if r["on_time_fraction"] is None else f"{r['on_time_fraction']:.4f}"
-        out.append(f"| {'on' if r['access_control'] else 'off'} | {r['mode']} | {r['real_time_factor']:.2f} | "
-                   f"{on_time} | {r['cpu_percent_per_agent']:.1f} | {r['p99_tick_latency_ms']:.1f} |")  # fmt: skip
-    return "\n".join(out)
+    head = ["access control", "mode", "real-time factor", "on time", "CPU per agent (% of a core)",
+            "p99 tick latency (ms)"]  # fmt: skip
+    rows = [["on" if r["access_control"] else "off", r["mode"], f"{r['real_time_factor']:.2f}",
+             _maybe(r["on_time_fraction"], ".4f"), f"{r['cpu_percent_per_agent']:.1f}",
+             f"{r['p99_tick_latency_ms']:.1f}"] for r in _jsonl(path)]  # fmt: skip
+    return _table(head, rows)
 
 
 # generated blocks of the documents: <!-- generated: NAME --> ... <!-- end generated -->

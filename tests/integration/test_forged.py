@@ -8,7 +8,7 @@
 * From a session with another agent's credentials (a compromised or buggy agent), a
   plausible command (the victim's id, the next tick, its time): Zenoh's access control at
   the world refuses it, and the victim's flight is the same, to the bit, as a run without
-  the attack (lockstep). With access control off, the same attack brings the victim down:
+  the attack (lockstep). With access control off, the same attack is flown and changes the victim's flight:
   the test can fail.
 """
 
@@ -102,7 +102,8 @@ def test_another_agents_credentials_cannot_command_a_drone(start_run):
     for key in ("path_length_m", "min_h", "time_to_goal_s", "max_path_deviation_m"):
         assert m["agents"]["cf1"][key] == ref["agents"]["cf1"][key], key  # not one forged command was flown
 
-    # the same attack without access control: the forged commands are flown and cf1 is brought down
+    # the same attack without access control: the forged commands are flown (cf1 misses its goal or flies
+    # another path)
     m, attacker = _attacked(start_run, "open", False, None)
     assert attacker.sent > 50
     assert not m["agents"]["cf1"]["reached_goal"] or m["agents"]["cf1"]["path_length_m"] != ref["agents"]["cf1"][

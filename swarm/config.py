@@ -374,9 +374,9 @@ class NeighbourSettings(_Strict):
 
     source: Literal["agents", "world"] = "agents"
     """``agents``: each agent subscribes to every other agent's published state (the
-    decentralised mesh of DESIGN.md; O(N^2) deliveries per tick). ``world``: agents use
+    decentralised mesh of docs/design.md; O(N^2) deliveries per tick). ``world``: agents use
     the roster of measured body centres the world sends with every clock tick, as a
-    motion-capture system would broadcast them (O(N) deliveries; DESIGN.md section 7b)."""
+    motion-capture system would broadcast them (O(N) deliveries; docs/design.md, "Neighbours")."""
 
 
 class DeadlockSettings(_Strict):

@@ -1,4 +1,4 @@
-"""The C3BF-QP safety filter (DESIGN.md section 5)::
+"""The C3BF-QP safety filter (docs/design.md, "The core")::
 
     u* = argmin |u - u_ref|^2   s.t.   Lg_h u >= lower (one row per obstacle / neighbour),
                                        u in the input set of the command level
@@ -221,7 +221,7 @@ class FilterConfig:
     margin_m: float = 0.02
     """Extra clearance [m] added to every safety radius."""
     eps_w_mps: float = 1e-3
-    """Smoothing of ``|w|`` [m/s] (DESIGN.md section 4)."""
+    """Smoothing of ``|w|`` [m/s] (``swarm.barriers``)."""
     escape_speed_mps: float = 0.3
     """Separation speed asked of rows already inside their radius."""
     slack_weight: float = 1e6

@@ -3,7 +3,7 @@
 Frames: world is z up (``e3``), body is x forward, y left, z up along the thrust.
 Quaternions are scalar-last, see :mod:`swarm.rotation`.
 
-Rigid body (DESIGN.md section 3, the paper's equation (1))::
+Rigid body (the paper's equation (1))::
 
     x' = v,   m v' = -m g e3 + T R e3,   J Omega' = tau - Omega x J Omega,   [T, tau] = B f
 """
@@ -109,7 +109,7 @@ class QuadParams:
     """Drag-torque coefficient [N m / rpm^2]; yaw torque per newton is ``km / kf``."""
     l_m: float = 0.014
     """Height of the body centre above the base (centre of mass) [m]; the barrier is
-    taken at ``x + l R e3`` (DESIGN.md section 4)."""
+    taken at ``x + l R e3`` (``swarm.barriers``)."""
     rotor_to_rotor_m: float = 0.130
     """Distance between two opposite rotors [m]; each rotor is half of it from the centre."""
     thrust_to_weight: float = 2.25

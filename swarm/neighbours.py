@@ -1,4 +1,4 @@
-"""What an agent knows of the other agents (DESIGN.md section 7): last published state,
+"""What an agent knows of the other agents (docs/design.md, "Failures"): last published state,
 extrapolated at constant velocity, with a radius that grows once the state is older
 than the timeout; past the hard limit, or once the neighbour's liveliness is gone, it
 is kept as a stopped obstacle at its last position or dropped, as configured."""

@@ -10,7 +10,7 @@ all rows; ``c''`` is the obstacle's. With ``h`` from :mod:`swarm.barriers`::
     Lf_h = <dh_dp, w> + <dh_dw, c'' + a0_own>,   Lg_h = A^T dh_dw
 
 and each row asks ``Lg_h u >= -(<dh_dw, c'' + a0_own> + rho (<dh_dp, w> + gamma h))``,
-``rho = 1`` except for neighbours (DESIGN.md section 5).
+``rho = 1`` except for neighbours (``swarm.filter``; docs/design.md).
 
 Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
 

@@ -1,5 +1,5 @@
 """The barriers by their definitions: gradients against finite differences of h,
-and a defined, finite answer in every edge case of DESIGN.md section 4."""
+and a defined, finite answer in every edge case of ``swarm.barriers``'s docstring."""
 
 import numpy as np
 from hypothesis import given, settings

@@ -4,8 +4,8 @@
 into the run folder, starts the recorder, one process per agent and the world (each in
 its own process group), shows progress from the world's status messages, and stops
 everything when the scenario ends, on Ctrl-C, or when the world or the recorder dies.
-An agent that dies is reported (``lost_agents``) while the others fly on, as DESIGN.md
-section 7 asks; ``--stop-on-agent-death`` stops the whole run instead.
+An agent that dies is reported (``lost_agents``) while the others fly on (docs/design.md,
+"Failures"); ``--stop-on-agent-death`` stops the whole run instead.
 """
 
 from __future__ import annotations
@@ -373,7 +373,7 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
 @click.option("--rotate-deg", type=float, default=0.0, show_default=True, help="turn the pattern about z [deg]")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--speed", type=float, default=0.8, show_default=True, help="target speed [m/s]")
-@click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share (DESIGN.md 5)")
+@click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share of each neighbour pair")
 @click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="right_hand", show_default=True)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")

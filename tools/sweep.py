@@ -7,7 +7,7 @@ at a time. The output folder gets one run folder per point, ``results.csv`` (one
 per run: the point's knobs and its metrics) and one PNG per metric, plotted against the
 first numeric axis with one line per combination of the other axes (seeds averaged).
 
-Knobs (DESIGN.md names; units in brackets):
+Knobs (the config's names; units in brackets):
 
 * ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
   or ``orca``: the ORCA baseline (``tools/orca.py``) instead of the swarm.

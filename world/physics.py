@@ -5,7 +5,7 @@ Each drone's base frame is its centre of mass (PyBullet's quaternions are scalar
 the project's order, see :mod:`swarm.rotation`). Rotor thrusts act at the rotor
 positions along body z, plus the yaw reaction torque; mass and the inertia diagonal
 are the model's. The collision shape is a flat cylinder of the airframe's bounding
-radius centred ``l`` above the centre of mass (the body centre of DESIGN.md).
+radius centred ``l`` above the centre of mass (the body centre the barriers use, ``swarm.model.body_centre``).
 """
 
 from __future__ import annotations

@@ -80,39 +80,38 @@ def _summary(case: str, cfg: ScenarioConfig, h: RunHandle, detected_s: float | N
     }  # fmt: skip
 
 
-def agent_kill(out: Path, mode: str) -> dict[str, Any]:
+def _faulted(out: Path, mode: str, name: str, sig: signal.Signals) -> tuple[ScenarioConfig, RunHandle, float]:
+    """Start the run, send ``sig`` to process ``name`` at the fault time; (config, run, wall time
+    of the signal [s, time.time])."""
     cfg = _config(mode)
     h = RunHandle.start(cfg, out)
     h.wait_sim_time(FAULT_AT_S)
     t0 = time.time()
-    h.kill("agent-cf3", signal.SIGKILL)
+    h.kill(name, sig)
+    return cfg, h, t0
+
+
+def agent_kill(out: Path, mode: str) -> dict[str, Any]:
+    cfg, h, t0 = _faulted(out, mode, "agent-cf3", signal.SIGKILL)
     seen = _log_time(h.out / "logs" / "world.log", r"agent cf3 gone", t0)
     h.wait()
     return _summary("agent_kill", cfg, h, seen, "the world lands cf3's drone; cf1 and cf2 fly on")
 
 
 def agent_stop(out: Path, mode: str) -> dict[str, Any]:
-    cfg = _config(mode)
-    h = RunHandle.start(cfg, out)
-    h.wait_sim_time(FAULT_AT_S)
-    t0 = time.time()
-    h.kill("agent-cf3", signal.SIGSTOP)
-    pattern = r"has waited [0-9.]+ s for \['cf3'\]" if mode == "lockstep" else r"$^"
-    seen = _log_time(h.out / "logs" / "world.log", pattern, t0, 3.0) if mode == "lockstep" else None
+    cfg, h, t0 = _faulted(out, mode, "agent-cf3", signal.SIGSTOP)
+    lockstep = mode == "lockstep"  # (realtime has no stall to report: the drone brakes)
+    seen = _log_time(h.out / "logs" / "world.log", r"has waited [0-9.]+ s for \['cf3'\]", t0, 3.0) if lockstep else None
     time.sleep(max(0.0, 3.0 - (time.time() - t0)))  # the fault: 3 s stopped
     h.kill("agent-cf3", signal.SIGCONT)
     h.wait()
-    what = "the world waits, logs the stall, and goes on" if mode == "lockstep" else "cf3's drone brakes"
+    what = "the world waits, logs the stall, and goes on" if lockstep else "cf3's drone brakes"
     return _summary("agent_stop", cfg, h, seen, what)
 
 
 def _kill_and_time(out: Path, mode: str, name: str) -> tuple[ScenarioConfig, RunHandle, float]:
     """SIGKILL ``name`` at the fault time; (config, run, seconds until the launcher stopped the run)."""
-    cfg = _config(mode)
-    h = RunHandle.start(cfg, out)
-    h.wait_sim_time(FAULT_AT_S)
-    t0 = time.time()
-    h.kill(name, signal.SIGKILL)
+    cfg, h, t0 = _faulted(out, mode, name, signal.SIGKILL)
     while (reason := h.poll(wait_s=0.002)) is None:
         pass
     seen = time.time() - t0
@@ -134,10 +133,7 @@ def world_kill(out: Path, mode: str) -> dict[str, Any]:
 
 
 def world_stop(out: Path, mode: str) -> dict[str, Any]:
-    cfg = _config(mode)
-    h = RunHandle.start(cfg, out)
-    h.wait_sim_time(FAULT_AT_S)
-    h.kill("world", signal.SIGSTOP)
+    cfg, h, _t0 = _faulted(out, mode, "world", signal.SIGSTOP)
     time.sleep(1.0)  # the fault: the world frozen for 1 s
     h.kill("world", signal.SIGCONT)
     h.wait()

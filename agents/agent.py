@@ -19,11 +19,13 @@ import math
 import sys
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
 from agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm import transport as tp
+from swarm.cells import Interest, cell_of
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
 from swarm.filter import FilterStatus, SafetyFilter
@@ -62,6 +64,13 @@ class Agent:
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.obstacles = ObstacleArrays.empty()
         self.from_world = cfg.neighbours.source == "world"
+        # neighbours by cells (swarm.cells): the world's own tick message for a simulated
+        # drone (its measurement, the obstacles and the neighbours near it), cell subscriptions
+        self.cells = cfg.uses_cells
+        self.ticked = self.cells and me.backend != "crazyflie"  # measured by tick messages, not the clock
+        self.interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
+        self.near: dict[int, list[str]] = {}  # tick -> the neighbours the world names near this agent
+        self.missed = 0  # near neighbours whose state was not there when used (lockstep: at the deadline)
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
         self._roster_key: tuple[str, ...] = ()  # the clock's ids the roster rows were indexed for
@@ -156,6 +165,19 @@ class Agent:
         _keep_newest(self.clock_live, 5)
         return [n for n in left if n in self.others]
 
+    def on_tick(self, m: Message) -> Message | None:
+        """This agent's own tick message (neighbours by cells): keep the obstacles and the
+        near neighbours of tick k; its measurement, unless the run is over."""
+        self.near[m.k] = m["near"]
+        _keep_newest(self.near, 5)
+        if m.k >= self._newest_k:
+            self._newest_k = m.k
+            self.obstacles = items_to_arrays(m["items"])
+            self.obstacle_ids = [i["id"] for i in m["items"]]
+        if m["done"]:
+            return None
+        return Message("measurement", m.run, m.src, m.seq, m.t, m.k, {f: m[f] for f in ("x", "v", "q", "w")})
+
     def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
         """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""
         if k is None:  # the newest (inserted last: clocks come in tick order)
@@ -175,13 +197,29 @@ class Agent:
     def missing(self, k: int) -> int:
         """Lockstep: how many messages tick k still waits for: its clock, then (agents
         source) each live neighbour's state of tick k-1."""
-        live = self.clock_live.get(k)
+        live = self.near.get(k) if self.ticked else self.clock_live.get(k)
         if live is None:
             return 1
         if self.from_world or k == 0:
             return 0  # the clock of tick k carried every neighbour's tick-k state
         table = self.table
         return sum(1 for n in live if n in self.others and n not in table.gone and table.latest_k(n) < k - 1)
+
+    def _neighbour_rows(self, t: float, k: int, x_b: np.ndarray, lockstep: bool) -> ObstacleArrays:
+        """Rows of the other agents at ``t`` [s]: the world's roster, or their states
+        (lockstep: of tick k-1, and with cells those of the neighbours the world named)."""
+        if self.from_world:
+            return self.roster_rows(t, k if lockstep else None)
+        if not self.cells:
+            return self.table.arrays(t, k - 1 if lockstep else None)
+        near = self.near.get(k, [])
+        if lockstep:
+            return self.table.arrays(t, k - 1, sorted(near))
+        self.table.forget_far(x_b, self.interest.radius_m + self.interest.hysteresis_m, t)
+        if t > self.table.timeout_s:  # (before that, no neighbour can have been heard for long)
+            timeout_s = self.table.timeout_s
+            self.missed += sum(1 for n in near if (s := self.table.state(n)) is None or t - s.t_s > timeout_s)
+        return self.table.arrays(t)
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
@@ -193,10 +231,7 @@ class Agent:
         k, t = msg.k, msg.t
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
         x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
-        if self.from_world:
-            neighbours = self.roster_rows(t, k if lockstep else None)
-        else:
-            neighbours = self.table.arrays(t, k - 1 if lockstep else None)
+        neighbours = self._neighbour_rows(t, k, x_b, lockstep)
         tracker: PathTracker | None = self.tracker
         filt = self.filt
         if self.plan is not None:
@@ -233,6 +268,16 @@ class Agent:
         return self._state_body(x_b, v_b), dict(level=level.value, u=cmd, intervention=intervention, **report)
 
 
+def follow_cells(interest: Interest, subs: tp.Channels, keys: tp.Keys, x_b_w: np.ndarray) -> None:
+    """Subscribe to the cells near the body centre ``x_b_w`` [m, world] and drop the ones
+    left behind (``swarm.cells.Interest``: nothing while within the hysteresis)."""
+    add, drop = interest.update(x_b_w.tolist())
+    for c in sorted(add):
+        subs.add(keys.cell(c))
+    for c in drop:
+        subs.remove(keys.cell(c))
+
+
 def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
     agent = Agent(cfg, agent_id)
     keys = tp.Keys(run)
@@ -242,12 +287,20 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
     session = tp.open_session(conf)
     counter = tp.Counter()
     meas_key = keys.measurement(agent_id)
-    neighbour_keys = [] if agent.from_world else [keys.state(n) for n in sorted(agent.others)]
+    tick_key = keys.tick(agent_id)
+    neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
     real_drone = agent.plan is not None  # measured by motion capture on its own key, not in the clock
-    inbox = tp.Inbox(session, [keys.clock, *neighbour_keys, *([meas_key] if real_drone else [])])
+    inbox = tp.Inbox(session, [tick_key if agent.ticked else keys.clock, *neighbour_keys,
+                               *([meas_key] if real_drone else [])])  # fmt: skip
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     # with neighbours from the world's roster nobody needs this agent's own state message
-    pub_state = None if agent.from_world else session.declare_publisher(keys.state(agent_id))
+    pub_state = None if agent.from_world or agent.cells else session.declare_publisher(keys.state(agent_id))
+    cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
+    cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
+    if agent.cells:  # listen to the cells near the start before anyone can see this agent
+        start_b = body_centre(np.asarray(agent.me.start, float), np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3),
+                              agent.model.params.l_m)[0]  # fmt: skip
+        follow_cells(agent.interest, cell_subs, keys, start_b)
     pub_cmd = session.declare_publisher(keys.command(agent_id))
     token = tp.declare_liveliness(session, keys.alive(agent_id))
     startup_cpu_s = time.process_time()
@@ -285,6 +338,10 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
             reported_gone.add(name)
             print(f"agent {agent_id}: neighbour {name} gone ({how}) at wall {time.time():.4f}", file=sys.stderr)
 
+    def state_key(m: Message) -> str:
+        """The key a neighbour's state ``m`` must come on."""
+        return keys.cell_state(cell_of(m["x"], agent.interest.cell_m), m.src) if agent.cells else keys.state(m.src)
+
     def handle(sample) -> None:
         key = str(sample.key_expr)
         m = tp.decode_sample(sample, run, counter)
@@ -294,8 +351,17 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
             pending.append(m)
             last_meas[0] = time.monotonic()  # arrival time: a slow tick of ours is not a lost body
             msg_seen.setdefault(m.k, time.monotonic())
-        elif m.kind == "state" and key == keys.state(m.src) and m.src in agent.others:
+        elif m.kind == "state" and m.src == agent_id and agent.cells:
+            pass  # its own state, heard in its own cell
+        elif m.kind == "state" and m.src in agent.others and key == state_key(m):
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
+        elif m.kind == "tick" and key == tick_key:
+            mine = agent.on_tick(m)
+            if mine is not None:
+                pending.append(mine)
+                msg_seen.setdefault(m.k, time.monotonic())
+            else:
+                stop.set()
         elif m.kind == "clock" and key == keys.clock:
             for name in agent.on_clock(m):
                 neighbour_gone(name, "the world's live list")
@@ -317,8 +383,13 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
             # wake when what the oldest pending tick still needs can all be here (one
             # wake for a neighbour mesh's states, not one per state), or after wake_s
             need = max(1, agent.missing(min(m.k for m in pending))) if lockstep and pending else 1
-            inbox.wait_for(need, time.monotonic() + wake_s)
+            if agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
+                inbox.wait_for(1, time.monotonic() + 0.001)
+            else:
+                inbox.wait_for(need, time.monotonic() + wake_s)
             for s in inbox.drain():
+                handle(s)
+            for s in cell_subs.drain():
                 handle(s)
             for name, up in tp.liveliness_events(live_sub):
                 if up:
@@ -354,6 +425,7 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
                 if not agent.ready(msg.k):
                     if time.monotonic() - msg_seen[msg.k] < cfg.time.lockstep_timeout_s:
                         continue  # wait for the rest of tick k (the inbox wakes us)
+                    agent.missed += agent.missing(msg.k) if agent.ticked and msg.k in agent.near else 0
                     counter.drop("lockstep: tick incomplete at the deadline")
                 pending.remove(msg)
                 waited_s += time.monotonic() - msg_seen.pop(msg.k, time.monotonic())
@@ -382,7 +454,15 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
                     link.setpoint(*map(float, cmd_body["u"]))
                     flying[0] = True
                 last_tick_end[0] = time.monotonic()
-            if pub_state is not None:
+            if agent.cells:
+                seq += 1
+                cell = cell_of(state_body["x"], agent.interest.cell_m)
+                pub = cell_pubs.get(cell)
+                if pub is None:
+                    pub = cell_pubs[cell] = session.declare_publisher(keys.cell_state(cell, agent_id))
+                pub.put(encode("state", run, agent_id, seq, msg.t, msg.k, **state_body))
+                follow_cells(agent.interest, cell_subs, keys, state_body["x"])
+            elif pub_state is not None:
                 seq += 1
                 pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, **state_body))
             seq += 1
@@ -398,7 +478,8 @@ def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
     summary = {
         "id": agent_id, "ticks": len(tick_s), "compute_median_ms": float(np.median(ts)),
         "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": waited_s, "cpu_s": time.process_time(),
-        "startup_cpu_s": startup_cpu_s, "dropped": counter.dropped,
+        "startup_cpu_s": startup_cpu_s, "dropped": counter.dropped, "rx_bytes": counter.rx_bytes,
+        "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared if agent.cells else 0,
     }  # fmt: skip
     print("AGENT_SUMMARY " + json.dumps(summary), file=sys.stderr)
     if counter.dropped:

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
-LAUNCHER, WORLD, RECORDER, OBSERVER = "launcher", "world", "recorder", "observer"
+LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
 
 
 def agent_user(agent_id: str) -> str:
@@ -34,7 +34,7 @@ def agent_user(agent_id: str) -> str:
 
 
 def run_users(agent_ids: list[str]) -> list[str]:
-    return [LAUNCHER, WORLD, RECORDER, OBSERVER, *(agent_user(a) for a in agent_ids)]
+    return [LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER, *(agent_user(a) for a in agent_ids)]
 
 
 def make_secrets(folder: Path, agent_ids: list[str]) -> Path:
@@ -71,7 +71,9 @@ def password(folder: Path, user: str) -> str:
     raise SecretsError(f"{path}: no credentials for {user!r}")
 
 
-def acl(run: str, agent_ids: list[str], flies_commands: bool, identified: bool = False) -> dict[str, Any]:
+def acl(
+    run: str, agent_ids: list[str], flies_commands: bool, identified: bool = False, router: str | None = None
+) -> dict[str, Any]:
     """Zenoh's ``access_control`` section of one process of a run. Deny by default; anyone
     linked may subscribe and query in the run; the launcher may publish anywhere in it.
 
@@ -87,7 +89,12 @@ def acl(run: str, agent_ids: list[str], flies_commands: bool, identified: bool =
     the agents' states and liveliness tokens; in the process that ``flies_commands`` (the
     world, which accepts every agent's link) only agent ``X`` may publish under
     ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
-    any linked session may."""
+    any linked session may.
+
+    ``router`` (``network.topology: router``): ``"router"`` for the run's router, which
+    accepts every link, so it knows every sender by its user name and accepts from each
+    only its own keys (as ``identified``); ``"client"`` for every other process, whose one
+    link is to the router: it accepts everything of the run the router forwards."""
     root = f"swarm/{run}"
     listen = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query", "declare_queryable",
               "reply"]  # fmt: skip
@@ -107,11 +114,16 @@ def acl(run: str, agent_ids: list[str], flies_commands: bool, identified: bool =
     subjects: list[dict[str, Any]] = [{"id": "anyone"}]
     policies: list[dict[str, Any]] = [{"rules": ["send", "listen"], "subjects": ["anyone"]}]
     own = {LAUNCHER: [f"{root}/**"], **{agent_user(a): [f"{root}/agent/{a}/**"] for a in agent_ids}}
-    if identified:
+    if router == "client":  # the router checked every sender
+        rules.append({"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish,
+                      "key_exprs": [f"{root}/**"]})  # fmt: skip
+        policies[0]["rules"].append("shared")
+    elif identified or router == "router":
         own |= {WORLD: [f"{root}/world/**", f"{root}/alive/world"], RECORDER: [f"{root}/alive/recorder"]}
-        own |= {agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}"] for a in agent_ids}
+        own |= {agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"]
+                for a in agent_ids}  # fmt: skip
     else:
-        shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/alive/*"]
+        shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/cell/**", f"{root}/alive/*"]
         if not flies_commands:
             shared.append(f"{root}/agent/*/command")
         rules.append({"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish,

@@ -347,15 +347,19 @@ class NetworkSettings(_Strict):
     # who reaches the ports may join the run
     access_control: bool = True
     tls: TlsSettings = TlsSettings()
-    topology: Literal["auto", "mesh", "star"] = "auto"
+    topology: Literal["auto", "mesh", "star", "router"] = "auto"
     """Which processes link to which (``swarm.transport.process_config``). ``mesh``: every
     process listens and Zenoh's gossip links every pair, so any peer that joins sees all
     traffic. ``star``: only the hubs listen, the world on ``port``, the recorder on
     ``port + 1``, the launcher on ``port + 2``; the others link to the hubs alone, with
     Zenoh's low-latency transport (a ``put`` is written to the socket by the calling
     thread). It needs ``neighbours.source: world`` (agents never hear each other) and peer
-    mode without extra endpoints; an outside peer sees only the hubs' messages. ``auto``:
-    star when those hold and ``host`` is loopback, else mesh."""
+    mode without extra endpoints; an outside peer sees only the hubs' messages.
+    ``router``: a Zenoh router (``swarm router``) listens on ``host:port`` and every
+    other process is a client linked to it alone; the router forwards each message to
+    the sessions subscribed to its key (and checks, per sender, what it may publish).
+    ``auto``: star when those hold and ``host`` is loopback; else the router for
+    ``neighbours.source: agents``; else mesh."""
 
 
 class FailureSettings(_Strict):
@@ -373,10 +377,24 @@ class NeighbourSettings(_Strict):
     """Where an agent learns the other agents' motion."""
 
     source: Literal["agents", "world"] = "agents"
-    """``agents``: each agent subscribes to every other agent's published state (the
-    decentralised mesh of docs/design.md; O(N^2) deliveries per tick). ``world``: agents use
-    the roster of measured body centres the world sends with every clock tick, as a
-    motion-capture system would broadcast them (O(N) deliveries; docs/design.md, "Neighbours")."""
+    """``agents``: each agent publishes its state and subscribes to its neighbours' (the
+    decentralised path of docs/design.md, "Neighbours"). ``world``: agents use the roster of
+    measured body centres the world sends with every clock tick, as a motion-capture system
+    would broadcast them (one message a tick that grows with N)."""
+    interest: Literal["cells", "all"] = "cells"
+    """With ``source: agents``: ``cells``: states are published under the grid cell of the
+    agent's body centre and each agent subscribes to the cells within its interest radius
+    (``swarm.cells``), so it hears only the neighbours that can matter; ``all``: every agent
+    subscribes to every other agent's state (N - 1 deliveries per agent and tick)."""
+    margin_m: float = Field(0.5, gt=0, le=10)
+    """Interest radius = the agent's sensing radius + this [m]: what it and a neighbour can
+    close between a state's time and its use. The world names, with each tick, the live
+    agents within the sensing radius + half of it (the ones a lockstep tick waits for)."""
+    hysteresis_m: float = Field(0.5, gt=0, le=10)
+    """Cells are declared for the interest radius + this [m], and declared again after a
+    quarter of it of the agent's own motion (``swarm.cells.Interest``)."""
+    cell_m: float | None = Field(None, gt=0, le=1000)
+    """Side of a cell [m]; None: the largest interest radius of the scenario."""
 
 
 class DeadlockSettings(_Strict):
@@ -403,6 +421,7 @@ class MocapSettings(_Strict):
 
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
+MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.cells): each is a Zenoh subscriber
 AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
@@ -506,6 +525,18 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _cells(self) -> ScenarioConfig:
+        """Cells so small that an agent would subscribe to more than MAX_CELLS of them."""
+        if self.uses_cells:
+            reach = max(self.interest_radius_m(a.id) for a in self.agents) + self.neighbours.hysteresis_m
+            n = (2 * reach / self.cell_m + 1) ** 3 * math.pi / 6
+            if n > MAX_CELLS:
+                least = 2 * reach / ((MAX_CELLS * 6 / math.pi) ** (1 / 3) - 1)
+                raise ValueError(f"neighbours.cell_m: cells of {self.cell_m:g} m would make each agent subscribe to "
+                                 f"about {n:.0f} cells (at most {MAX_CELLS}); use {least:.2f} m or more")  # fmt: skip
+        return self
+
+    @model_validator(mode="after")
     def _star(self) -> ScenarioConfig:
         if self.network.topology == "star":
             why = self._star_blocker()
@@ -524,12 +555,32 @@ class ScenarioConfig(_Strict):
         return None
 
     @property
-    def topology(self) -> Literal["mesh", "star"]:
+    def topology(self) -> Literal["mesh", "star", "router"]:
         """``network.topology`` with ``auto`` resolved (see :class:`NetworkSettings`)."""
         if self.network.topology != "auto":
             return self.network.topology
         loopback = self.network.host in ("localhost", "::1") or self.network.host.startswith("127.")
-        return "star" if loopback and self._star_blocker() is None else "mesh"
+        if loopback and self._star_blocker() is None:
+            return "star"
+        return "router" if self.neighbours.source == "agents" else "mesh"
+
+    @property
+    def uses_cells(self) -> bool:
+        """Agents publish their states by cell and subscribe to the cells near them."""
+        return self.neighbours.source == "agents" and self.neighbours.interest == "cells"
+
+    def interest_radius_m(self, agent_id: str) -> float:
+        """The radius [m] within which ``agent_id`` hears every neighbour (swarm.cells)."""
+        return self.agent(agent_id).filter.sensing_radius_m + self.neighbours.margin_m
+
+    def near_radius_m(self, agent_id: str) -> float:
+        """The radius [m] within which the world names ``agent_id``'s live neighbours."""
+        return self.agent(agent_id).filter.sensing_radius_m + self.neighbours.margin_m / 2
+
+    @property
+    def cell_m(self) -> float:
+        """Side [m] of the cells (``neighbours.cell_m``, or the largest interest radius)."""
+        return self.neighbours.cell_m or max(self.interest_radius_m(a.id) for a in self.agents)
 
     def agent(self, agent_id: str) -> AgentConfig:
         for a in self.agents:

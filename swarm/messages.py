@@ -22,9 +22,10 @@ import numpy as np
 
 from swarm.model import all_finite
 
-VERSION = 5  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 6  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
+# 6: the tick message (one agent's measurement, obstacles and near neighbours)
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -41,6 +42,10 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "level": "s", "u": "vf", "intervention": "f", "status": "s", "solve_us": "f", "row_ids": "ls",
         "h_rows": "vf", "min_h": "f", "infeasible": "i", "goal_reached": "b", "dropped": "i",
     },
+    # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
+    # measurement, the obstacles, the live agents within its near radius (the states tick k
+    # uses: theirs of tick k-1), and whether the run is over. Its size does not grow with N.
+    "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "done": "b"},
     "clock": {
         "live": "ls", "done": "b", "ids": "ls", "xvr": "vf", "meas_ids": "ls", "meas": "vf", "items": "obs",
         "solo": "ls",

@@ -5,6 +5,7 @@ is kept as a stopped obstacle at its last position or dropped, as configured."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,16 +91,28 @@ class NeighbourTable:
         ks = [k for k in h if k_max is None or k <= k_max]
         return h[max(ks)] if ks else None
 
-    def arrays(self, t_now_s: float, k_max: int | None = None) -> ObstacleArrays:
+    def forget_far(self, x_w: FloatArray, radius_m: float, t_now_s: float) -> None:
+        """Forget the neighbours (not gone) last heard farther than ``radius_m`` [m] from
+        ``x_w`` [m, world] and more than the timeout ago: they left the cells this agent
+        listens to (``neighbours.interest: cells``), they are not lost."""
+        for name in [n for n in self.history if n not in self.gone]:
+            s = self.state(name)
+            if s is not None and t_now_s - s.t_s > self.timeout_s and math.dist(s.x_w, x_w) > radius_m:
+                del self.history[name]
+
+    def arrays(self, t_now_s: float, k_max: int | None = None, names: list[str] | None = None) -> ObstacleArrays:
         """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``; their
         names are left in :attr:`row_names`. A neighbour that is gone, past the hard limit
         or ``solo`` is an obstacle row (``is_neighbour`` false): it is not doing its share,
-        so this agent takes all of the pair."""
+        so this agent takes all of the pair. ``names``: only these neighbours (in this
+        order), and the gone ones."""
         self.row_names = []
         if not self.history:
             return ObstacleArrays.empty()
         c, cd, r, share = [], [], [], []
-        for name in self.history:
+        if names is not None:
+            names = [n for n in names if n in self.history] + [n for n in self.history if n in self.gone]
+        for name in self.history if names is None else dict.fromkeys(names):
             n = self.state(name, k_max)
             if n is None:
                 continue

@@ -57,12 +57,21 @@ class Keys:
     def stall(self) -> str:
         return f"{self.root}/world/stall"
 
+    def tick(self, agent_id: str) -> str:
+        """World -> one agent (``neighbours.interest: cells``): its measurement, the
+        obstacles and the neighbours near it, at tick k."""
+        return f"{self.root}/world/{agent_id}/tick"
+
     def state(self, agent_id: str) -> str:
         return f"{self.root}/agent/{agent_id}/state"
 
-    @property
-    def all_states(self) -> str:
-        return f"{self.root}/agent/*/state"
+    def cell_state(self, cell: tuple[int, int, int], agent_id: str) -> str:
+        """An agent's state, published under the cell of its body centre (swarm.cells)."""
+        return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/{agent_id}"
+
+    def cell(self, cell: tuple[int, int, int]) -> str:
+        """Every state published in ``cell``."""
+        return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/*"
 
     def command(self, agent_id: str) -> str:
         return f"{self.root}/agent/{agent_id}/command"
@@ -111,7 +120,7 @@ def session_config(
     if lowlatency:
         conf.insert_json5("transport/unicast/lowlatency", "true")
         conf.insert_json5("transport/unicast/qos/enabled", "false")
-    if mode == "peer":
+    if mode in ("peer", "router"):
         conf.insert_json5("listen/endpoints", json.dumps(listen if listen is not None else ["tcp/127.0.0.1:0"]))
     conf.insert_json5("connect/endpoints", json.dumps(connect or []))
     return conf
@@ -129,6 +138,7 @@ class Role(StrEnum):
     LAUNCHER = "launcher"
     AGENT = "agent"
     OBSERVER = "observer"  # anything else that joins a run (a test, a user's tool)
+    ROUTER = "router"  # the Zenoh router of network.topology: router
 
 
 HUBS = (Role.WORLD, Role.RECORDER, Role.LAUNCHER)  # a star's listeners, on port, port + 1, port + 2
@@ -167,7 +177,11 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         conf.insert_json5("transport/link/tls/enable_mtls", json.dumps(tls.mutual))
         conf.insert_json5("transport/link/tls/verify_name_on_connect", "true")
         identified = files.own and tls.mutual
-    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified)
+    router = None
+    if cfg.topology == "router":
+        router = "router" if acc.user == access.ROUTER else "client"
+    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified,
+                       router=router)  # fmt: skip
     conf.insert_json5("access_control", json.dumps(rules))
 
 
@@ -198,6 +212,11 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     40.)"""
     network = cfg.network
     proto = "tls" if network.tls.enabled else "tcp"
+    if cfg.topology == "router":
+        endpoint = world_endpoint(network.host, network.port, proto)
+        if role is Role.ROUTER:
+            return session_config(mode="router", listen=[endpoint], connect=list(network.connect), lowlatency=True)
+        return session_config(mode="client", connect=[endpoint], lowlatency=True)
     if cfg.topology == "star":
         ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(HUBS))]
         if role in HUBS:
@@ -217,6 +236,7 @@ class Counter:
 
     dropped: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
+    rx_bytes: int = 0  # payload bytes of every sample decoded (kept or dropped)
 
     def drop(self, reason: str) -> None:
         self.dropped += 1
@@ -260,8 +280,10 @@ def decode_sample(
 ) -> Message | None:
     """Decode a sample (its ``fields`` only, if given: :func:`swarm.messages.decode`) or
     drop and count it."""
+    data = payload(sample)
+    counter.rx_bytes += len(data)
     try:
-        return decode(payload(sample), run, kinds, fields)
+        return decode(data, run, kinds, fields)
     except DecodeError as exc:
         counter.drop(str(exc))
         return None
@@ -287,8 +309,22 @@ class Inbox:
         # indirect=False: Zenoh's receive thread runs the callback itself, instead of handing
         # each sample to a Python thread of its own first (one thread wake-up less per sample;
         # measured on 16 agents: the recorder's context switches per tick 75 -> 52)
-        on_sample = zenoh.handlers.Callback(self._on_sample, indirect=False)
-        self.subs = [session.declare_subscriber(key, on_sample) for key in ([keys] if isinstance(keys, str) else keys)]
+        self._session = session
+        self.subs: dict[str, Any] = {}
+        for key in [keys] if isinstance(keys, str) else keys:
+            self.add(key)
+
+    def add(self, key: str) -> None:
+        """Also queue the samples of ``key`` (a subscriber declared now)."""
+        if key not in self.subs:
+            on_sample = zenoh.handlers.Callback(self._on_sample, indirect=False)
+            self.subs[key] = self._session.declare_subscriber(key, on_sample)
+
+    def remove(self, key: str) -> None:
+        """Stop queueing the samples of ``key`` (its subscriber undeclared)."""
+        sub = self.subs.pop(key, None)
+        if sub is not None:
+            sub.undeclare()
 
     def _on_sample(self, sample: Any) -> None:
         self._q.put(sample)
@@ -343,6 +379,31 @@ class Inbox:
 
 
 _NEVER = 1 << 62
+
+
+class Channels:
+    """Subscribers whose samples queue in Zenoh's own FIFO channels (no Python runs per
+    sample), added and removed as keys come and go, drained together by the caller once it
+    is awake for another reason (an agent's cells, drained when its tick arrives)."""
+
+    def __init__(self, session: zenoh.Session, capacity: int = 256) -> None:
+        self._session, self._capacity = session, capacity
+        self.subs: dict[str, Any] = {}
+
+    def add(self, key: str) -> None:
+        if key not in self.subs:
+            self.subs[key] = open_channel(self._session, key, self._capacity)
+
+    def remove(self, key: str) -> None:
+        sub = self.subs.pop(key, None)
+        if sub is not None:
+            sub.undeclare()
+
+    def drain(self) -> Iterator[Any]:
+        """Every sample queued on any of the subscribers right now, without blocking."""
+        for sub in self.subs.values():
+            while (s := sub.try_recv()) is not None:
+                yield s
 
 
 def liveliness_change(sample: Any) -> tuple[str, bool]:

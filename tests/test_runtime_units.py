@@ -272,10 +272,11 @@ def _net(**over: object):
     return resolve({**raw, **over}, "my.yaml")
 
 
-def test_auto_topology_is_a_star_only_where_one_can_carry_the_run():
+def test_auto_topology_is_a_star_only_where_one_can_carry_the_run_and_a_router_for_agents_states():
     world = {"source": "world"}
     assert _net(neighbours=world).topology == "star"  # loopback peers, neighbours from the world
-    assert _net().topology == "mesh"  # agents hear each other's states
+    assert _net().topology == "router"  # agents hear each other's states through a router
+    assert _net(network={"host": "192.168.1.5"}).topology == "router"
     assert _net(neighbours=world, network={"host": "192.168.1.5"}).topology == "mesh"  # other machines may join
     assert _net(neighbours=world, network={"connect": ["tcp/10.0.0.2:7447"]}).topology == "mesh"
     assert _net(neighbours=world, network={"mode": "client"}).topology == "mesh"
@@ -287,6 +288,23 @@ def test_auto_topology_is_a_star_only_where_one_can_carry_the_run():
     with pytest.raises(ConfigError, match=r"network.topology: star needs network.port <= 65533"):
         _net(network={"topology": "star", "port": 65534}, neighbours=world)
     assert _net(neighbours=world, network={"port": 65534}).topology == "mesh"
+
+
+def test_a_router_links_every_other_process_to_itself_alone():
+    from swarm import transport as tp
+
+    cfg = _net(network={"port": 7000, "host": "10.0.0.1"})
+    assert cfg.topology == "router"
+
+    def get(conf, key):
+        return json.loads(conf.get_json(key))
+
+    router = tp.links(cfg, tp.Role.ROUTER)
+    assert get(router, "mode") == "router" and get(router, "listen/endpoints") == ["tcp/10.0.0.1:7000"]
+    for role in (tp.Role.WORLD, tp.Role.AGENT, tp.Role.RECORDER, tp.Role.LAUNCHER, tp.Role.OBSERVER):
+        conf = tp.links(cfg, role)
+        assert get(conf, "mode") == "client", role
+        assert get(conf, "connect/endpoints") == ["tcp/10.0.0.1:7000"], role
 
 
 def test_star_links_every_process_to_the_hubs_alone():
@@ -308,7 +326,7 @@ def test_star_links_every_process_to_the_hubs_alone():
     assert links(tp.Role.LAUNCHER) == ([hub[2]], [])  # started first: it connects to nobody
     assert links(tp.Role.AGENT) == ([], hub)
     assert links(tp.Role.OBSERVER) == ([], hub)
-    mesh = tp.process_config(_net(network={"port": 7000}), tp.Role.AGENT)
+    mesh = tp.process_config(_net(network={"port": 7000, "topology": "mesh"}), tp.Role.AGENT)
     assert get(mesh, "connect/endpoints") == [hub[0]] and get(mesh, "transport/unicast/lowlatency") is False
 
 

@@ -1,15 +1,19 @@
 """Benchmark of whole swarms as real processes, printed as JSON lines.
 
     python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 10]
-        [--sources agents,world] [--topology auto|mesh|star] [--access-control on|off]
+        [--sources agents,world] [--topology auto|mesh|star|router] [--access-control on|off]
+        [--interest cells|all]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
 (commands for tick k that reached the world before it published tick k+1),
 ``cpu_percent_per_agent`` (steady-state CPU of one agent process, start-up excluded,
 averaged over agents, as a percentage of one core; ``world_cpu_percent`` likewise), ``p99_tick_latency_ms`` (world
-sends a measurement -> receives that tick's command), plus collisions, late ticks and
-the minimum separation. Each run's folder is kept under ``--out``.
+sends a measurement -> receives that tick's command), ``cpu_us_per_agent_tick`` (an
+agent's CPU per control tick [us], start-up excluded, averaged over agents),
+``rx_bytes_per_agent_tick`` (payload bytes an agent received per tick), ``missed_neighbours``
+(near neighbours whose state was not there when used, summed over agents), plus
+collisions, late ticks and the minimum separation. Each run's folder is kept under ``--out``.
 """
 
 from __future__ import annotations
@@ -40,23 +44,39 @@ def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
 
 def bench_one(
     n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents", topology: str = "auto",
-    access_control: bool = True,
+    access_control: bool = True, interest: str = "cells",
 ) -> dict:  # fmt: skip
     settings = SwapSettings(rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
                             mode=mode, neighbours=source)  # fmt: skip
     raw = circle_swap(n, max(2.0, 0.35 * n), settings, name=f"bench_{n}_{mode}")
+    return run_row(raw, n, mode, rate_hz, out / f"circle_{n}_{mode}_{source}", topology, access_control, interest)
+
+
+def run_row(
+    raw: dict, n: int, mode: str, rate_hz: float, out: Path, topology: str = "auto", access_control: bool = True,
+    interest: str = "cells",
+) -> dict:  # fmt: skip
+    """Run the scenario ``raw`` to its end and return the benchmark's line."""
     raw["stop_when_all_reached"] = False
     raw["network"] = {"topology": topology, "access_control": access_control}
-    cfg = resolve(raw, f"circle_{n}")
-    h = RunHandle.start(cfg, out / f"circle_{n}_{mode}_{source}_{cfg.topology}")
+    raw.setdefault("neighbours", {})["interest"] = interest
+    cfg = resolve(raw, raw["name"])
+    source = cfg.neighbours.source
+    h = RunHandle.start(cfg, out.with_name(f"{out.name}_{cfg.topology}"))
     reason = h.wait()
     world, agents = summaries(h.out)
     metrics = json.loads((h.out / "metrics.json").read_text()) if (h.out / "metrics.json").exists() else {}
     wall = world["t_s"] / world["real_time_factor"] if world.get("real_time_factor") else float("nan")
     cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
+    per_tick = [((a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"], a.get("rx_bytes", 0) / a["ticks"])
+                for a in agents if a.get("ticks")]  # fmt: skip
+    us, rx = np.mean(per_tick, axis=0).tolist() if per_tick else (float("nan"), float("nan"))
     return {
         "agents": n, "mode": mode, "rate_hz": rate_hz, "neighbour_source": source,
         "topology": cfg.topology, "access_control": access_control,
+        "interest": cfg.neighbours.interest if source == "agents" else None,
+        "cpu_us_per_agent_tick": round(us, 1), "rx_bytes_per_agent_tick": round(rx, 1),
+        "missed_neighbours": sum(a.get("missed_neighbours", 0) for a in agents),
         "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
         "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
         "cpu_percent_per_agent": round(float(np.mean(cpu)), 1),
@@ -75,7 +95,13 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--seconds", type=float, default=10.0, help="sim time: 10 s covers the crossing at the centre")
     ap.add_argument("--sources", default="agents,world", help="neighbour sources (see NeighbourSettings)")
-    ap.add_argument("--topology", default="auto", choices=["auto", "mesh", "star"],
+    ap.add_argument(
+        "--interest",
+        default="cells",
+        choices=["cells", "all"],
+        help="agents source: subscribe by cells or to every agent (NeighbourSettings.interest)",
+    )
+    ap.add_argument("--topology", default="auto", choices=["auto", "mesh", "star", "router"],
                     help="which processes link to which (see NetworkSettings.topology)")  # fmt: skip
     ap.add_argument("--access-control", choices=["on", "off"], default="on",
                     help="Zenoh authentication and access control (network.access_control)")  # fmt: skip
@@ -85,7 +111,7 @@ def main() -> None:
         for mode in args.modes.split(","):
             for source in args.sources.split(","):
                 row = bench_one(n, mode, args.rate, args.seconds, args.out, source, args.topology,
-                                args.access_control == "on")  # fmt: skip
+                                args.access_control == "on", args.interest)  # fmt: skip
                 print(json.dumps(row), flush=True)
 
 

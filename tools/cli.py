@@ -218,6 +218,25 @@ def world(
 
 @cli.command()
 @click.argument("config")
+@click.option("--run", "run_id", help="run id shared by all processes (default: the scenario name)")
+@click.option("--port", type=int, help="the port to listen on (network.port)")
+@_SECRETS
+def router(config: str, run_id: str | None, port: int | None, secrets: Path | None) -> None:
+    """Start the run's Zenoh router (network.topology: router) alone."""
+    _pin_cpu()
+    from swarm import transport as tp
+    from tools.router import main as router_main
+
+    cfg, run_name = _process_args(config, run_id, port, None)
+    if cfg.topology != "router":
+        click.echo(f"config error: {config}: network.topology is {cfg.topology}, not router", err=True)
+        sys.exit(2)
+    conf = _zenoh_config(cfg, run_name, tp.Role.ROUTER, secrets)
+    os._exit(router_main(run_name, conf))
+
+
+@cli.command()
+@click.argument("config")
 @click.option("--id", "agent_id", required=True)
 @click.option("--run", "run_id")
 @click.option("--port", type=int)

@@ -141,7 +141,12 @@ class RunHandle:
         cfg_path.write_text(dump(cfg))
         common = [str(cfg_path), "--run", h.run, *(["--secrets", str(h.secrets)] if h.secrets else [])]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
-        h._session = tp.open_session(tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER)))
+        launcher_conf = tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER))
+        if cfg.topology == "router":  # everyone links to the router: it comes first
+            h._spawn("router", ["-m", "tools.cli", "router", *common])
+            h._session = h._open_via_router(launcher_conf)
+        else:
+            h._session = tp.open_session(launcher_conf)
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
             h._start_sitl()
@@ -159,6 +164,22 @@ class RunHandle:
             h._stop_all()
             raise
         return h
+
+    def _open_via_router(self, conf: Any) -> Any:
+        """The launcher's session, opened once the router accepts it: a client session
+        fails to open while nothing listens, so this tries until it opens, the router
+        exits or the start timeout passes."""
+        deadline = time.monotonic() + self.cfg.time.start_timeout_s
+        while True:
+            try:
+                return tp.open_session(conf)
+            except Exception as exc:  # zenoh.ZError: unable to connect
+                code = self.procs["router"].poll()
+                if code is not None or time.monotonic() > deadline:
+                    self._stop_all()
+                    why = self._cause("router", code) if code is not None else f"not reached: {exc}"
+                    raise RuntimeError(f"the run's router did not start: {why}") from None
+                time.sleep(0.02)  # a retry interval, not a wait for readiness
 
     def access(self, role: tp.Role, agent_id: str | None = None) -> tp.Access | None:
         """The credentials of a process of this run (None: access control is off)."""
@@ -256,6 +277,8 @@ class RunHandle:
                 continue
             self.progress.t_s, self.progress.status = m.t, m.body
         ex = self.exited()
+        if ex.get("router", 0) != 0:  # (it exits 0 only when stopped)
+            return self._cause("router", ex["router"]) + " (every link of the run went through it)"
         if "world" in ex:
             return "completed" if ex["world"] == 0 else self._cause("world", ex["world"])
         if "recorder" in ex:

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm import transport as tp
+from swarm.cells import near_lists
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, onboard_rotor_thrusts
 from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
@@ -152,6 +153,8 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     cmd_in = tp.Inbox(session, keys.all_commands)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in real}  # motion capture
+    cells = cfg.uses_cells  # each simulated agent gets its own tick message (swarm.cells)
+    pub_tick = {a.id: session.declare_publisher(keys.tick(a.id)) for a in cfg.agents if cells and a.id not in real}
     pub_clock = session.declare_publisher(keys.clock)
     pub_status = session.declare_publisher(keys.status)
     pub_coll = session.declare_publisher(keys.collision)
@@ -278,6 +281,7 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
     l_m = np.array([slots[a].model.params.l_m for a in names])  # body-centre offsets [m]
     radius_m = np.array([slots[a].model.params.body_radius_m for a in names])  # bounding radii [m]
     goals = np.array([slots[a].goal for a in names])  # (n, 3) m, world
+    near_m = np.array([cfg.near_radius_m(a) for a in names]) if cells else np.zeros(0)  # m
     onboard_consts: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}  # drones -> stacked gains
     phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
     try:
@@ -340,6 +344,15 @@ def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[s
             solo = [a for a in names if slots[a].solo or slots[a].dead or a in unfiltered]
             pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster,
                                  meas_ids=measured, meas=meas, items=items, solo=solo))  # fmt: skip
+            if cells:  # each agent's own tick: its measurement and the live agents near it
+                expected = np.array([slots[a].alive and not slots[a].dead for a in names])
+                near = near_lists(x_b, expected, near_m)
+                for aid in measured:
+                    i = index[aid]
+                    seq += 1
+                    pub_tick[aid].put(encode("tick", run, "world", seq, t, k, x=ds.x_w[i], v=ds.v_w[i], q=ds.q[i],
+                                           w=ds.Omega_b[i], near=[names[j] for j in near[i]], items=items,
+                                           done=done))  # fmt: skip
             if done:
                 break
 

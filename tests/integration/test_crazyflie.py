@@ -37,7 +37,7 @@ def real_config(uri: str, port: int, **cf: object) -> ScenarioConfig:
     raw = {
         "version": 1, "name": "cf_standin", "duration_s": 60.0,
         "time": {"mode": "realtime", "physics_hz": 200, "control_hz": 100},
-        "network": {"port": port}, "mocap": {"type": "mock"},
+        "network": {"port": port, "topology": "mesh"}, "mocap": {"type": "mock"},  # the test plays the world
         "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0],
                     "crazyflie": {"uri": uri, "mocap_timeout_s": 0.5, "link_timeout_s": 1.0, **cf}}],
     }  # fmt: skip

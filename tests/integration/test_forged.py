@@ -7,20 +7,24 @@
   neither hears the run nor reaches it.
 * From a session with another agent's credentials (a compromised or buggy agent), a
   plausible command (the victim's id, the next tick, its time): Zenoh's access control at
-  the world refuses it, and the victim's flight is the same, to the bit, as a run without
-  the attack (lockstep). With access control off, the same attack is flown and changes the victim's flight:
-  the test can fail.
+  the run's router (or the world, in a mesh) refuses it, and the victim's flight is the same,
+  to the bit, as a run without the attack (lockstep). With access control off, the same
+  attack is flown and changes the victim's flight: the test can fail.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 
 import numpy as np
+import pytest
+import zenoh
 
 from swarm import transport as tp
+from swarm.cells import cell_of
 from swarm.messages import decode, encode
 from tools.launch import RunHandle
 
@@ -111,6 +115,19 @@ def test_another_agents_credentials_cannot_command_a_drone(start_run):
     ]  # fmt: skip
 
 
+def _outsider(cfg, acc) -> zenoh.Session:
+    """A session that the run's processes should refuse to link to. Through a router, a
+    client's one link is refused, so it does not even open: then a peer instead, which
+    opens alone."""
+    conf = tp.process_config(cfg, tp.Role.OBSERVER, acc)
+    if cfg.topology != "router":
+        return tp.open_session(conf)
+    with pytest.raises(zenoh.ZError, match="Unable to connect"):
+        tp.open_session(conf)
+    peer = cfg.model_copy(update={"network": cfg.network.model_copy(update={"topology": "mesh"})})
+    return tp.open_session(tp.process_config(peer, tp.Role.OBSERVER, acc))
+
+
 def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_run):
     # realtime: the run lasts while the outsiders try (a lockstep swap_2 is over in under a second)
     cfg = scenario("swap_2.yaml", name="outsider", time={"mode": "realtime", "late_command": "brake"})
@@ -122,7 +139,7 @@ def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_
     (h.out / "wrong" / "users.txt").chmod(0o600)
     outsiders = []
     for acc in (None, wrong):  # no credentials at all; a wrong password
-        s = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc))
+        s = _outsider(h.cfg, acc)
         sub = tp.open_channel(s, f"swarm/{h.run}/**")
         pub = s.declare_publisher(tp.Keys(h.run).command("cf1"))
         outsiders.append((s, sub, pub))
@@ -162,8 +179,8 @@ def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_p
     stranger = tp.Access(h.run, "observer", other_ca, acc.agent_ids)  # the right password, another authority
     sessions = {
         "tls": tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc)),
-        "plain tcp": tp.open_session(tp.process_config(plain, tp.Role.OBSERVER, acc)),
-        "another CA": tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, stranger)),
+        "plain tcp": _outsider(plain, acc),
+        "another CA": _outsider(h.cfg, stranger),
     }
     subs = {n: tp.open_channel(s, tp.Keys(h.run).status) for n, s in sessions.items()}
     first = tp.wait_sample(subs["tls"], time.monotonic() + 30.0)
@@ -202,6 +219,7 @@ def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]
     for _ in range(20):
         h.wait_sim_time(h.progress.t_s + 0.05)
         forger.put(keys.state("cf1"), fake_state)
+        forger.put(keys.cell_state(cell_of([0.0, 0.0, 1.0], h.cfg.cell_m), "cf1"), fake_state)
         forger.put(keys.clock, b"forged clock")
         forger.put(probe_key, b"probe")  # under its own keys: heard
     assert h.wait() == "completed"
@@ -212,7 +230,7 @@ def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]
             forged += 1
         elif data == b"probe":
             probes += 1
-        elif str(smp.key_expr) == keys.state("cf1"):
+        elif str(smp.key_expr) == keys.state("cf1") or re.fullmatch(f"{keys.root}/cell/.*/cf1", str(smp.key_expr)):
             real += 1
     forger.close()
     observer.close()

@@ -17,6 +17,8 @@ import msgpack
 import numpy as np
 import pytest
 
+from swarm import transport as tp
+from swarm.cells import cell_of
 from swarm.messages import VERSION, encode, measurement_agent
 from tools.runfiles import read_records
 
@@ -98,7 +100,7 @@ def test_eight_agents_start_in_time_on_a_cold_compile_cache(start_run, tmp_path,
     assert set(m["exit_codes"].values()) == {0}
 
 
-@pytest.mark.parametrize("source", ["agents", "world"])  # a mesh, a star (agents hear the hubs alone)
+@pytest.mark.parametrize("source", ["agents", "world"])  # a router, a star (agents hear the hubs alone)
 def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run, source):
     cfg = scenario(
         "swap_2.yaml",
@@ -111,7 +113,7 @@ def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run, source):
             {"id": "cf3", "start": [2.0, 1.5, 1.0], "goal": [2.0, -1.5, 1.0], "speed_mps": 0.3},
         ],
     )
-    assert cfg.topology == ("star" if source == "world" else "mesh")
+    assert cfg.topology == ("star" if source == "world" else "router")
     h = start_run(cfg)
     h.wait_sim_time(1.0)  # the swarm is flying
     killed_at = time.time()
@@ -131,7 +133,7 @@ def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run, source):
     assert m["exit_codes"]["agent-cf3"] == -signal.SIGKILL
 
 
-@pytest.mark.parametrize("source", ["agents", "world"])  # a mesh, a star
+@pytest.mark.parametrize("source", ["agents", "world"])  # a router (cells), a star
 def test_garbage_on_every_topic_is_dropped_and_counted(start_run, source):
     # long enough that the injected garbage is routed to every process while they run
     cfg = scenario(
@@ -142,6 +144,8 @@ def test_garbage_on_every_topic_is_dropped_and_counted(start_run, source):
         *(f"swarm/{h.run}/world/{a}/measurement" for a in ("cf1", "cf2")),
         *(f"swarm/{h.run}/agent/{a}/{t}" for a in ("cf1", "cf2") for t in ("state", "command")),
         *(f"swarm/{h.run}/world/{t}" for t in ("clock", "status", "collision")),
+        *(tp.Keys(h.run).tick(a.id) for a in h.cfg.agents),  # neighbours by cells: each agent's tick
+        *(tp.Keys(h.run).cell_state(cell_of(a.start, h.cfg.cell_m), a.id) for a in h.cfg.agents),
     ]
     bad = [
         b"\x00\xffgarbage",

@@ -1,0 +1,162 @@
+"""Agents' states through a real Zenoh router, each agent hearing only the cells near it
+(``network.topology: router``, ``neighbours.interest: cells``; swarm.cells).
+
+* lockstep runs through the router repeat bit for bit, and fly exactly what the same run
+  flies when every agent hears every other (``interest: all``): no neighbour that the
+  filter would have used is ever missing, including for agents that cross many cell borders
+  at full speed;
+* realtime through the router flies the circle without collision;
+* the router's access control accepts from each client only its own keys;
+* a killed router stops the run with the cause in one line.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from swarm import transport as tp
+from swarm.cells import cell_of
+from swarm.messages import encode
+from tools.bench_swarm import summaries
+
+from .conftest import scenario
+from .test_runtime import trajectories
+
+
+def _run(start_run, cfg, name):
+    h = start_run(cfg, name)
+    assert h.wait() == "completed"
+    m = json.loads((h.out / "metrics.json").read_text())
+    _, agents = summaries(h.out)
+    assert len(agents) == len(cfg.agents)
+    return h, m, {a["id"]: a for a in agents}
+
+
+def _crossing(**over):
+    """Two columns of four drones flying through each other at 1.5 m/s along x, through
+    1 m cells: each crosses about ten cell borders, meeting the other column on the way."""
+    agents = []
+    for i in range(4):
+        y = -1.5 + i
+        agents.append({"id": f"e{i}", "start": [0.0, y, 1.0], "goal": [9.0, y + 0.3, 1.0]})
+        agents.append({"id": f"w{i}", "start": [9.0, y + 0.3, 1.2], "goal": [0.0, y, 1.2]})
+    return scenario("swap_2.yaml", name="crossing", duration_s=14.0, agents=agents,
+                    defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
+                    neighbours={"source": "agents", "cell_m": 1.0, **over})  # fmt: skip
+
+
+def test_crossing_cell_borders_at_full_speed_misses_no_neighbour_and_flies_as_hearing_everyone(start_run):
+    cfg = _crossing()
+    assert cfg.topology == "router" and cfg.uses_cells
+    h, m, agents = _run(start_run, cfg, "cells")
+    assert m["collisions"] == 0 and m["all_reached_goal"], m
+    assert m["dropped_messages"] == 0 and m["late_ticks"] == 0
+    for a in agents.values():
+        assert a["missed_neighbours"] == 0, a
+        assert a["cells_declared"] > 100, a  # it followed its cells along the way (about 150 at the start)
+    everyone = _crossing(interest="all")
+    _, m_all, agents_all = _run(start_run, everyone, "all")
+    a, b = trajectories(h.out), trajectories(h.out.parent / "all")
+    assert a.keys() == b.keys() == {x.id for x in cfg.agents}
+    for agent in a:
+        assert a[agent].keys() == b[agent].keys()
+        worst = max(float(np.max(np.abs(a[agent][k] - b[agent][k]))) for k in a[agent])
+        assert worst < 1e-9, (agent, worst)  # the same rows, so the same flight
+    # and the cells carried less: each agent heard fewer states than with everyone's
+    rx = np.mean([x["rx_bytes"] / x["ticks"] for x in agents.values()])
+    rx_all = np.mean([x["rx_bytes"] / x["ticks"] for x in agents_all.values()])
+    assert rx < rx_all, (rx, rx_all)
+
+
+@pytest.mark.parametrize("config", ["swap_2.yaml", "circle_8.yaml"])
+def test_lockstep_through_the_router_repeats_bit_for_bit(start_run, config):
+    cfg = scenario(config, neighbours={"source": "agents"})
+    assert cfg.topology == "router" and cfg.uses_cells
+    runs = []
+    for name in ("first", "second"):
+        h, m, agents = _run(start_run, cfg, name)
+        assert m["collisions"] == 0 and m["all_reached_goal"], m
+        assert m["dropped_messages"] == 0 and set(m["exit_codes"].values()) == {0}
+        assert all(a["missed_neighbours"] == 0 for a in agents.values())
+        runs.append(trajectories(h.out))
+    a, b = runs
+    assert a.keys() == b.keys()
+    for agent in a:
+        assert a[agent].keys() == b[agent].keys()
+        for k in a[agent]:
+            np.testing.assert_array_equal(a[agent][k], b[agent][k])
+
+
+def test_realtime_circle_8_through_the_router_flies_without_collision(start_run):
+    cfg = scenario("circle_8.yaml", neighbours={"source": "agents"},
+                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    assert cfg.topology == "router"
+    h, m, agents = _run(start_run, cfg, "realtime")
+    assert m["collisions"] == 0 and m["all_reached_goal"], m
+    assert m["min_separation_m"] > 2 * 0.07
+    assert sum(a["ticks"] for a in agents.values()) > 8 * 500
+
+
+def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
+    """A session with cf2's credentials publishes cf1's state in cf1's cell, a command for
+    cf1, and the world's clock (all marked), and a probe under its own keys; another client
+    counts what the router forwards."""
+    cfg = scenario("swap_2.yaml", name="routed", duration_s=8.0, stop_when_all_reached=False,
+                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    assert cfg.topology == "router"
+    h = start_run(cfg, "routed")
+    h.wait_sim_time(0.3)
+    keys = tp.Keys(h.run)
+    forger = tp.open_session(tp.process_config(h.cfg, tp.Role.AGENT, h.access(tp.Role.AGENT, "cf2")))
+    observer = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, h.access(tp.Role.OBSERVER)))
+    heard = tp.open_channel(observer, f"{keys.root}/**", 1 << 16)
+    cell = cell_of([0.0, 0.0, 1.0], h.cfg.cell_m)
+    fake = encode("state", h.run, "cf1", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
+    forgeries = {keys.cell_state(cell, "cf1"): fake, keys.command("cf1"): b"forged command",
+                 keys.clock: b"forged clock", keys.tick("cf1"): b"forged tick"}  # fmt: skip
+    probe = keys.cell_state(cell, "cf2")
+    for _ in range(100):  # until the forger's link is up (its probes under its own keys arrive)
+        forger.put(probe, b"hello")
+        h.wait_sim_time(h.progress.t_s + 0.02)
+        if any(tp.payload(x) == b"hello" for x in tp.drain(heard)):
+            break
+    else:
+        raise AssertionError("the forger never linked to the router")
+    for _ in range(20):
+        h.wait_sim_time(h.progress.t_s + 0.05)
+        for key, data in forgeries.items():
+            forger.put(key, data)
+        forger.put(probe, b"probe")
+    assert h.wait() == "completed"
+    counts = {"real cf1 states": 0, "forged": 0, "probes": 0}
+    for smp in tp.drain(heard):
+        data, key = tp.payload(smp), str(smp.key_expr)
+        if data in forgeries.values():
+            counts["forged"] += 1
+        elif data == b"probe":
+            counts["probes"] += 1
+        elif key.startswith(f"{keys.root}/cell/") and key.endswith("/cf1"):
+            counts["real cf1 states"] += 1
+    forger.close()
+    observer.close()
+    assert counts["probes"] == 20 and counts["forged"] == 0 and counts["real cf1 states"] > 100, counts
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["all_reached_goal"]
+
+
+def test_a_killed_router_stops_the_run_with_its_cause(start_run):
+    cfg = scenario("swap_2.yaml", name="router_kill", time={"mode": "realtime", "late_command": "brake"})
+    h = start_run(cfg, "router_kill")
+    h.wait_sim_time(1.0)
+    h.kill("router", signal.SIGKILL)
+    t0 = time.monotonic()
+    reason = h.wait(timeout_s=60.0)
+    assert time.monotonic() - t0 < 30.0
+    assert reason.startswith("router killed by SIGKILL at t = ") and "every link of the run" in reason, reason
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["stop_reason"] == reason and m["complete"] is False

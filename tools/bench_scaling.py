@@ -4,9 +4,10 @@
         [--interest cells|all] [--mode lockstep] [--plot docs/scaling.png] [--rows FILE]
 
 One JSON line per swarm size (the keys of ``tools.bench_swarm``, with ``density_per_m2``):
-``n`` agents with random starts and random goals in a square whose side keeps ``n /
-side^2`` at ``--density`` (``swarm.scenario.random_swap``), so the neighbours within an
-agent's interest radius stay about the same whatever ``n``; neighbours from the agents'
+``n`` agents with random starts in a square whose side keeps ``n / side^2`` at
+``--density`` (``swarm.scenario.random_swap``), each flying 4 m in a random direction
+(:func:`local_hops`), so the neighbours within an agent's interest radius stay about the
+same whatever ``n``; neighbours from the agents'
 own states (``neighbours.source: agents``) through the run's router, 100 Hz control,
 lockstep by default. ``--plot`` draws ``cpu_us_per_agent_tick`` and
 ``rx_bytes_per_agent_tick`` against ``n`` from the lines of ``--rows`` (a JSON-lines file,
@@ -17,16 +18,43 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
+
+import numpy as np
 
 from swarm.scenario import SwapSettings, random_swap
 from tools.bench_swarm import run_row
+
+HOP_M = 4.0  # each agent flies this far [m], in a random direction, from a random start
+
+
+def local_hops(n: int, density: float, settings: SwapSettings, spacing_m: float = 1.0) -> dict:
+    """``n`` agents at random starts at ``density`` per m^2 (``random_swap``'s), each flying
+    ``HOP_M`` in a random direction (goals ``spacing_m`` apart): the density stays about the
+    same everywhere and all the time, unlike random goals across the square, whose paths
+    crowd its centre more as ``n`` grows."""
+    raw = random_swap(n, density, settings, name=f"scaling_{n}", min_spacing_m=spacing_m)
+    rng = np.random.default_rng(settings.seed + 1)
+    goals: list[np.ndarray] = []
+    for a in raw["agents"]:
+        start = np.asarray(a["start"], float)
+        for _ in range(1000):
+            th = rng.uniform(0.0, 2.0 * math.pi)
+            g = start + HOP_M * np.array([math.cos(th), math.sin(th), 0.0])
+            if all(np.linalg.norm(g - other) >= spacing_m for other in goals):
+                break
+        else:
+            raise ValueError(f"local_hops: no goal {spacing_m} m from the others for {a['id']}")
+        goals.append(g)
+        a["goal"] = [round(float(c), 6) for c in g]
+    return raw
 
 
 def bench_size(n: int, density: float, seconds: float, mode: str, interest: str, out: Path) -> dict:
     settings = SwapSettings(control_hz=100.0, physics_hz=300.0, duration_s=seconds, mode=mode, neighbours="agents",
                             seed=n)  # fmt: skip
-    raw = random_swap(n, density, settings, name=f"scaling_{n}", min_spacing_m=1.0)
+    raw = local_hops(n, density, settings)
     raw["time"]["start_timeout_s"] = 60.0 + 3.0 * n  # every agent's warm-up, on two cores
     raw["limits"] = {"max_agents": max(n, 1)}
     row = run_row(raw, n, mode, 100.0, out / f"scaling_{n}_{mode}_{interest}", interest=interest)

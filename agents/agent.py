@@ -278,210 +278,306 @@ def follow_cells(interest: Interest, subs: tp.Channels, keys: tp.Keys, x_b_w: np
         subs.remove(keys.cell(c))
 
 
-def main(cfg: ScenarioConfig, agent_id: str, run: str, conf) -> int:
-    agent = Agent(cfg, agent_id)
-    keys = tp.Keys(run)
-    lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-    stop = StopFlag()
+class RealDrone:
+    """The supervisor of a real Crazyflie, apart from the control step: its radio link
+    (``agents.crazyflie.CrazyflieLink``), its flight phases, and the rules that stop it
+    (link lost, body lost to motion capture, geofence, filter fault, the run's end)."""
 
-    session = tp.open_session(conf)
-    counter = tp.Counter()
-    meas_key = keys.measurement(agent_id)
-    tick_key = keys.tick(agent_id)
-    neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
-    real_drone = agent.plan is not None  # measured by motion capture on its own key, not in the clock
-    inbox = tp.Inbox(session, [tick_key if agent.ticked else keys.clock, *neighbour_keys,
-                               *([meas_key] if real_drone else [])])  # fmt: skip
-    live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-    # with neighbours from the world's roster nobody needs this agent's own state message
-    pub_state = None if agent.from_world or agent.cells else session.declare_publisher(keys.state(agent_id))
-    cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
-    cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
-    if agent.cells:  # listen to the cells near the start before anyone can see this agent
-        start_b = body_centre(np.asarray(agent.me.start, float), np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3),
-                              agent.model.params.l_m)[0]  # fmt: skip
-        follow_cells(agent.interest, cell_subs, keys, start_b)
-    pub_cmd = session.declare_publisher(keys.command(agent_id))
-    token = tp.declare_liveliness(session, keys.alive(agent_id))
-    startup_cpu_s = time.process_time()
+    def __init__(self, agent_id: str, plan: FlightPlan, link: CrazyflieLink, mocap_timeout_s: float) -> None:
+        self.id, self.plan, self.link, self.mocap_timeout_s = agent_id, plan, link, mocap_timeout_s
+        self.flying = False  # it has been sent a setpoint
+        self.last_meas = time.monotonic()  # arrival of its last measurement
+        self.last_tick_end = 0.0  # our own tick can stall; the silence of the stream counts from its end
 
-    link: CrazyflieLink | None = None
-    cf_settings = cfg.agent(agent_id).crazyflie
-    if agent.plan is not None and cf_settings is not None:
-        link = CrazyflieLink(cf_settings, agent_id)
+    def safety_stop(self, reason: str) -> None:
+        if not self.link.stopped:
+            self.link.emergency_stop(reason)
+            self.plan.phase = Phase.STOPPED
+
+    def measured(self) -> None:
+        self.last_meas = time.monotonic()  # arrival time: a slow tick of ours is not a lost body
+
+    def run_over(self) -> bool:
+        """The world says the run is over: a flying drone lands on its measurements (True:
+        the agent stops now)."""
+        if self.flying and self.plan.phase in (Phase.TAKEOFF, Phase.MISSION):
+            self.plan.land()
+        return not self.flying
+
+    def keeps_going(self) -> bool:
+        """Between ticks: False once the link is lost, the body has not been measured for
+        the motion-capture timeout (it is then stopped), or the drone has landed or stopped."""
+        if self.link.lost.is_set():
+            print(f"agent {self.id}: Crazyflie link lost ({self.link.lost_reason}); the guard stopped it",
+                  file=sys.stderr)  # fmt: skip
+            self.link.stopped = True
+            return False
+        silent_s = time.monotonic() - max(self.last_meas, self.last_tick_end)  # while we listened
+        if self.flying and not self.link.stopped and silent_s > self.mocap_timeout_s:
+            self.safety_stop(f"no motion-capture measurement for {silent_s:.2f} s (body lost)")
+            return False
+        return self.plan.phase not in (Phase.LANDED, Phase.STOPPED)
+
+    def inside_geofence(self, x_w: np.ndarray) -> bool:
+        if self.plan.outside_geofence(x_w):
+            self.safety_stop(f"outside the geofence at {np.round(x_w, 3).tolist()}")
+            return False
+        return True
+
+    def fly(self, msg: Message, cmd_body: dict) -> bool:
+        """Send the tick's command to the drone (False: a filter fault stopped it)."""
+        if cmd_body["status"] == FilterStatus.FAILED.value:
+            self.safety_stop("filter fault (no usable command)")
+            return False
+        if self.plan.phase is Phase.LANDED:
+            self.link.motors_off()
+            print(f"agent {self.id}: landed, motors off", file=sys.stderr)
+        else:
+            self.link.pose(msg["x"], msg["q"])
+            self.link.setpoint(*map(float, cmd_body["u"]))
+            self.flying = True
+        self.last_tick_end = time.monotonic()
+        return True
+
+    def close(self, stopped_by_signal: bool) -> None:
+        if stopped_by_signal and self.flying and self.plan.phase is not Phase.LANDED:
+            self.safety_stop("stopped by a signal (Ctrl-C or the launcher) while flying")
+        self.link.close()
+
+
+class AgentProcess:
+    """The agent process: wires one :class:`Agent` to its Zenoh session (and a real drone
+    to its :class:`RealDrone` supervisor). Phases: :meth:`listen` (what arrived),
+    :meth:`next_message` (the tick to act on), :meth:`act` and :meth:`publish`."""
+
+    def __init__(self, cfg: ScenarioConfig, agent_id: str, run: str, conf: Any) -> None:
+        self.agent = agent = Agent(cfg, agent_id)
+        self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
+        self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+        self.stop = StopFlag()
+        keys = self.keys
+        self.session = session = tp.open_session(conf)
+        self.counter = tp.Counter()
+        self.meas_key, self.tick_key = keys.measurement(agent_id), keys.tick(agent_id)
+        neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
+        self.real = agent.plan is not None  # measured by motion capture on its own key, not in the clock
+        self.inbox = tp.Inbox(session, [self.tick_key if agent.ticked else keys.clock, *neighbour_keys,
+                                        *([self.meas_key] if self.real else [])])  # fmt: skip
+        self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
+        # with neighbours from the world's roster nobody needs this agent's own state message
+        self.pub_state = None if agent.from_world or agent.cells else session.declare_publisher(keys.state(agent_id))
+        self.cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
+        self.cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
+        if agent.cells:  # listen to the cells near the start before anyone can see this agent
+            start_b = body_centre(np.asarray(agent.me.start, float), np.zeros(3), np.array([0, 0, 0, 1.0]),
+                                  np.zeros(3), agent.model.params.l_m)[0]  # fmt: skip
+            follow_cells(agent.interest, self.cell_subs, keys, start_b)
+        self.pub_cmd = session.declare_publisher(keys.command(agent_id))
+        self.token = tp.declare_liveliness(session, keys.alive(agent_id))
+        self.startup_cpu_s = time.process_time()
+        self.drone: RealDrone | None = None
+        self.alive: set[str] = set()
+        self.world_seen = False
+        self.pending: list[Message] = []  # measurements not yet acted on
+        self.seq = 0
+        self.tick_s: list[float] = []  # wall time from measurement taken up to command sent
+        self.waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
+        self.msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
+        self.reported_gone: set[str] = set()
+
+    def connect_drone(self) -> bool:
+        """A real drone: its link up (False: not reached in 15 s)."""
+        settings = self.cfg.agent(self.id).crazyflie
+        if self.agent.plan is None or settings is None:
+            return True
+        link = CrazyflieLink(settings, self.id)
         if not link.wait_ready(15.0):
-            print(f"agent {agent_id}: Crazyflie at {cf_settings.uri} not reached: {link.lost_reason}", file=sys.stderr)
-            token.undeclare()
-            return 2
-    last_meas = [time.monotonic()]
-    last_tick_end = [0.0]  # our own tick can stall; the silence of the stream counts from its end
-    flying = [False]  # a real drone has been sent a setpoint
+            print(f"agent {self.id}: Crazyflie at {settings.uri} not reached: {link.lost_reason}", file=sys.stderr)
+            return False
+        self.drone = RealDrone(self.id, self.agent.plan, link, settings.mocap_timeout_s)
+        return True
 
-    def safety_stop(reason: str) -> None:
-        if link is not None and not link.stopped:
-            link.emergency_stop(reason)
-            if agent.plan is not None:
-                agent.plan.phase = Phase.STOPPED
+    def safety_stop(self, reason: str) -> None:
+        if self.drone is not None:
+            self.drone.safety_stop(reason)
 
-    alive: set[str] = set()
-    world_seen = False
-    pending: list[Message] = []  # measurements not yet acted on
-    seq = 0
-    tick_s: list[float] = []  # wall time from measurement taken up to command sent
-    waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
-    msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
+    def neighbour_gone(self, name: str, how: str) -> None:
+        if name not in self.reported_gone:
+            self.reported_gone.add(name)
+            print(f"agent {self.id}: neighbour {name} gone ({how}) at wall {time.time():.4f}", file=sys.stderr)
 
-    reported_gone: set[str] = set()
-
-    def neighbour_gone(name: str, how: str) -> None:
-        if name not in reported_gone:
-            reported_gone.add(name)
-            print(f"agent {agent_id}: neighbour {name} gone ({how}) at wall {time.time():.4f}", file=sys.stderr)
-
-    def state_key(m: Message) -> str:
+    def _state_key(self, m: Message) -> str:
         """The key a neighbour's state ``m`` must come on."""
+        agent, keys = self.agent, self.keys
         return keys.cell_state(cell_of(m["x"], agent.interest.cell_m), m.src) if agent.cells else keys.state(m.src)
 
-    def handle(sample) -> None:
-        key = str(sample.key_expr)
-        m = tp.decode_sample(sample, run, counter)
+    def _measurement(self, m: Message) -> None:
+        self.pending.append(m)
+        self.msg_seen.setdefault(m.k, time.monotonic())
+
+    def handle(self, sample: Any) -> None:
+        """One sample: a measurement, a neighbour's state, this agent's tick or the clock."""
+        agent, key = self.agent, str(sample.key_expr)
+        m = tp.decode_sample(sample, self.run_id, self.counter)
         if m is None:
             return
-        if key == meas_key and m.kind == "measurement":
-            pending.append(m)
-            last_meas[0] = time.monotonic()  # arrival time: a slow tick of ours is not a lost body
-            msg_seen.setdefault(m.k, time.monotonic())
-        elif m.kind == "state" and m.src == agent_id and agent.cells:
+        if key == self.meas_key and m.kind == "measurement":
+            self._measurement(m)
+            if self.drone is not None:
+                self.drone.measured()
+        elif m.kind == "state" and m.src == self.id and agent.cells:
             pass  # its own state, heard in its own cell
-        elif m.kind == "state" and m.src in agent.others and key == state_key(m):
+        elif m.kind == "state" and m.src in agent.others and key == self._state_key(m):
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
-        elif m.kind == "tick" and key == tick_key:
+        elif m.kind == "tick" and key == self.tick_key:
             mine = agent.on_tick(m)
             if mine is not None:
-                pending.append(mine)
-                msg_seen.setdefault(m.k, time.monotonic())
+                self._measurement(mine)
             else:
-                stop.set()
-        elif m.kind == "clock" and key == keys.clock:
-            for name in agent.on_clock(m):
-                neighbour_gone(name, "the world's live list")
-            mine = None if real_drone or m["done"] else clock_measurement(m, agent_id)
-            if mine is not None:
-                pending.append(mine)
-                msg_seen.setdefault(m.k, time.monotonic())
-            if m["done"]:
-                if agent.plan is not None and flying[0] and agent.plan.phase in (Phase.TAKEOFF, Phase.MISSION):
-                    agent.plan.land()  # the run is over: a real drone lands on its measurements
-                elif agent.plan is None or not flying[0]:
-                    stop.set()
+                self.stop.set()
+        elif m.kind == "clock" and key == self.keys.clock:
+            self._on_clock(m)
         else:
-            counter.drop(f"unexpected {m.kind} on {key}")
+            self.counter.drop(f"unexpected {m.kind} on {key}")
 
-    wake_s = 0.02 if link is not None else 0.1
-    try:
-        while not stop:
-            # wake when what the oldest pending tick still needs can all be here (one
-            # wake for a neighbour mesh's states, not one per state), or after wake_s
-            need = max(1, agent.missing(min(m.k for m in pending))) if lockstep and pending else 1
-            if agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
-                inbox.wait_for(1, time.monotonic() + 0.001)
+    def _on_clock(self, m: Message) -> None:
+        for name in self.agent.on_clock(m):
+            self.neighbour_gone(name, "the world's live list")
+        mine = None if self.real or m["done"] else clock_measurement(m, self.id)
+        if mine is not None:
+            self._measurement(mine)
+        if m["done"] and (self.drone is None or self.drone.run_over()):
+            self.stop.set()
+
+    def listen(self, wake_s: float) -> bool:
+        """Wait for what the oldest pending tick still needs (or ``wake_s``), take what
+        arrived and the liveliness changes; False once the world is gone."""
+        agent, pending = self.agent, self.pending
+        # wake when what the oldest pending tick still needs can all be here (one wake for a
+        # neighbour mesh's states, not one per state), or after wake_s
+        need = max(1, agent.missing(min(m.k for m in pending))) if self.lockstep and pending else 1
+        if agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
+            self.inbox.wait_for(1, time.monotonic() + 0.001)
+        else:
+            self.inbox.wait_for(need, time.monotonic() + wake_s)
+        for s in self.inbox.drain():
+            self.handle(s)
+        for s in self.cell_subs.drain():
+            self.handle(s)
+        for name, up in tp.liveliness_events(self.live_sub):
+            if up:
+                self.alive.add(name)
+                self.world_seen |= name == "world"
             else:
-                inbox.wait_for(need, time.monotonic() + wake_s)
-            for s in inbox.drain():
-                handle(s)
-            for s in cell_subs.drain():
-                handle(s)
-            for name, up in tp.liveliness_events(live_sub):
-                if up:
-                    alive.add(name)
-                    world_seen |= name == "world"
-                else:
-                    alive.discard(name)
-                    if name in agent.others:
-                        if not agent.from_world:  # the world keeps measuring a dead agent's body
-                            agent.table.mark_gone(name)
-                        neighbour_gone(name, "liveliness")
-            if world_seen and "world" not in alive:
-                print(f"agent {agent_id}: the world is gone, stopping", file=sys.stderr)
-                if flying[0]:
-                    safety_stop("the world's liveliness is gone")
+                self.alive.discard(name)
+                if name in agent.others:
+                    if not agent.from_world:  # the world keeps measuring a dead agent's body
+                        agent.table.mark_gone(name)
+                    self.neighbour_gone(name, "liveliness")
+        if self.world_seen and "world" not in self.alive:
+            print(f"agent {self.id}: the world is gone, stopping", file=sys.stderr)
+            if self.drone is not None and self.drone.flying:
+                self.drone.safety_stop("the world's liveliness is gone")
+            return False
+        return True
+
+    def next_message(self) -> Message | None:
+        """The measurement to act on now: lockstep, the oldest once its tick is complete
+        (or at the deadline); realtime, the newest."""
+        pending, agent = self.pending, self.agent
+        if not pending:
+            return None
+        if not self.lockstep:
+            msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters
+            pending.clear()
+            return msg
+        msg = min(pending, key=lambda m: m.k)
+        if not agent.ready(msg.k):
+            if time.monotonic() - self.msg_seen[msg.k] < self.cfg.time.lockstep_timeout_s:
+                return None  # wait for the rest of tick k (the inbox wakes us)
+            agent.missed += agent.missing(msg.k) if agent.ticked and msg.k in agent.near else 0
+            self.counter.drop("lockstep: tick incomplete at the deadline")
+        pending.remove(msg)
+        self.waited_s += time.monotonic() - self.msg_seen.pop(msg.k, time.monotonic())
+        return msg
+
+    def act(self, msg: Message) -> tuple[dict, dict] | None:
+        """The control step on ``msg``, flown by a real drone; None when a rule stopped it."""
+        drone = self.drone
+        if drone is not None and not drone.inside_geofence(msg["x"]):
+            return None
+        try:
+            state_body, cmd_body = self.agent.tick(msg, self.lockstep)
+        except Exception:
+            self.safety_stop("the control step raised")
+            raise
+        if drone is not None and not drone.fly(msg, cmd_body):
+            return None
+        return state_body, cmd_body
+
+    def publish(self, msg: Message, state_body: dict, cmd_body: dict) -> None:
+        """This agent's state (by cell, or on its own key) and then its command."""
+        agent, keys, run = self.agent, self.keys, self.run_id
+        if agent.cells:
+            self.seq += 1
+            cell = cell_of(state_body["x"], agent.interest.cell_m)
+            pub = self.cell_pubs.get(cell)
+            if pub is None:
+                pub = self.cell_pubs[cell] = self.session.declare_publisher(keys.cell_state(cell, self.id))
+            pub.put(encode("state", run, self.id, self.seq, msg.t, msg.k, **state_body))
+            follow_cells(agent.interest, self.cell_subs, keys, state_body["x"])
+        elif self.pub_state is not None:
+            self.seq += 1
+            self.pub_state.put(encode("state", run, self.id, self.seq, msg.t, msg.k, **state_body))
+        self.seq += 1
+        self.pub_cmd.put(encode("command", run, self.id, self.seq, msg.t, msg.k, dropped=self.counter.dropped,
+                                **cmd_body))  # fmt: skip
+
+    def loop(self) -> None:
+        wake_s = 0.02 if self.drone is not None else 0.1
+        while not self.stop:
+            if not self.listen(wake_s):
                 break
-            if link is not None and agent.plan is not None and cf_settings is not None:
-                if link.lost.is_set():
-                    print(f"agent {agent_id}: Crazyflie link lost ({link.lost_reason}); the guard stopped it",
-                          file=sys.stderr)  # fmt: skip
-                    link.stopped = True
-                    break
-                silent_s = time.monotonic() - max(last_meas[0], last_tick_end[0])  # while we listened
-                if flying[0] and not link.stopped and silent_s > cf_settings.mocap_timeout_s:
-                    safety_stop(f"no motion-capture measurement for {silent_s:.2f} s (body lost)")
-                    break
-                if agent.plan.phase in (Phase.LANDED, Phase.STOPPED):
-                    break
-            if not pending:
+            if self.drone is not None and not self.drone.keeps_going():
+                break
+            msg = self.next_message()
+            if msg is None:
                 continue
-            if lockstep:
-                msg = min(pending, key=lambda m: m.k)
-                if not agent.ready(msg.k):
-                    if time.monotonic() - msg_seen[msg.k] < cfg.time.lockstep_timeout_s:
-                        continue  # wait for the rest of tick k (the inbox wakes us)
-                    agent.missed += agent.missing(msg.k) if agent.ticked and msg.k in agent.near else 0
-                    counter.drop("lockstep: tick incomplete at the deadline")
-                pending.remove(msg)
-                waited_s += time.monotonic() - msg_seen.pop(msg.k, time.monotonic())
-            else:
-                msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters
-                pending.clear()
             t0 = time.perf_counter()
-            if link is not None and agent.plan is not None:
-                if agent.plan.outside_geofence(msg["x"]):
-                    safety_stop(f"outside the geofence at {np.round(msg['x'], 3).tolist()}")
-                    break
-            try:
-                state_body, cmd_body = agent.tick(msg, lockstep)
-            except Exception:
-                safety_stop("the control step raised")
-                raise
-            if link is not None and agent.plan is not None:
-                if cmd_body["status"] == FilterStatus.FAILED.value:
-                    safety_stop("filter fault (no usable command)")
-                    break
-                if agent.plan.phase is Phase.LANDED:
-                    link.motors_off()
-                    print(f"agent {agent_id}: landed, motors off", file=sys.stderr)
-                else:
-                    link.pose(msg["x"], msg["q"])
-                    link.setpoint(*map(float, cmd_body["u"]))
-                    flying[0] = True
-                last_tick_end[0] = time.monotonic()
-            if agent.cells:
-                seq += 1
-                cell = cell_of(state_body["x"], agent.interest.cell_m)
-                pub = cell_pubs.get(cell)
-                if pub is None:
-                    pub = cell_pubs[cell] = session.declare_publisher(keys.cell_state(cell, agent_id))
-                pub.put(encode("state", run, agent_id, seq, msg.t, msg.k, **state_body))
-                follow_cells(agent.interest, cell_subs, keys, state_body["x"])
-            elif pub_state is not None:
-                seq += 1
-                pub_state.put(encode("state", run, agent_id, seq, msg.t, msg.k, **state_body))
-            seq += 1
-            pub_cmd.put(encode("command", run, agent_id, seq, msg.t, msg.k, dropped=counter.dropped, **cmd_body))
-            tick_s.append(time.perf_counter() - t0)
-    finally:
-        if link is not None:
-            if stop and flying[0] and agent.plan is not None and agent.plan.phase is not Phase.LANDED:
-                safety_stop("stopped by a signal (Ctrl-C or the launcher) while flying")
-            link.close()
-        token.undeclare()
-    ts = np.array(tick_s or [0.0]) * 1e3
-    summary = {
-        "id": agent_id, "ticks": len(tick_s), "compute_median_ms": float(np.median(ts)),
-        "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": waited_s, "cpu_s": time.process_time(),
-        "startup_cpu_s": startup_cpu_s, "dropped": counter.dropped, "rx_bytes": counter.rx_bytes,
-        "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared if agent.cells else 0,
-    }  # fmt: skip
-    print("AGENT_SUMMARY " + json.dumps(summary), file=sys.stderr)
-    if counter.dropped:
-        print(f"agent {agent_id}: dropped {counter.dropped} messages {counter.reasons}", file=sys.stderr)
-    return 0
+            bodies = self.act(msg)
+            if bodies is None:
+                break
+            self.publish(msg, *bodies)
+            self.tick_s.append(time.perf_counter() - t0)
+
+    def summary(self) -> dict[str, Any]:
+        ts = np.array(self.tick_s or [0.0]) * 1e3
+        agent, counter = self.agent, self.counter
+        return {
+            "id": self.id, "ticks": len(self.tick_s), "compute_median_ms": float(np.median(ts)),
+            "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": self.waited_s, "cpu_s": time.process_time(),
+            "startup_cpu_s": self.startup_cpu_s, "dropped": counter.dropped, "rx_bytes": counter.rx_bytes,
+            "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared if agent.cells else 0,
+        }  # fmt: skip
+
+    def run(self) -> int:
+        """Connect a real drone, fly until the run ends or a rule stops it, report; 2 when
+        the drone was not reached."""
+        if not self.connect_drone():
+            self.token.undeclare()
+            return 2
+        try:
+            self.loop()
+        finally:
+            if self.drone is not None:
+                self.drone.close(stopped_by_signal=bool(self.stop))
+            self.token.undeclare()
+        print("AGENT_SUMMARY " + json.dumps(self.summary()), file=sys.stderr)
+        if self.counter.dropped:
+            print(f"agent {self.id}: dropped {self.counter.dropped} messages {self.counter.reasons}", file=sys.stderr)
+        return 0
+
+
+def main(cfg: ScenarioConfig, agent_id: str, run: str, conf: Any) -> int:
+    """The agent process: ``swarm agent``."""
+    return AgentProcess(cfg, agent_id, run, conf).run()

@@ -191,7 +191,7 @@ def outsider(out: Path, mode: str) -> dict[str, Any]:
 
 
 def bad_config(out: Path, mode: str) -> dict[str, Any]:
-    from tests.test_config_faults import _write_bad_files  # the malformed configs the tests refuse
+    from tests.unit.test_config_faults import _write_bad_files  # the malformed configs the tests refuse
 
     out.mkdir(parents=True, exist_ok=True)
     slowest, codes = 0.0, set()

@@ -7,14 +7,15 @@ and the settings that made it, ``stamp.json`` per part):
 * ``compare``: the README's table (``swarm compare`` on ``single_static_sphere.yaml``);
 * ``liveness``: EXPERIMENTS.md section 4 (``tools.bench_liveness``, with ORCA);
 * ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``);
-* ``filter``, ``swarm``, ``access``: docs/benchmarks.md's filter, swarm and access-control tables
-  (``tools.bench_filter``, ``tools.bench_swarm``): timings, so a rerun gives other figures within
-  the machine's noise.
+* ``filter``, ``swarm``, ``access``, ``scaling``: docs/benchmarks.md's filter, swarm,
+  access-control and scaling tables (``tools.bench_filter``, ``tools.bench_swarm``,
+  ``tools.bench_scaling``, with ``docs/scaling.png``): timings, so a rerun gives other
+  figures within the machine's noise.
 
     python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...]
 
 Tables in the documents that quote a data file say so (``<!-- data: FILE -->`` above them);
-``tests/test_docs_figures.py`` checks that every number in such a table is in its file.
+``tests/unit/test_docs_figures.py`` checks that every number in such a table is in its file.
 """
 
 from __future__ import annotations
@@ -100,6 +101,17 @@ def swarm_bench(out: Path, jobs: int) -> None:
     args = ["--out", str(out / "bench_swarm")]
     _tool_lines("tools.bench_swarm", args, DOCS / "bench_swarm.jsonl")
     stamp("swarm", command=["python", "-m", "tools.bench_swarm"])
+
+
+SCALING_ARGS = ["--agents", "4,8,16,32,64", "--interest", "cells,all", "--plot", "docs/scaling.png"]
+
+
+def scaling(out: Path, jobs: int) -> None:
+    """Agent CPU and bytes received per tick against N at constant density (cells, and
+    every agent hearing every other), with the figure ``docs/scaling.png``."""
+    del jobs
+    _tool_lines("tools.bench_scaling", [*SCALING_ARGS, "--out", str(out / "scaling")], DOCS / "bench_scaling.jsonl")
+    stamp("scaling", command=["python", "-m", "tools.bench_scaling", *SCALING_ARGS])
 
 
 def access_cost(out: Path, jobs: int) -> None:
@@ -253,10 +265,23 @@ def _maybe(v: float | None, fmt: str) -> str:
 def _swarm_table(path: Path) -> str:
     """docs/benchmarks.md's swarm table, one row per line of ``tools.bench_swarm``."""
     head = ["agents", "mode", "neighbours (topology)", "real-time factor", "on time", "CPU per agent (% of a core)",
-            "p99 tick latency (ms)", "collisions"]  # fmt: skip
+            "CPU per agent tick (us)", "received per agent tick (bytes)", "p99 tick latency (ms)",
+            "collisions"]  # fmt: skip
     rows = [[str(r["agents"]), r["mode"], f"{r['neighbour_source']} ({r['topology']})", f"{r['real_time_factor']:.2f}",
              _maybe(r["on_time_fraction"], ".4f"), f"{r['cpu_percent_per_agent']:.0f}",
+             _maybe(r.get("cpu_us_per_agent_tick"), ".0f"), _maybe(r.get("rx_bytes_per_agent_tick"), ".0f"),
              _maybe(r["p99_tick_latency_ms"], ".1f"), str(r["collisions"])] for r in _jsonl(path)]  # fmt: skip
+    return _table(head, rows)
+
+
+def _scaling_table(path: Path) -> str:
+    """docs/benchmarks.md's scaling table: one row per swarm size and interest."""
+    head = ["agents", "interest", "CPU per agent tick (us)", "received per agent tick (bytes)", "real-time factor",
+            "missed neighbours", "collisions"]  # fmt: skip
+    rows = [[str(r["agents"]), r["interest"], f"{r['cpu_us_per_agent_tick']:.0f}",
+             f"{r['rx_bytes_per_agent_tick']:.0f}", f"{r['real_time_factor']:.3f}", str(r["missed_neighbours"]),
+             str(r["collisions"])]
+            for r in sorted(_jsonl(path), key=lambda r: (r["interest"], r["agents"]))]  # fmt: skip
     return _table(head, rows)
 
 
@@ -279,6 +304,7 @@ GENERATED = {
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     "access": (DOCS / "bench_access.jsonl", _access_table),
+    "scaling": (DOCS / "bench_scaling.jsonl", _scaling_table),
     **{f"sweep_{n}": (DOCS / f"sweep_{n}" / "results.csv", _sweep_table) for n in SWEEPS},
 }
 DOCUMENTS = [ROOT / "README.md", ROOT / "EXPERIMENTS.md", ROOT / "docs" / "benchmarks.md"]
@@ -309,7 +335,7 @@ def documents(write: bool) -> list[str]:
 
 PARTS = {
     "paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults,
-    "filter": filter_bench, "swarm": swarm_bench, "access": access_cost,
+    "filter": filter_bench, "swarm": swarm_bench, "access": access_cost, "scaling": scaling,
 }  # fmt: skip
 
 if __name__ == "__main__":

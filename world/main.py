@@ -28,6 +28,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -112,382 +113,471 @@ def _velocity_hold(slot: DroneSlot, state: QuadState, v_des_w: np.ndarray) -> np
     return slot.att.from_thrust_vector(state, F)
 
 
-def main(cfg: ScenarioConfig, run: str, conf, gui: bool = False, expect: tuple[str, ...] = ()) -> int:
-    keys = tp.Keys(run)
-    sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
-    slots: dict[str, DroneSlot] = {}
-    real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
-    unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
-    firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
-    for a in cfg.agents:
-        model = QuadModel(a.quad_params())
-        sim.add_drone(
-            a.id,
-            model,
-            np.asarray(a.start, float),
-            a.yaw_rad,
-            np.asarray(a.start_velocity, float),
-            kinematic=a.id in real,
-        )
-        slots[a.id] = DroneSlot(
-            model,
-            a.command_level,
-            OnboardController(model, a.yaw_rad),
-            AttitudeController(model),
-            np.asarray(a.final_goal),
-        )
-    for o in cfg.obstacles:
-        if o.shape == "sphere":
-            sim.add_sphere(o.id, np.asarray(o.center), o.radius_m, np.asarray(o.velocity))
-        else:
-            sim.add_cylinder(
-                o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m, np.asarray(o.velocity)
-            )
+@dataclass
+class TickView:
+    """What the world measured at the start of tick k (ground truth; motion capture for
+    real drones), in ``World.names`` order."""
 
-    stop = StopFlag()
+    ds: Any  # PhysicsWorld states: x_w (n, 3) m, v_w (n, 3) m/s, q (n, 4), Omega_b (n, 3) rad/s, R (n, 3, 3)
+    items: list[dict]  # the obstacles at tick k
+    live: list[str]  # agents the world expects answers from
+    x_b: np.ndarray  # (n, 3) m, world: body centres
+    roster: np.ndarray  # (n * 7,): per drone body centre [m], its velocity [m/s], radius [m]
+    measured: list[str]  # simulated drones of live agents, measured in the clock
+    meas: np.ndarray  # (len(measured) * 13,): x, v, q, w of each
 
-    session = tp.open_session(conf)
-    counter = tp.Counter()
-    seq = 0
-    token = tp.declare_liveliness(session, keys.alive("world"))
-    cmd_in = tp.Inbox(session, keys.all_commands)
-    live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-    pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in real}  # motion capture
-    cells = cfg.uses_cells  # each simulated agent gets its own tick message (swarm.cells)
-    pub_tick = {a.id: session.declare_publisher(keys.tick(a.id)) for a in cfg.agents if cells and a.id not in real}
-    pub_clock = session.declare_publisher(keys.clock)
-    pub_status = session.declare_publisher(keys.status)
-    pub_coll = session.declare_publisher(keys.collision)
-    pub_stall = session.declare_publisher(keys.stall)
-    others_alive: set[str] = set()
 
-    # --- motion capture for the real drones: measurements at the capture rate --------
-    relay: MocapRelay | None = None
-    running = threading.Event()  # the relay publishes only while the run is on
-    mocap_seq = [10**9]  # the relay thread's own sequence numbers
-    wall0 = time.monotonic()
-    dt_ctrl = 1.0 / cfg.time.control_hz
+@dataclass
+class RunCounts:
+    """The world's running metrics of a run."""
 
-    def on_frame(aid: str, est: BodyEstimate) -> None:
-        if not running.is_set():
-            return
-        t = time.monotonic() - wall0
-        mocap_seq[0] += 1
-        pubs[aid].put(encode("measurement", run, "world", mocap_seq[0], t, int(t / dt_ctrl), x=est.x_w, v=est.v_w,
-                             q=est.q, w=est.Omega_b))  # fmt: skip
+    collisions: int = 0  # contacts among live agents' drones (and obstacles)
+    dead_contacts: int = 0  # contacts of a dead agent's drone (landing, or left to the firmware)
+    stalls: int = 0  # lockstep ticks that waited longer than stall_warn_s
+    late: int = 0
+    min_sep: float = math.inf
+    min_clear: float = math.inf
+    touching: set[tuple[str, str]] = field(default_factory=set)
 
-    if real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
-        m = cfg.mocap
-        bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in real}
-        relay = MocapRelay(
-            connect(m.type, m.hostname, m.options), bodies, m.rate_hz, m.lost_after_s, m.velocity_filter_s,
-            on_frame, lambda aid: None,
-        ).start()  # fmt: skip
 
-    def poll_liveliness() -> None:
-        for name, up in tp.liveliness_events(live_sub):
-            if name in slots:
-                if up:
-                    slots[name].alive = True
-                elif slots[name].alive:
-                    slots[name].alive = False
-                    slots[name].dead = True
-                    print(
-                        f"world: agent {name} gone at wall {time.time():.4f}: {cfg.failure.on_agent_death}",
-                        file=sys.stderr,
-                    )
-            elif up:
-                others_alive.add(name)
+class World:
+    """The world process's state and one method per phase of a tick: :meth:`measure`,
+    :meth:`publish`, :meth:`collect` (lockstep: wait for the commands) and
+    :meth:`step_physics`; :meth:`run` wires them to a Zenoh session."""
+
+    def __init__(self, cfg: ScenarioConfig, run: str, gui: bool = False) -> None:
+        self.cfg, self.run_id, self.keys = cfg, run, tp.Keys(run)
+        self.sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
+        self.slots: dict[str, DroneSlot] = {}
+        self.real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
+        self.unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
+        self.firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
+        for a in cfg.agents:
+            model = QuadModel(a.quad_params())
+            self.sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad, np.asarray(a.start_velocity, float),
+                               kinematic=a.id in self.real)  # fmt: skip
+            self.slots[a.id] = DroneSlot(model, a.command_level, OnboardController(model, a.yaw_rad),
+                                         AttitudeController(model), np.asarray(a.final_goal))  # fmt: skip
+        for o in cfg.obstacles:
+            if o.shape == "sphere":
+                self.sim.add_sphere(o.id, np.asarray(o.center), o.radius_m, np.asarray(o.velocity))
             else:
-                others_alive.discard(name)
+                self.sim.add_cylinder(o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m,
+                                      np.asarray(o.velocity))  # fmt: skip
+        self.names = list(self.slots)
+        self.flown = [a for a in self.names if a not in self.real]  # simulated drones: PyBullet flies them
+        self.index = {a: i for i, a in enumerate(self.names)}
+        self.l_m = np.array([self.slots[a].model.params.l_m for a in self.names])  # body-centre offsets [m]
+        self.radius_m = np.array([self.slots[a].model.params.body_radius_m for a in self.names])  # bounding radii [m]
+        self.goals = np.array([self.slots[a].goal for a in self.names])  # (n, 3) m, world
+        self.cells = cfg.uses_cells  # each simulated agent gets its own tick message (swarm.cells)
+        self.near_m = np.array([cfg.near_radius_m(a) for a in self.names]) if self.cells else np.zeros(0)  # m
+        self.dt_ctrl = 1.0 / cfg.time.control_hz
+        self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+        self.counts = RunCounts()
+        self.counter = tp.Counter()
+        self.seq = 0
+        self.others_alive: set[str] = set()
+        self.onboard_consts: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}  # drones -> stacked gains
+        self.phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
+        self.relay: MocapRelay | None = None
+        self.running = threading.Event()  # the relay publishes only while the run is on
+        self._mocap_seq = 10**9  # the relay thread's own sequence numbers
+        self.wall0 = time.monotonic()
+        self.stop = StopFlag()
 
-    def poll_commands(k_now: int, wait_until: float | None = None) -> None:
-        first = cmd_in.get(wait_until) if wait_until is not None else None
-        for s in ([first] if first is not None else []) + list(cmd_in.drain()):
-            m = tp.decode_sample(s, run, counter, ("command",), COMMAND_FIELDS)
-            if m is None:
-                continue
-            slot = slots.get(m.src)
-            if slot is None or slot.dead:
-                counter.drop("command from unknown or dead agent")
-                continue
-            if str(s.key_expr) != keys.command(m.src):  # a header naming another agent than its key
-                counter.drop("command whose sender is not its key's agent")
-                continue
-            if m.k > k_now + 1 or abs(m.t - m.k * dt_ctrl) > 2.0 * dt_ctrl:  # not an answer to a tick we sent
-                counter.drop("command for a tick or time the world has not reached")
-                continue
-            if m["status"] != "ok":
-                slot.infeasible += 1
-            slot.solo = m["status"] != "ok"
-            if m.src in real:  # a real drone's command went to it by radio: recorded, not flown
-                slot.command_k = max(slot.command_k, m.k)
-                continue
-            u = m["u"]
-            want = 4
-            if u.shape != (want,) or m["level"] != slot.level.value:
-                counter.drop("command of wrong level or size")
-                continue
-            if m.k < slot.command_k:
-                continue  # older than what we hold
-            slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
-            sent = slot.sent_at.pop(m.k, None)
-            if sent is not None:
-                slot.answered += 1
-                slot.latencies_s.append(time.monotonic() - sent)
-                if m.k >= k_now:
-                    slot.on_time += 1
+    # --- wiring -------------------------------------------------------------------
+    def open(self, conf: Any) -> None:
+        """The session, its publishers and subscribers, this world's liveliness, and the
+        motion-capture relay of the real drones."""
+        keys, cfg = self.keys, self.cfg
+        self.session = session = tp.open_session(conf)
+        self.token = tp.declare_liveliness(session, keys.alive("world"))
+        self.cmd_in = tp.Inbox(session, keys.all_commands)
+        self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
+        self.pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in self.real}  # motion capture
+        self.pub_tick = {a: session.declare_publisher(keys.tick(a)) for a in self.flown if self.cells}
+        self.pub_clock = session.declare_publisher(keys.clock)
+        self.pub_status = session.declare_publisher(keys.status)
+        self.pub_coll = session.declare_publisher(keys.collision)
+        self.pub_stall = session.declare_publisher(keys.stall)
+        if self.real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
+            m = cfg.mocap
+            bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in self.real}
+            self.relay = MocapRelay(connect(m.type, m.hostname, m.options), bodies, m.rate_hz, m.lost_after_s,
+                                    m.velocity_filter_s, self._on_frame, lambda aid: None).start()  # fmt: skip
 
-    # The first call of compiled code loads it (a few hundred ms): do it before any tick,
-    # or a realtime world starts behind the wall clock and bursts ticks to catch up.
-    for sl in slots.values():
-        st0 = QuadState.hover()
-        sl.onboard.rotor_thrusts(st0, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), sim.dt_s)
-        sl.att.from_thrust_vector(st0, np.array([0.0, 0.0, sl.model.params.weight_N]))
-        sl.onboard.yaw_sp_rad = sl.yaw_sp_rad
-    warm_up()
+    def _on_frame(self, aid: str, est: BodyEstimate) -> None:
+        """The relay's thread: a real drone's measurement, at the capture rate."""
+        if not self.running.is_set():
+            return
+        t = time.monotonic() - self.wall0
+        self._mocap_seq += 1
+        self.pubs[aid].put(encode("measurement", self.run_id, "world", self._mocap_seq, t, int(t / self.dt_ctrl),
+                                  x=est.x_w, v=est.v_w, q=est.q, w=est.Omega_b))  # fmt: skip
 
-    # --- wait for everyone ----------------------------------------------------------
-    deadline = time.monotonic() + cfg.time.start_timeout_s
-    while not all(s.alive for s in slots.values()) or not set(expect) <= others_alive:
-        poll_liveliness()
-        if stop or time.monotonic() > deadline:
-            missing = [a for a, s in slots.items() if not s.alive] + sorted(set(expect) - others_alive)
-            print(f"world: gave up waiting for {missing}", file=sys.stderr)
-            token.undeclare()
-            return 2
-        time.sleep(0.005)
+    def _put(self, pub: Any, kind: str, t: float, k: int, **body: Any) -> None:
+        self.seq += 1
+        pub.put(encode(kind, self.run_id, "world", self.seq, t, k, **body))
 
-    K = round(cfg.duration_s * cfg.time.control_hz)
-    # the status (progress, running metrics) at about STATUS_HZ, and always the last one: a
-    # message every tick would wake the launcher and the recorder 100 times a second
-    status_every = max(1, round(cfg.time.control_hz / STATUS_HZ))
-    sub = cfg.time.substeps
-    lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-    collisions = 0  # contacts among live agents' drones (and obstacles)
-    dead_contacts = 0  # contacts of a dead agent's drone (landing, or left to the firmware)
-    stalls = 0  # lockstep ticks that waited longer than stall_warn_s
-    stall_warn_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s
-    touching: set[tuple[str, str]] = set()
-    min_sep, min_clear, late = math.inf, math.inf, 0
-    wall0 = time.monotonic()
-    startup_cpu_s = time.process_time()  # imports, PyBullet, compiled code, waiting for everyone
-    running.set()
-    k = 0
-    done = False
-    names = list(slots)
-    flown = [a for a in names if a not in real]  # simulated drones: PyBullet flies them
-    index = {a: i for i, a in enumerate(names)}
-    l_m = np.array([slots[a].model.params.l_m for a in names])  # body-centre offsets [m]
-    radius_m = np.array([slots[a].model.params.body_radius_m for a in names])  # bounding radii [m]
-    goals = np.array([slots[a].goal for a in names])  # (n, 3) m, world
-    near_m = np.array([cfg.near_radius_m(a) for a in names]) if cells else np.zeros(0)  # m
-    onboard_consts: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}  # drones -> stacked gains
-    phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
-    try:
+    def poll_liveliness(self) -> None:
+        for name, up in tp.liveliness_events(self.live_sub):
+            slot = self.slots.get(name)
+            if slot is not None:
+                if up:
+                    slot.alive = True
+                elif slot.alive:
+                    slot.alive, slot.dead = False, True
+                    print(f"world: agent {name} gone at wall {time.time():.4f}: {self.cfg.failure.on_agent_death}",
+                          file=sys.stderr)  # fmt: skip
+            elif up:
+                self.others_alive.add(name)
+            else:
+                self.others_alive.discard(name)
+
+    def poll_commands(self, k_now: int, wait_until: float | None = None) -> None:
+        """Take every command that has arrived (first waiting until ``wait_until`` for one)."""
+        first = self.cmd_in.get(wait_until) if wait_until is not None else None
+        for s in ([first] if first is not None else []) + list(self.cmd_in.drain()):
+            m = tp.decode_sample(s, self.run_id, self.counter, ("command",), COMMAND_FIELDS)
+            if m is not None:
+                self._take_command(m, str(s.key_expr), k_now)
+
+    def _take_command(self, m: Any, key: str, k_now: int) -> None:
+        counter, slot = self.counter, self.slots.get(m.src)
+        if slot is None or slot.dead:
+            counter.drop("command from unknown or dead agent")
+            return
+        if key != self.keys.command(m.src):  # a header naming another agent than its key
+            counter.drop("command whose sender is not its key's agent")
+            return
+        if m.k > k_now + 1 or abs(m.t - m.k * self.dt_ctrl) > 2.0 * self.dt_ctrl:  # not an answer to a tick we sent
+            counter.drop("command for a tick or time the world has not reached")
+            return
+        if m["status"] != "ok":
+            slot.infeasible += 1
+        slot.solo = m["status"] != "ok"
+        if m.src in self.real:  # a real drone's command went to it by radio: recorded, not flown
+            slot.command_k = max(slot.command_k, m.k)
+            return
+        u = m["u"]
+        if u.shape != (4,) or m["level"] != slot.level.value:
+            counter.drop("command of wrong level or size")
+            return
+        if m.k < slot.command_k:
+            return  # older than what we hold
+        slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
+        sent = slot.sent_at.pop(m.k, None)
+        if sent is not None:
+            slot.answered += 1
+            slot.latencies_s.append(time.monotonic() - sent)
+            if m.k >= k_now:
+                slot.on_time += 1
+
+    def warm_up(self) -> None:
+        """The first call of compiled code loads it (a few hundred ms): do it before any
+        tick, or a realtime world starts behind the wall clock and bursts ticks to catch up."""
+        for sl in self.slots.values():
+            st0 = QuadState.hover()
+            sl.onboard.rotor_thrusts(st0, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), self.sim.dt_s)
+            sl.att.from_thrust_vector(st0, np.array([0.0, 0.0, sl.model.params.weight_N]))
+            sl.onboard.yaw_sp_rad = sl.yaw_sp_rad
+        warm_up()
+
+    def wait_for_everyone(self, expect: tuple[str, ...]) -> bool:
+        """Until every agent and the ``expect``ed processes are alive (False at the start timeout)."""
+        deadline = time.monotonic() + self.cfg.time.start_timeout_s
+        while not all(s.alive for s in self.slots.values()) or not set(expect) <= self.others_alive:
+            self.poll_liveliness()
+            if self.stop or time.monotonic() > deadline:
+                missing = [a for a, s in self.slots.items() if not s.alive] + sorted(set(expect) - self.others_alive)
+                print(f"world: gave up waiting for {missing}", file=sys.stderr)
+                return False
+            time.sleep(0.005)
+        return True
+
+    # --- the phases of a tick -------------------------------------------------------
+    def pace(self, k: int) -> None:
+        """Realtime: publish tick k at its wall time k * dt, not right after the last
+        substep of tick k-1 (which runs at (k - 1/substeps) * dt); commands that arrive
+        until then answered tick k-1 in time."""
+        if not self.lockstep and k > 0:
+            target = self.wall0 + k * self.dt_ctrl
+            while time.monotonic() < target:
+                self.poll_commands(k - 1, target)
+
+    def measure(self, k: int, t: float) -> TickView:
+        """Ground truth for metrics and measurements (motion capture for real drones), and
+        the running metrics it updates."""
+        names, slots, relay, c = self.names, self.slots, self.relay, self.counts
+        ds = self.sim.read_states(names)
+        for i, a in enumerate(names):
+            est = relay.latest(a) if relay and a in self.real else None
+            if est is not None:
+                ds.x_w[i], ds.v_w[i], ds.q[i], ds.Omega_b[i] = est.x_w, est.v_w, est.q, est.Omega_b
+                ds.R[i] = quat_to_R(est.q)
+        items = obstacle_items(self.cfg.obstacles, t)
+        obs = items_to_arrays(items)
+        live = [a for a in names if slots[a].alive]
+        l_m = self.l_m[:, None]
+        x_b = ds.x_w + l_m * ds.R[:, :, 2]
+        v_b = ds.v_w + l_m * (ds.R[:, :, 0] * ds.Omega_b[:, 1:2] - ds.R[:, :, 1] * ds.Omega_b[:, 0:1])
+        roster = np.hstack([x_b, v_b, self.radius_m[:, None]]).ravel()
+        measured = [a for a in self.flown if slots[a].alive]  # a dead agent's drone is no longer measured
+        rows = [self.index[a] for a in measured]
+        meas = np.hstack([ds.x_w[rows], ds.v_w[rows], ds.q[rows], ds.Omega_b[rows]]).ravel()
+        flying = x_b[[not slots[a].dead for a in names]]
+        if len(flying) >= 2:
+            c.min_sep = min(c.min_sep, min_pair_distance(flying))
+        if len(obs) and len(flying):
+            c.min_clear = min(c.min_clear, float(surface_clearance(flying, obs).min()))
+        at_goal = np.linalg.norm(ds.x_w - self.goals, axis=1) <= self.cfg.goal_tolerance_m
+        for a, there in zip(names, at_goal.tolist(), strict=True):
+            if there and slots[a].reached_at_s is None:
+                slots[a].reached_at_s = t
+        return TickView(ds, items, live, x_b, roster, measured, meas)
+
+    def is_done(self, k: int, view: TickView) -> bool:
+        all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
+        K = round(self.cfg.duration_s * self.cfg.time.control_hz)
+        return bool(k == K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
+
+    def publish(self, k: int, t: float, view: TickView, done: bool, status_every: int) -> None:
+        """Tick k out: the status (every ``status_every`` ticks and the last), the clock, and
+        with neighbours by cells each agent's own tick."""
+        slots, names, c = self.slots, self.names, self.counts
+        now = time.monotonic()
+        if not done:
+            for a in view.live:
+                if a not in self.real:  # the relay publishes real drones' measurements at the capture rate
+                    slots[a].sent_at[k] = now
+        if done or k % status_every == 0:
+            wall = now - self.wall0
+            self._put(self.pub_status, "status", t, k, rtf=t / wall if wall > 0 else 0.0, min_sep=min(c.min_sep, 1e9),
+                      min_clear=min(c.min_clear, 1e9), collisions=c.collisions, late=c.late,
+                      dropped=self.counter.dropped, live=view.live, done=done,
+                      infeasible=sum(sl.infeasible for sl in slots.values()), stalls=c.stalls,
+                      dead=[a for a in names if slots[a].dead])  # fmt: skip
+        solo = [a for a in names if slots[a].solo or slots[a].dead or a in self.unfiltered]
+        self._put(self.pub_clock, "clock", t, k, live=view.live, done=done, ids=names, xvr=view.roster,
+                  meas_ids=view.measured, meas=view.meas, items=view.items, solo=solo)  # fmt: skip
+        if self.cells:  # each agent's own tick: its measurement and the live agents near it
+            expected = np.array([slots[a].alive and not slots[a].dead for a in names])
+            near = near_lists(view.x_b, expected, self.near_m)
+            ds = view.ds
+            for aid in view.measured:
+                i = self.index[aid]
+                self._put(self.pub_tick[aid], "tick", t, k, x=ds.x_w[i], v=ds.v_w[i], q=ds.q[i], w=ds.Omega_b[i],
+                          near=[names[j] for j in near[i]], items=view.items, done=done)  # fmt: skip
+
+    def collect(self, k: int, t: float, live: list[str]) -> None:
+        """Lockstep: wait until every live agent answered tick k, or the timeout passed
+        (those are late and keep their last command); a long wait is a stall, logged and
+        published."""
+        cfg, slots, c = self.cfg, self.slots, self.counts
+        wait_from = time.monotonic()
+        wait_until = wait_from + cfg.time.lockstep_timeout_s
+        stall_warn_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s
+        held: list[str] = []  # the agents still missing when the wait became a stall
+        while True:
+            self.poll_liveliness()
+            waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
+            if not waiting or self.stop:
+                break
+            now = time.monotonic()
+            if not held and now - wait_from > stall_warn_s:
+                held = waiting
+                print(f"world: tick {k} (t = {t:.2f} s) has waited {now - wait_from:.2f} s for {waiting}",
+                      file=sys.stderr)  # fmt: skip
+            if now > wait_until:
+                c.late += len(waiting)
+                for a in waiting:
+                    slots[a].sent_at.pop(k, None)
+                break
+            # wake once the missing commands can all be here (not on each one), at the latest
+            # after 20 ms to look at liveliness
+            self.cmd_in.wait_for(len(waiting), min(wait_until, now + 0.02))
+            self.poll_commands(k)
+        if held:
+            c.stalls += 1
+            waited = time.monotonic() - wait_from
+            print(f"world: tick {k} stalled {waited:.2f} s on {held}", file=sys.stderr)
+            self._put(self.pub_stall, "stall", t, k, agents=held, wait_s=waited)
+
+    def step_physics(self, k: int, view: TickView) -> None:
+        """The substeps of tick k: realtime follows the wall clock and takes the commands
+        that came meanwhile; each substep flies every drone's rotor thrusts and notes the
+        contacts."""
+        sub = self.cfg.time.substeps
+        for j in range(sub):
+            if not self.lockstep:
+                # take the commands that came meanwhile in one go (waking for each would take
+                # the CPU from the agents computing them)
+                time.sleep(max(0.0, self.wall0 + (k + j / sub) * self.dt_ctrl - time.monotonic()))
+                self.poll_commands(k)
+            fs = view.ds if j == 0 and not self.real else self.sim.read_states(self.flown)  # `flown` order
+            for a in self.real:  # real drones: where motion capture saw them last
+                est = self.relay.latest(a) if self.relay else None
+                if est is not None:
+                    self.sim.set_pose(a, est.x_w, est.q)
+            self.sim.apply_rotors_all(self.flown, self._rotor_thrusts(fs, self._stale(), j == 0), fs)
+            pairs = {p for p in self.sim.step() if "ground" not in p or _impact(p, self.index, view.ds.v_w)}
+            self._contacts(pairs, k)
+        if not self.lockstep:
+            for a in view.live:
+                sl = self.slots[a]
+                stale = [kk for kk in sl.sent_at if kk < k]
+                self.counts.late += len(stale)
+                for kk in stale:
+                    sl.sent_at.pop(kk)
+
+    def _stale(self) -> set[str]:
+        """Realtime: the drones whose held command is older than the timeout (a rotor
+        command, or any with ``late_command: brake``): not flown."""
+        if self.lockstep:
+            return set()
+        cfg, slots, t_s = self.cfg, self.slots, self.sim.t_s
+        return {
+            a for a in self.names
+            if not slots[a].dead and slots[a].command is not None
+            and (slots[a].level is CommandLevel.ROTORS or cfg.time.late_command == "brake")
+            and t_s - slots[a].command_t_s > cfg.time.command_timeout_s
+        }  # fmt: skip
+
+    def _rotor_thrusts(self, fs: Any, stale: set[str], first_substep: bool) -> np.ndarray:
+        """Rotor thrusts [N] (len(flown), 4): the onboard controller for attitude commands
+        (and before the first command), the agent's thrusts for rotor commands, the world's
+        own fallbacks for dead agents and stale commands."""
+        slots, flown = self.slots, self.flown
+        f_all = np.zeros((len(flown), 4))
+        att = [
+            i for i, a in enumerate(flown) if (not slots[a].dead or self.firmware_death) and a not in stale
+            and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
+        ]  # fmt: skip
+        if att:
+            f_all[att] = self._onboard_thrusts(fs, att)
+        attitude = set(att)
+        for i, a in enumerate(flown):
+            sl = slots[a]
+            if i in attitude:
+                continue
+            if sl.dead:
+                landed = self.cfg.failure.on_agent_death == "motors_off" or fs.x_w[i, 2] < 0.05
+                if not landed:
+                    f_all[i] = _velocity_hold(sl, fs.state(i), _DESCEND)
+            elif a in stale:
+                f_all[i] = _velocity_hold(sl, fs.state(i), _STOP)
+                if first_substep:
+                    sl.braking_ticks += 1
+            else:  # rotor level: the agent's thrusts, held
+                f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
+        return f_all
+
+    def _onboard_thrusts(self, fs: Any, att: list[int]) -> np.ndarray:
+        """The onboard attitude controller of the drones ``att`` (indices into ``flown``),
+        flying their setpoints as the firmware does (``_setpoint``), in one compiled call."""
+        slots, dt_s = self.slots, self.sim.dt_s
+        att_names = tuple(self.flown[i] for i in att)
+        consts = self.onboard_consts.get(att_names)
+        if consts is None:
+            consts = self.onboard_consts[att_names] = (
+                *(np.stack([slots[a].onboard.consts[c][0] for a in att_names]) for c in range(4)),
+                np.array([slots[a].onboard.consts[4][0] for a in att_names]),
+            )  # fmt: skip
+        sp = np.array([_setpoint(slots[a], self.sim.t_s) for a in att_names])
+        for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
+            slots[a].yaw_sp_rad += yaw_rate * dt_s
+        return onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1],
+                                     np.array([slots[a].yaw_sp_rad for a in att_names]), sp[:, 3], *consts)  # fmt: skip
+
+    def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
+        """Count and publish the contacts that began in this substep."""
+        c = self.counts
+        for pair in pairs - c.touching:
+            dead = any(x in self.slots and self.slots[x].dead for x in pair)
+            if dead:
+                c.dead_contacts += 1
+            else:
+                c.collisions += 1
+            self._put(self.pub_coll, "collision", self.sim.t_s, k, a=pair[0], b=pair[1], dead=dead)
+        c.touching = pairs
+
+    # --- the run --------------------------------------------------------------------
+    def loop(self) -> int:
+        """Every tick, phase by phase, until done; returns the last tick."""
+        status_every = max(1, round(self.cfg.time.control_hz / STATUS_HZ))
+        K = round(self.cfg.duration_s * self.cfg.time.control_hz)
+        k = 0
         for k in range(K + 1):
             t_phase = time.perf_counter()
-            t = k * dt_ctrl
-            if not lockstep and k > 0:
-                # realtime: publish tick k at its wall time k * dt, not right after the last
-                # substep of tick k-1 (which runs at (k - 1/substeps) * dt); commands that
-                # arrive until then answered tick k-1 in time
-                target = wall0 + k * dt_ctrl
-                while time.monotonic() < target:
-                    poll_commands(k - 1, target)
-            poll_liveliness()
-            # ground truth for metrics and measurements (motion capture for real drones)
-            ds = sim.read_states(names)
-            for i, a in enumerate(names):
-                est = relay.latest(a) if relay and a in real else None
-                if est is not None:
-                    ds.x_w[i], ds.v_w[i], ds.q[i], ds.Omega_b[i] = est.x_w, est.v_w, est.q, est.Omega_b
-                    ds.R[i] = quat_to_R(est.q)
-            items = obstacle_items(cfg.obstacles, t)
-            obs = items_to_arrays(items)
-            live = [a for a in names if slots[a].alive]
-            # the roster: body centre [m], its velocity [m/s] and radius [m] of every drone,
-            # in `names` order; the measurements of the simulated drones
-            x_b = ds.x_w + l_m[:, None] * ds.R[:, :, 2]
-            v_b = ds.v_w + l_m[:, None] * (ds.R[:, :, 0] * ds.Omega_b[:, 1:2] - ds.R[:, :, 1] * ds.Omega_b[:, 0:1])
-            roster = np.hstack([x_b, v_b, radius_m[:, None]]).ravel()
-            measured = [a for a in flown if slots[a].alive]  # a dead agent's drone is no longer measured
-            rows = [index[a] for a in measured]
-            meas = np.hstack([ds.x_w[rows], ds.v_w[rows], ds.q[rows], ds.Omega_b[rows]]).ravel()
-            flying = x_b[[not slots[a].dead for a in names]]
-            if len(flying) >= 2:
-                min_sep = min(min_sep, min_pair_distance(flying))
-            if len(obs) and len(flying):
-                min_clear = min(min_clear, float(surface_clearance(flying, obs).min()))
-            at_goal = np.linalg.norm(ds.x_w - goals, axis=1) <= cfg.goal_tolerance_m
-            for a, there in zip(names, at_goal.tolist(), strict=True):
-                if there and slots[a].reached_at_s is None:
-                    slots[a].reached_at_s = t
-            all_reached = all(slots[a].reached_at_s is not None for a in names if not slots[a].dead)
-            done = bool(k == K or (cfg.stop_when_all_reached and all_reached) or stop or not live)
-            wall = time.monotonic() - wall0
-            now = time.monotonic()
-            if not done:
-                for a in live:
-                    if a not in real:  # the relay publishes real drones' measurements at the capture rate
-                        slots[a].sent_at[k] = now
-            if done or k % status_every == 0:
-                status = dict(
-                    rtf=t / wall if wall > 0 else 0.0, min_sep=min(min_sep, 1e9), min_clear=min(min_clear, 1e9),
-                    collisions=collisions, late=late, dropped=counter.dropped, live=live, done=done,
-                    infeasible=sum(sl.infeasible for sl in slots.values()), stalls=stalls,
-                    dead=[a for a in names if slots[a].dead],
-                )  # fmt: skip
-                seq += 1
-                pub_status.put(encode("status", run, "world", seq, t, k, **status))
-            seq += 1
-            solo = [a for a in names if slots[a].solo or slots[a].dead or a in unfiltered]
-            pub_clock.put(encode("clock", run, "world", seq, t, k, live=live, done=done, ids=names, xvr=roster,
-                                 meas_ids=measured, meas=meas, items=items, solo=solo))  # fmt: skip
-            if cells:  # each agent's own tick: its measurement and the live agents near it
-                expected = np.array([slots[a].alive and not slots[a].dead for a in names])
-                near = near_lists(x_b, expected, near_m)
-                for aid in measured:
-                    i = index[aid]
-                    seq += 1
-                    pub_tick[aid].put(encode("tick", run, "world", seq, t, k, x=ds.x_w[i], v=ds.v_w[i], q=ds.q[i],
-                                           w=ds.Omega_b[i], near=[names[j] for j in near[i]], items=items,
-                                           done=done))  # fmt: skip
+            t = k * self.dt_ctrl
+            self.pace(k)
+            self.poll_liveliness()
+            view = self.measure(k, t)
+            done = self.is_done(k, view)
+            self.publish(k, t, view, done, status_every)
             if done:
                 break
-
             t_pub_end = time.perf_counter()
-            phase["publish"] += t_pub_end - t_phase
-            if lockstep:
-                wait_from = time.monotonic()
-                wait_until = wait_from + cfg.time.lockstep_timeout_s
-                held: list[str] = []  # the agents still missing when the wait became a stall
-                while True:
-                    poll_liveliness()
-                    waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
-                    if not waiting or stop:
-                        break
-                    now = time.monotonic()
-                    if not held and now - wait_from > stall_warn_s:
-                        held = waiting
-                        print(f"world: tick {k} (t = {t:.2f} s) has waited {now - wait_from:.2f} s for {waiting}",
-                              file=sys.stderr)  # fmt: skip
-                    if now > wait_until:
-                        late += len(waiting)
-                        for a in waiting:
-                            slots[a].sent_at.pop(k, None)
-                        break
-                    # wake once the missing commands can all be here (not on each one), at the
-                    # latest after 20 ms to look at liveliness
-                    cmd_in.wait_for(len(waiting), min(wait_until, now + 0.02))
-                    poll_commands(k)
-                if held:
-                    stalls += 1
-                    waited = time.monotonic() - wait_from
-                    print(f"world: tick {k} stalled {waited:.2f} s on {held}", file=sys.stderr)
-                    seq += 1
-                    pub_stall.put(encode("stall", run, "world", seq, t, k, agents=held, wait_s=waited))
+            self.phase["publish"] += t_pub_end - t_phase
+            if self.lockstep:
+                self.collect(k, t, view.live)
             t_wait_end = time.perf_counter()
-            phase["wait"] += t_wait_end - t_pub_end
-            for j in range(sub):
-                if not lockstep:
-                    # follow the wall clock; take the commands that came meanwhile in one go
-                    # (waking for each would take the CPU from the agents computing them)
-                    time.sleep(max(0.0, wall0 + (k + j / sub) * dt_ctrl - time.monotonic()))
-                    poll_commands(k)
-                fs = ds if j == 0 and not real else sim.read_states(flown)  # simulated drones, `flown` order
-                for a in real:  # real drones: where motion capture saw them last
-                    est = relay.latest(a) if relay else None
-                    if est is not None:
-                        sim.set_pose(a, est.x_w, est.q)
-                stale = set()
-                if not lockstep:  # realtime: a rotor command older than the timeout is not flown
-                    stale = {
-                        a for a in names
-                        if not slots[a].dead and slots[a].command is not None
-                        and (slots[a].level is CommandLevel.ROTORS or cfg.time.late_command == "brake")
-                        and sim.t_s - slots[a].command_t_s > cfg.time.command_timeout_s
-                    }  # fmt: skip
-                f_all = np.zeros((len(flown), 4))  # rotor thrusts [N]
-                att = [
-                    i for i, a in enumerate(flown) if (not slots[a].dead or firmware_death) and a not in stale
-                    and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
-                ]  # fmt: skip
-                if att:
-                    att_names = tuple(flown[i] for i in att)
-                    consts = onboard_consts.get(att_names)
-                    if consts is None:
-                        consts = onboard_consts[att_names] = (
-                            *(np.stack([slots[a].onboard.consts[c][0] for a in att_names]) for c in range(4)),
-                            np.array([slots[a].onboard.consts[4][0] for a in att_names]),
-                        )  # fmt: skip
-                    sp = np.array([_setpoint(slots[a], sim.t_s) for a in att_names])
-                    for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
-                        slots[a].yaw_sp_rad += yaw_rate * sim.dt_s
-                    f_all[att] = onboard_rotor_thrusts(
-                        fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1],
-                        np.array([slots[a].yaw_sp_rad for a in att_names]), sp[:, 3], *consts,
-                    )  # fmt: skip
-                attitude = set(att)
-                for i, a in enumerate(flown):
-                    sl = slots[a]
-                    if i in attitude:
-                        continue
-                    if sl.dead:
-                        landed = cfg.failure.on_agent_death == "motors_off" or fs.x_w[i, 2] < 0.05
-                        if not landed:
-                            f_all[i] = _velocity_hold(sl, fs.state(i), _DESCEND)
-                    elif a in stale:
-                        f_all[i] = _velocity_hold(sl, fs.state(i), _STOP)
-                        if j == 0:
-                            sl.braking_ticks += 1
-                    else:  # rotor level: the agent's thrusts, held
-                        f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
-                sim.apply_rotors_all(flown, f_all, fs)
-                pairs = {p for p in sim.step() if "ground" not in p or _impact(p, index, ds.v_w)}
-                for pair in pairs - touching:
-                    dead = any(x in slots and slots[x].dead for x in pair)
-                    if dead:
-                        dead_contacts += 1
-                    else:
-                        collisions += 1
-                    seq += 1
-                    pub_coll.put(encode("collision", run, "world", seq, sim.t_s, k, a=pair[0], b=pair[1], dead=dead))
-                touching = pairs
-            phase["physics"] += time.perf_counter() - t_wait_end
-            if not lockstep:
-                for a in live:
-                    sl = slots[a]
-                    stale = [kk for kk in sl.sent_at if kk < k]
-                    late += len(stale)
-                    for kk in stale:
-                        sl.sent_at.pop(kk)
-        if relay is not None:
-            # real drones land on their own measurements: keep relaying until they are gone
-            until = time.monotonic() + cfg.time.land_timeout_s
-            while any(slots[a].alive for a in real) and time.monotonic() < until and not stop:
-                poll_liveliness()
-                time.sleep(0.02)
-    finally:
-        running.clear()
-        if relay is not None:
-            relay.stop()
-        token.undeclare()
-        sim.close()
-    lat = [x for s in slots.values() for x in s.latencies_s]
-    answered = sum(s.answered for s in slots.values())
-    summary = {
-        "ticks": k, "t_s": k * dt_ctrl, "collisions": collisions, "dead_agent_contacts": dead_contacts,
-        "stalls": stalls, "late": late,
-        "on_time_fraction": sum(s.on_time for s in slots.values()) / (answered + late) if answered + late else None,
-        "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
-        "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
-        "real_time_factor": k * dt_ctrl / (time.monotonic() - wall0), "cpu_s": time.process_time(),
-        "startup_cpu_s": startup_cpu_s,
-        "phase_wall_s": {n: round(v, 3) for n, v in phase.items()}, "dropped": counter.dropped,
-        "braking_ticks": sum(s.braking_ticks for s in slots.values()),
-        "mocap": None if relay is None else {"frames": relay.frames, "dropped_frames": relay.dropped_frames,
-                                             "lost": sorted(relay.lost)},
-    }  # fmt: skip
-    print("WORLD_SUMMARY " + json.dumps(summary), file=sys.stderr)
-    return 0
+            self.phase["wait"] += t_wait_end - t_pub_end
+            self.step_physics(k, view)
+            self.phase["physics"] += time.perf_counter() - t_wait_end
+        return k
+
+    def land_real_drones(self) -> None:
+        """Real drones land on their own measurements: keep relaying until they are gone."""
+        until = time.monotonic() + self.cfg.time.land_timeout_s
+        while any(self.slots[a].alive for a in self.real) and time.monotonic() < until and not self.stop:
+            self.poll_liveliness()
+            time.sleep(0.02)
+
+    def summary(self, k: int, startup_cpu_s: float) -> dict[str, Any]:
+        slots, c, relay = self.slots.values(), self.counts, self.relay
+        lat = [x for s in slots for x in s.latencies_s]
+        answered = sum(s.answered for s in slots)
+        return {
+            "ticks": k, "t_s": k * self.dt_ctrl, "collisions": c.collisions, "dead_agent_contacts": c.dead_contacts,
+            "stalls": c.stalls, "late": c.late,
+            "on_time_fraction": sum(s.on_time for s in slots) / (answered + c.late) if answered + c.late else None,
+            "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
+            "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
+            "real_time_factor": k * self.dt_ctrl / (time.monotonic() - self.wall0), "cpu_s": time.process_time(),
+            "startup_cpu_s": startup_cpu_s,
+            "phase_wall_s": {n: round(v, 3) for n, v in self.phase.items()}, "dropped": self.counter.dropped,
+            "braking_ticks": sum(s.braking_ticks for s in slots),
+            "mocap": None if relay is None else {"frames": relay.frames, "dropped_frames": relay.dropped_frames,
+                                                 "lost": sorted(relay.lost)},
+        }  # fmt: skip
+
+    def run(self, conf: Any, expect: tuple[str, ...] = ()) -> int:
+        """Open, wait for everyone, fly every tick, land the real drones; 2 when the
+        processes did not all come up."""
+        self.open(conf)
+        self.warm_up()
+        if not self.wait_for_everyone(expect):
+            self.token.undeclare()
+            return 2
+        self.wall0 = time.monotonic()
+        startup_cpu_s = time.process_time()  # imports, PyBullet, compiled code, waiting for everyone
+        self.running.set()
+        try:
+            k = self.loop()
+            if self.relay is not None:
+                self.land_real_drones()
+        finally:
+            self.running.clear()
+            if self.relay is not None:
+                self.relay.stop()
+            self.token.undeclare()
+            self.sim.close()
+        print("WORLD_SUMMARY " + json.dumps(self.summary(k, startup_cpu_s)), file=sys.stderr)
+        return 0
+
+
+def main(cfg: ScenarioConfig, run: str, conf: Any, gui: bool = False, expect: tuple[str, ...] = ()) -> int:
+    """The world process: ``swarm world``."""
+    return World(cfg, run, gui).run(conf, expect)

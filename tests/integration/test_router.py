@@ -99,7 +99,9 @@ def test_realtime_circle_8_through_the_router_flies_without_collision(start_run)
     h, m, agents = _run(start_run, cfg, "realtime")
     assert m["collisions"] == 0 and m["all_reached_goal"], m
     assert m["min_separation_m"] > 2 * 0.07
-    assert sum(a["ticks"] for a in agents.values()) > 8 * 500
+    world, _ = summaries(h.out)
+    for a in agents.values():  # every agent acted on most of the world's ticks (realtime skips a late one)
+        assert a["ticks"] >= 0.5 * world["ticks"], (a, world["ticks"])
 
 
 def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):

@@ -15,7 +15,7 @@ import yaml
 
 from swarm.config import AGENTS_PER_CPU, ConfigError, load, machine_cpus, resolve
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASE = yaml.safe_load((ROOT / "configs" / "circle_8.yaml").read_text())
 
 

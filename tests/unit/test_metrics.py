@@ -1,0 +1,44 @@
+"""Metrics from records."""
+
+import numpy as np
+import pytest
+
+from swarm.config import resolve
+from swarm.metrics import compute
+
+
+def test_metrics_from_synthetic_records():
+    cfg = resolve({
+        "version": 1, "name": "m", "duration_s": 1.0, "goal_tolerance_m": 0.1,
+        "agents": [{"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1], "airframe": {"l_m": 0.0}},
+                   {"id": "b", "start": [3, 0, 1], "goal": [5, 0, 1], "airframe": {"l_m": 0.0}}],
+        "obstacles": [{"id": "s", "shape": "sphere", "center": [0.5, 1.0, 1.0], "radius_m": 0.5}],
+    })  # fmt: skip
+    recs = []
+    for k in range(11):
+        for aid, x in (("a", [0.1 * k, 0, 1]), ("b", [3.0 - 0.1 * k, 0, 1])):
+            topic = f"/swarm/r/world/{aid}/measurement"
+            recs.append(
+                {"kind": "measurement", "topic": topic, "k": k, "t": 0.1 * k, "x": x, "q": [0, 0, 0, 1], "v": [0, 0, 0]}
+            )
+        sphere = {"id": "s", "shape": "sphere", "c": [0.5, 1.0, 1.0], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}
+        recs.append({"kind": "obstacles", "k": k, "t": 0.1 * k, "items": [sphere]})
+    recs.append({"kind": "collision", "a": "a", "b": "s", "k": 3, "t": 0.3})
+    recs.append({"kind": "status", "t": 1.0, "k": 10, "rtf": 2.0, "late": 1, "dropped": 3, "live": ["a", "b"],
+                 "min_sep": 1.0, "min_clear": 0.5, "collisions": 1, "done": True})  # fmt: skip
+    m = compute(cfg, recs, recorder_dropped=2)
+    assert m["collisions"] == 1 and m["late_ticks"] == 1 and m["dropped_messages"] == 5
+    assert m["min_separation_m"] == pytest.approx(1.0)  # at k = 10: 1.0 vs 2.0
+    assert m["min_obstacle_clearance_m"] == pytest.approx(0.5)  # (0.5, 0, 1) is 1.0 from the centre
+    assert m["agents"]["a"]["reached_goal"] and m["agents"]["a"]["time_to_goal_s"] == pytest.approx(0.9)
+    assert not m["agents"]["b"]["reached_goal"] and not m["all_reached_goal"]
+    assert m["agents"]["a"]["path_length_m"] == pytest.approx(1.0)
+
+
+def test_path_deviation_is_the_distance_to_the_polyline():
+    from swarm.metrics import path_deviation
+
+    path = np.array([[0.0, 0, 1], [2.0, 0, 1], [2.0, 2, 1]])
+    pts = np.array([[1.0, 0.3, 1], [2.5, 1.0, 1], [0.0, 0, 1]])
+    assert path_deviation(pts, path) == pytest.approx(0.5)
+    assert path_deviation(pts[:1], path[:1]) == pytest.approx(np.hypot(1.0, 0.3))

@@ -207,6 +207,9 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     (``swarm run`` starts the launcher, then the recorder, then the world: each connects to
     listeners already up); agents and observers connect to every hub and listen on nothing.
     Gossip is off, so exactly these links exist, and they use the low-latency transport.
+
+    router: the router (``swarm router``) listens on ``host:port``; every other process is
+    a client connecting to it alone (low-latency transport on both ends).
     (That transport left Zenoh 1.10.2's gossip mesh incomplete in 3 of 4 starts of 17
     peers; links made only by explicit connects in one direction came up complete in 40 of
     40.)"""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -34,3 +35,17 @@ def start_run(tmp_path: Path) -> Iterator:
     for h in handles:
         if h.reason is None:
             h.finish("test teardown")
+
+
+def wait_linked(h: RunHandle, session: Any, heard: Any, probe_key: str, what: str = "the run") -> None:
+    """Until a put of ``session`` on ``probe_key`` (its own keys) reaches the channel ``heard``
+    of another session of the run: the first is linked. Raises after 100 tries, each one world
+    status message apart."""
+    from swarm import transport as tp
+
+    for _ in range(100):
+        session.put(probe_key, b"hello")
+        h.wait_sim_time(h.progress.t_s + 0.02)
+        if any(tp.payload(x) == b"hello" for x in tp.drain(heard)):
+            return
+    raise AssertionError(f"the session never linked to {what}")

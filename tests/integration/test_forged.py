@@ -28,7 +28,7 @@ from swarm.cells import cell_of
 from swarm.messages import decode, encode
 from tools.launch import RunHandle
 
-from .conftest import scenario
+from .conftest import scenario, wait_linked
 
 ZERO_THRUST = dict(level="attitude", u=np.array([0.0, 0.0, 0.0, 0.0]), intervention=0.0, status="ok", solve_us=0.0,
                    row_ids=[], h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
@@ -209,13 +209,7 @@ def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]
     heard = tp.open_channel(observer, f"{keys.root}/**", 1 << 16)
     fake_state = encode("state", h.run, "cf1", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
     probe_key = f"{keys.root}/agent/cf2/probe"
-    for _ in range(100):  # until the forger is linked to the observer (its probes under its own keys arrive)
-        forger.put(probe_key, b"hello")
-        h.wait_sim_time(h.progress.t_s + 0.02)
-        if any(tp.payload(x) == b"hello" for x in tp.drain(heard)):
-            break
-    else:
-        raise AssertionError("the forger never linked to the run")
+    wait_linked(h, forger, heard, probe_key)  # (its probes under its own keys reach the observer)
     for _ in range(20):
         h.wait_sim_time(h.progress.t_s + 0.05)
         forger.put(keys.state("cf1"), fake_state)

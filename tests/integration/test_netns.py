@@ -12,10 +12,12 @@ import json
 import os
 import re
 import secrets
+import shlex
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -79,29 +81,65 @@ def lan() -> Iterator[dict[str, str]]:
 
 
 class Hosts:
-    """Processes started in namespaces, each in its own process group, logs kept."""
+    """Processes started in namespaces, each in its own process group. Each one's output is
+    read line by line by a thread of its own, kept in its log, and waited on (no polling).
+    The first line of each is the network namespace it runs in, printed by the shell that
+    ``ip netns exec`` started, in the very process that then becomes ``swarm``."""
 
     def __init__(self, logs: Path) -> None:
         self.logs, self.procs = logs, {}
+        self.lines: dict[str, list[str]] = {}
+        self.ended: set[str] = set()  # whose output has ended
+        self._changed = threading.Condition()
         logs.mkdir(parents=True, exist_ok=True)
 
     def start(self, name: str, netns: str, *args: str) -> subprocess.Popen[bytes]:
-        log = open(self.logs / f"{name}.log", "wb")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        p = subprocess.Popen(["ip", "netns", "exec", netns, sys.executable, "-m", "tools.cli", *args], stdout=log,
-                             stderr=subprocess.STDOUT, start_new_session=True, env=env)  # fmt: skip
-        self.procs[name] = p
+        command = " ".join(["exec", sys.executable, "-m", "tools.cli", *map(shlex.quote, args)])
+        p = subprocess.Popen(["ip", "netns", "exec", netns, "sh", "-c", f"readlink /proc/self/ns/net; {command}"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
+                             env=env)  # fmt: skip
+        self.procs[name], self.lines[name] = p, []
+        threading.Thread(target=self._read, args=(name, p), daemon=True).start()
         return p
 
-    def log(self, name: str) -> str:
-        return (self.logs / f"{name}.log").read_text(errors="replace")
+    def _read(self, name: str, p: subprocess.Popen[bytes]) -> None:
+        assert p.stdout is not None
+        with open(self.logs / f"{name}.log", "w") as log:
+            for raw in p.stdout:
+                line = raw.decode(errors="replace")
+                log.write(line)
+                log.flush()
+                with self._changed:
+                    self.lines[name].append(line.rstrip("\n"))
+                    self._changed.notify_all()
+        with self._changed:  # (the end of its output: a waiter stops waiting)
+            self.ended.add(name)
+            self._changed.notify_all()
 
-    def wait_line(self, name: str, pattern: str, timeout_s: float) -> None:
+    def log(self, name: str) -> str:
+        with self._changed:
+            return "\n".join(self.lines[name])
+
+    def wait_line(self, name: str, pattern: str, timeout_s: float) -> str:
+        """The first line of ``name``'s output matching ``pattern``, waiting for it."""
         deadline = time.monotonic() + timeout_s
-        while not re.search(pattern, self.log(name)):
-            if self.procs[name].poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"{name}: no {pattern!r}: {self.log(name)[-2000:]}")
-            time.sleep(0.05)
+        seen = 0
+        with self._changed:
+            while True:
+                lines = self.lines[name]
+                for line in lines[seen:]:
+                    if re.search(pattern, line):
+                        return line
+                seen = len(lines)
+                left = deadline - time.monotonic()
+                if name in self.ended or left <= 0:
+                    raise AssertionError(f"{name}: no {pattern!r}: {self.log(name)[-2000:]}")
+                self._changed.wait(left)
+
+    def netns_of(self, name: str) -> int:
+        """The inode of the network namespace ``name`` runs in (its first line)."""
+        return int(re.fullmatch(r"net:\[(\d+)\]", self.wait_line(name, r"^net:\[", 30.0)).group(1))
 
     def stop(self) -> None:
         for p in self.procs.values():
@@ -114,15 +152,6 @@ class Hosts:
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait(5.0)
-
-
-def _wait_in_namespace(p: subprocess.Popen[bytes], netns: str, timeout_s: float = 30.0) -> None:
-    """Until process ``p`` is in the network namespace ``netns`` (same inode)."""
-    want = os.stat(f"/run/netns/{netns}").st_ino
-    deadline = time.monotonic() + timeout_s
-    while os.stat(f"/proc/{p.pid}/ns/net").st_ino != want:
-        assert p.poll() is None and time.monotonic() < deadline, f"pid {p.pid} never entered {netns}"
-        time.sleep(0.01)
 
 
 def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_path):
@@ -144,9 +173,9 @@ def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_p
         world = hosts.start("world", lan["hub"], "world", *common, "--expect", "recorder")
         hosts.start("agent-cf1", lan["a"], "agent", *common, "--id", "cf1")
         hosts.start("agent-cf2", lan["b"], "agent", *common, "--id", "cf2")
-        # each process runs in its host's network namespace (ip netns exec has entered it)
-        for name, host in (("world", "hub"), ("agent-cf1", "a"), ("agent-cf2", "b")):
-            _wait_in_namespace(hosts.procs[name], lan[host])
+        # each process runs in its host's network namespace
+        for name, host in (("router", "hub"), ("world", "hub"), ("agent-cf1", "a"), ("agent-cf2", "b")):
+            assert hosts.netns_of(name) == os.stat(f"/run/netns/{lan[host]}").st_ino, name
         assert world.wait(180.0) == 0, hosts.log("world")[-3000:]
         for name in ("agent-cf1", "agent-cf2"):
             hosts.procs[name].wait(30.0)
@@ -154,10 +183,10 @@ def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_p
         hosts.procs["recorder"].wait(30.0)
     finally:
         hosts.stop()
-    summary = json.loads(re.search(r"WORLD_SUMMARY (.*)", hosts.log("world")).group(1))
+    summary = json.loads(hosts.wait_line("world", r"^WORLD_SUMMARY ", 30.0).split(" ", 1)[1])
     assert summary["collisions"] == 0 and summary["late"] == 0, summary
     for aid in ("cf1", "cf2"):
-        agent = json.loads(re.search(r"AGENT_SUMMARY (.*)", hosts.log(f"agent-{aid}")).group(1))
+        agent = json.loads(hosts.wait_line(f"agent-{aid}", r"^AGENT_SUMMARY ", 30.0).split(" ", 1)[1])
         assert agent["missed_neighbours"] == 0 and agent["dropped"] == 0, agent
         assert agent["rx_bytes"] > agent["ticks"] * 100, agent  # its tick and the other agent's states
     m = write_metrics(out, "completed")

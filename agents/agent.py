@@ -557,7 +557,7 @@ class AgentProcess:
             "id": self.id, "ticks": len(self.tick_s), "compute_median_ms": float(np.median(ts)),
             "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": self.waited_s, "cpu_s": time.process_time(),
             "startup_cpu_s": self.startup_cpu_s, "dropped": counter.dropped, "rx_bytes": counter.rx_bytes,
-            "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared if agent.cells else 0,
+            "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared,
         }  # fmt: skip
 
     def run(self) -> int:

@@ -11,8 +11,8 @@ so the new cells are declared while the old ones still cover a quarter of the hy
 of further motion (the time Zenoh takes to make the new subscriptions known).
 
 ``R`` is the *interest radius*: the sensing radius plus what a neighbour and the agent can
-move between the state's time and its use (:func:`interest_radius`). Pure functions; no
-I/O.
+close between a state's time and its use (``neighbours.margin_m``;
+``ScenarioConfig.interest_radius_m``). Pure functions; no I/O.
 """
 
 from __future__ import annotations
@@ -57,13 +57,6 @@ def _gap(x: float, i: int, cell_m: float) -> float:
     return lo - x if x < lo else (x - hi if x > hi else 0.0)
 
 
-def interest_radius(sensing_radius_m: float, max_speed_mps: float, latency_s: float) -> float:
-    """The radius [m] within which an agent must hear every neighbour: its sensing radius,
-    plus what it and a neighbour moving at ``max_speed_mps`` can close in ``latency_s``
-    (the age of a state when it is used)."""
-    return sensing_radius_m + 2.0 * max_speed_mps * latency_s
-
-
 @dataclass
 class Interest:
     """The cells one agent subscribes to, with hysteresis (see the module docstring)."""
@@ -89,10 +82,6 @@ class Interest:
         self.anchor_w, self.cells = (float(p_w[0]), float(p_w[1]), float(p_w[2])), want
         self.declared += len(add)
         return add, drop
-
-    def covers(self, q_w: tuple[float, float, float] | list[float]) -> bool:
-        """Is the point ``q_w`` [m, world] in a subscribed cell?"""
-        return cell_of(q_w, self.cell_m) in self.cells
 
 
 def near_lists(x_w: np.ndarray, candidate: np.ndarray, radius_m: np.ndarray) -> list[list[int]]:

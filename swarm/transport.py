@@ -141,6 +141,7 @@ class Role(StrEnum):
     ROUTER = "router"  # the Zenoh router of network.topology: router
 
 
+ROUTER_WAIT_S = 20.0  # how long a client tries to reach the router before its session fails to open
 HUBS = (Role.WORLD, Role.RECORDER, Role.LAUNCHER)  # a star's listeners, on port, port + 1, port + 2
 
 
@@ -219,7 +220,15 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
         endpoint = world_endpoint(network.host, network.port, proto)
         if role is Role.ROUTER:
             return session_config(mode="router", listen=[endpoint], connect=list(network.connect), lowlatency=True)
-        return session_config(mode="client", connect=[endpoint], lowlatency=True)
+        conf = session_config(mode="client", connect=[endpoint], lowlatency=True)
+        if role is not Role.LAUNCHER:
+            return conf  # (started once the router is up: a failed link fails the open at once)
+        # swarm run's own session, opened while the router it has just started comes up: Zenoh
+        # retries the link for ROUTER_WAIT_S, then the open fails
+        conf.insert_json5("connect/timeout_ms", json.dumps({"client": int(ROUTER_WAIT_S * 1000)}))
+        conf.insert_json5("connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 1000,
+                                                       "period_increase_factor": 2}))  # fmt: skip
+        return conf
     if cfg.topology == "star":
         ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(HUBS))]
         if role in HUBS:
@@ -322,12 +331,6 @@ class Inbox:
         if key not in self.subs:
             on_sample = zenoh.handlers.Callback(self._on_sample, indirect=False)
             self.subs[key] = self._session.declare_subscriber(key, on_sample)
-
-    def remove(self, key: str) -> None:
-        """Stop queueing the samples of ``key`` (its subscriber undeclared)."""
-        sub = self.subs.pop(key, None)
-        if sub is not None:
-            sub.undeclare()
 
     def _on_sample(self, sample: Any) -> None:
         self._q.put(sample)

@@ -166,20 +166,15 @@ class RunHandle:
         return h
 
     def _open_via_router(self, conf: Any) -> Any:
-        """The launcher's session, opened once the router accepts it: a client session
-        fails to open while nothing listens, so this tries until it opens, the router
-        exits or the start timeout passes."""
-        deadline = time.monotonic() + self.cfg.time.start_timeout_s
-        while True:
-            try:
-                return tp.open_session(conf)
-            except Exception as exc:  # zenoh.ZError: unable to connect
-                code = self.procs["router"].poll()
-                if code is not None or time.monotonic() > deadline:
-                    self._stop_all()
-                    why = self._cause("router", code) if code is not None else f"not reached: {exc}"
-                    raise RuntimeError(f"the run's router did not start: {why}") from None
-                time.sleep(0.02)  # a retry interval, not a wait for readiness
+        """The launcher's session, which opens once the router accepts it (Zenoh retries
+        the link for ``swarm.transport.ROUTER_WAIT_S``); else the router's cause."""
+        try:
+            return tp.open_session(conf)
+        except Exception as exc:  # zenoh.ZError: unable to connect
+            code = self.procs["router"].poll()
+            self._stop_all()
+            why = self._cause("router", code) if code is not None else f"not reached: {exc}"
+            raise RuntimeError(f"the run's router did not start: {why}") from None
 
     def access(self, role: tp.Role, agent_id: str | None = None) -> tp.Access | None:
         """The credentials of a process of this run (None: access control is off)."""

@@ -173,6 +173,7 @@ class World:
         self.cells = cfg.uses_cells  # each simulated agent gets its own tick message (swarm.cells)
         self.near_m = np.array([cfg.near_radius_m(a) for a in self.names]) if self.cells else np.zeros(0)  # m
         self.dt_ctrl = 1.0 / cfg.time.control_hz
+        self.K = round(cfg.duration_s * cfg.time.control_hz)  # the last tick
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.counts = RunCounts()
         self.counter = tp.Counter()
@@ -339,8 +340,7 @@ class World:
 
     def is_done(self, k: int, view: TickView) -> bool:
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
-        K = round(self.cfg.duration_s * self.cfg.time.control_hz)
-        return bool(k == K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
+        return bool(k == self.K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
 
     def publish(self, k: int, t: float, view: TickView, done: bool, status_every: int) -> None:
         """Tick k out: the status (every ``status_every`` ticks and the last), the clock, and
@@ -506,9 +506,8 @@ class World:
     def loop(self) -> int:
         """Every tick, phase by phase, until done; returns the last tick."""
         status_every = max(1, round(self.cfg.time.control_hz / STATUS_HZ))
-        K = round(self.cfg.duration_s * self.cfg.time.control_hz)
         k = 0
-        for k in range(K + 1):
+        for k in range(self.K + 1):
             t_phase = time.perf_counter()
             t = k * self.dt_ctrl
             self.pace(k)

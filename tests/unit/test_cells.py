@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.cells import Interest, cell_of, cells_meeting_ball, interest_radius, near_lists
+from swarm.cells import Interest, cell_of, cells_meeting_ball, near_lists
 from swarm.neighbours import NeighbourTable
 
 coord = st.floats(-50.0, 50.0, allow_nan=False)
@@ -110,8 +110,7 @@ def test_hysteresis_no_redeclaration_for_small_moves_around_a_border():
     assert interest.declared == len(cells_meeting_ball([0.99, 0.0, 1.0], 4.0, 1.0)) + len(add)
 
 
-def test_interest_radius_and_bad_settings():
-    assert interest_radius(3.0, 2.0, 0.1) == pytest.approx(3.4)
+def test_bad_interest_settings():
     with pytest.raises(ValueError, match="positive"):
         Interest(3.0, 0.0, 0.5)
 

@@ -58,6 +58,21 @@ it equals h with the same gradient on the cone, and its lateral gradient is ``r`
 head-on pair swerves. Its class-K gain is at least ``RECOVERY_PER_CONTACT`` over the time
 to contact (coefficient ``RATE``). Within ``AXIS_BAND`` of the axis, where the lateral
 speed is noise, it holds the generator on the side rule's side instead.
+
+**Far neighbours** (live rows only). The cone condition does not weaken with distance: a
+neighbour 2 m away drifting slowly towards the agent binds its row as hard as one close
+by, and in a crowd settling at its goals every agent's small motions push the others
+(with ``rho < 1`` this never settles). A neighbour row with ``h > 0`` therefore asks
+``h' + gamma k h >= 0`` with the gain factor (:func:`far_gain`)
+
+    k = 1 + max(0, |p| / (FAR_GAIN_RADII r) - 1) * max(0, 1 - v_c / FAR_GAIN_CLOSING_MPS)
+
+(``v_c = -<p, w>/|p|`` the closing speed). ``k >= 1`` is continuous and bounded on the
+sensing ball, so ``gamma k h`` is a class-K function of h for every state, and at ``h = 0``
+the row is unchanged (``h' >= 0``): the set ``h >= 0`` stays forward invariant. What it
+gives up is the rate ``h' + gamma h >= 0`` for far, slowly closing pairs; a pair closing
+at ``FAR_GAIN_CLOSING_MPS`` or faster, or within ``FAR_GAIN_RADII`` safety radii, keeps
+the paper's gain.
 """
 
 from __future__ import annotations
@@ -95,6 +110,12 @@ N_COEF = 9
 RECOVERY_PER_CONTACT = 2.0
 """Inside the cone a live row's class-K gain is at least this over the time to contact
 [unit-free]: the row asks to leave the cone within half the time to contact."""
+
+FAR_GAIN_RADII = 2.0
+"""A neighbour row's class-K gain grows with distance beyond this many safety radii
+(:func:`far_gain`) [unit-free]."""
+FAR_GAIN_CLOSING_MPS = 0.1
+"""... and fades out as the pair's closing speed grows to this [m/s]."""
 
 LIVE_W_LO_MPS = 0.005
 """Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
@@ -316,6 +337,18 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
     coef_out[7] = c_d
     coef_out[8] = rate
     return inside
+
+
+@njit(cache=True)
+def far_gain(p, w, r):
+    """Gain factor ``k >= 1`` of a neighbour row's class-K term (module docstring, "Far
+    neighbours"): ``p`` (3,) m and ``w`` (3,) m/s relative, ``r`` the safety radius [m]."""
+    dist = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    if dist <= FAR_GAIN_RADII * r:
+        return 1.0
+    closing = -(p[0] * w[0] + p[1] * w[1] + p[2] * w[2]) / dist  # m/s
+    fade = min(1.0, max(0.0, 1.0 - closing / FAR_GAIN_CLOSING_MPS))
+    return 1.0 + (dist / (FAR_GAIN_RADII * r) - 1.0) * fade
 
 
 PAPER = np.zeros(3)

@@ -32,7 +32,21 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm.barriers import A_P, A_W, B_P, B_W, C_D, N_COEF, PAPER, RATE, BarrierKind, BarrierRows, H, barrier_row
+from swarm.barriers import (
+    A_P,
+    A_W,
+    B_P,
+    B_W,
+    C_D,
+    N_COEF,
+    PAPER,
+    RATE,
+    BarrierKind,
+    BarrierRows,
+    H,
+    barrier_row,
+    far_gain,
+)
 from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
@@ -232,7 +246,8 @@ def rows_kernel(
     the obstacles, its direction clear of all their cones: :func:`free_target`).
 
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
-    the cone, twice the inverse time to contact).
+    the cone, twice the inverse time to contact), times :func:`swarm.barriers.far_gain`
+    for a live neighbour row with ``h > 0``.
 
     Returns (Y_used (n,3,3), coef (n,9), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
@@ -292,7 +307,10 @@ def rows_kernel(
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
         share = rho if is_nb[o] else 1.0
-        b[row] = own + share * (rel + max(gamma, co[RATE]) * co[H])
+        gain = max(gamma, co[RATE])
+        if is_nb[o] and live[0] != 0.0 and co[H] > 0.0:
+            gain *= far_gain(p, w, r[o] + r_own)
+        b[row] = own + share * (rel + gain * co[H])
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]

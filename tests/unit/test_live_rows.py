@@ -312,3 +312,72 @@ def test_a_neighbour_that_does_not_share_gets_a_full_row():
     full = SafetyFilter(QuadModel(), FilterConfig(rho=1.0, **cfg))
     assert half.rows(state, one).lower[0] != full.rows(state, one).lower[0]  # sharing: half the rate terms
     assert half.rows(state, solo).lower[0] == full.rows(state, one).lower[0]  # solo: the whole of it
+
+
+def reference_far_gain(p, w, r):
+    """The module docstring's k ("Far neighbours"), written out again."""
+    from swarm.barriers import FAR_GAIN_CLOSING_MPS, FAR_GAIN_RADII
+
+    dist = np.linalg.norm(p)
+    closing = -(p @ w) / dist
+    return 1.0 + max(0.0, dist / (FAR_GAIN_RADII * r) - 1.0) * min(1.0, max(0.0, 1.0 - closing / FAR_GAIN_CLOSING_MPS))
+
+
+def _row_pair(p, w, r, rho):
+    """The live row of one relative state as a neighbour's and as an obstacle's, the
+    agent a point mass at the attitude level (A = -I / m, a0_own = g e3), at rest."""
+    from swarm.barriers import live_settings
+    from swarm.rows import OwnAffine, assemble
+
+    mass = 0.03
+    own = OwnAffine(np.zeros((2, 3)), np.hstack([-np.eye(3) / mass, np.array([[0.0], [0.0], [9.81]])]))
+    both = ObstacleArrays(
+        np.vstack([p, p]), np.vstack([w, w]), np.zeros((2, 3)), np.zeros(2), np.zeros((2, 3)), np.array([True, False])
+    )
+    return own, assemble(BarrierKind.C3BF, own, both, r, gamma=GAMMA, rho=rho, live=live_settings(True))
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), rho=st.sampled_from([1.0, 0.5]), acc=vec)
+def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p, w, r, rho, acc):
+    """h > 0, above the blend speed: a neighbour's row is the obstacle's with gamma times
+    k >= 1 (k by its definition), k = 1 within FAR_GAIN_RADII safety radii or closing at
+    FAR_GAIN_CLOSING_MPS, k bounded by |p| / (FAR_GAIN_RADII r) on the sensing ball, and
+    every relative acceleration the row admits satisfies the exact h' + gamma k h >= 0
+    (a finite difference of the unsmoothed h): h >= 0 stays forward invariant."""
+    from swarm.barriers import FAR_GAIN_CLOSING_MPS, FAR_GAIN_RADII
+
+    assume(np.linalg.norm(p) >= r + 0.05 and np.linalg.norm(w) >= 1.01 * LIVE_W_HI_MPS)
+    h = exact_h(p, w, r, np.zeros(3))
+    assume(h > 1e-6)
+    own, rows = _row_pair(p, w, r, rho)
+    k = reference_far_gain(p, w, r)
+    dist, closing = np.linalg.norm(p), -(p @ w) / np.linalg.norm(p)
+    assert 1.0 <= k <= max(1.0, dist / (FAR_GAIN_RADII * r)) + 1e-12
+    if dist <= FAR_GAIN_RADII * r or closing >= FAR_GAIN_CLOSING_MPS:
+        assert k == 1.0
+    b_nb, b_obs = rows.b
+    own_term = b_obs - (rows.barrier.dh_dp[1] @ w + GAMMA * rows.h[1])  # <dh_dw, c'' + a0_own>
+    scale = 1 + dist * np.linalg.norm(w)
+    assert abs(b_nb - (own_term + rho * (rows.barrier.dh_dp[0] @ w + GAMMA * k * rows.h[0]))) < 1e-9 * scale * (1 + k)
+    # rho = 1: the relative acceleration the row admits, through the point mass's A
+    if rho == 1.0:
+        lower = -(b_nb - own_term)  # dh_dw . w' >= lower with w' = -(own acceleration) = a0_own + A u
+        acc = satisfying(rows.barrier.dh_dw[0], -lower, acc)
+        d = 1e-6
+        fd = (exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, np.zeros(3))
+              - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, np.zeros(3))) / (2 * d)  # fmt: skip
+        assert fd + GAMMA * k * h >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + dist)
+
+
+@settings(max_examples=300, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), dp=vec, dw=vec)
+def test_the_far_gain_is_continuous(p, w, r, dp, dw):
+    """k is Lipschitz in (p, w) away from p = 0: the row does not jump between ticks."""
+    from swarm.barriers import far_gain
+
+    assume(np.linalg.norm(p) >= r + 0.05)
+    e = 1e-7
+    k0, k1 = far_gain(p, w, r), far_gain(p + e * dp, w + e * dw, r)
+    assert k0 == reference_far_gain(p, w, r) or abs(k0 - reference_far_gain(p, w, r)) < 1e-12 * k0
+    assert abs(k1 - k0) <= 1e-7 * (1 + np.linalg.norm(dp) + np.linalg.norm(dw)) * (1 + np.linalg.norm(w)) * 100 / r

@@ -243,9 +243,14 @@ class SitlDrone:
         return math.acos(max(-1.0, min(1.0, float(quat_to_R(self.state.q)[2, 2]))))
 
     def step(self, now: float, dt: float) -> None:
-        """The firmware's decision and the body's motion over ``dt`` [s]."""
+        """The firmware's decision and the body's motion over ``dt`` [s], under the lock
+        from reading the state to writing it back: a change another thread makes to the
+        state (a test knocking the drone over) is never overwritten by a step begun before."""
         with self.lock:
-            out = self.firmware.step(now, self.tilt_rad())
+            self._step_locked(now, dt)
+
+    def _step_locked(self, now: float, dt: float) -> None:
+        out = self.firmware.step(now, self.tilt_rad())
         s = self.state
         if out.motors_on:
             self.yaw_sp_rad += out.yaw_rate_radps * dt

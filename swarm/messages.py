@@ -305,3 +305,64 @@ def measurement_agent(record: dict[str, Any]) -> str:
     """Agent id of a measurement record: its ``agent`` (bundled in a clock) or the id in
     its key ``.../world/<id>/measurement``."""
     return str(record.get("agent") or record["topic"].split("/")[-2])
+
+
+# what each field means, with its unit and frame, for the recorded channels' JSON schemas
+FIELD_DOCS: dict[str, str] = {
+    "kind": "message kind", "src": "sender id", "seq": "sender's sequence number",
+    "t": "sim time [s]", "k": "control tick",
+    "x": "position [m, world] (a state's and the roster's: the body centre)", "v": "velocity [m/s, world]",
+    "q": "attitude quaternion (x, y, z, w), body to world", "w": "body rates [rad/s, body]",
+    "r": "bounding radius [m]", "solo": "not doing its share of the avoidance (whole rows for it)",
+    "level": "command level (attitude or rotor)", "u": "command: F [N, world] (attitude) or rotor thrusts [N]",
+    "intervention": "|u - u_ref|, the filter's change of the reference [N]", "status": "filter status",
+    "solve_us": "filter call time [us]", "row_ids": "obstacle or agent id of each barrier row",
+    "h_rows": "barrier value h of each row [m^2/s]", "min_h": "smallest h of the rows [m^2/s]",
+    "infeasible": "infeasible ticks so far", "goal_reached": "the agent reached its goal",
+    "dropped": "messages dropped so far", "near": "agents whose states this tick uses",
+    "items": "obstacles: id, shape, centre c [m, world], velocity cd [m/s, world], radius r [m], unit axis a",
+    "done": "the run is over", "live": "agents the world expects answers from",
+    "ids": "roster drone ids", "xvr": "roster: per drone body centre [m], velocity [m/s], radius [m] (7 floats)",
+    "meas_ids": "simulated drones of meas", "meas": "per simulated drone x [m], v [m/s], q, w [rad/s] (13 floats)",
+    "rtf": "real-time factor", "min_sep": "closest pair of body centres so far [m]",
+    "min_clear": "closest body centre to an obstacle surface so far [m]", "collisions": "contacts so far",
+    "late": "late ticks so far", "stalls": "stalled ticks so far", "dead": "agents declared dead",
+    "a": "one side of the contact (agent or obstacle id)", "b": "other side of the contact",
+    "agents": "agents the tick waited for", "wait_s": "how long it waited [s]",
+}  # fmt: skip
+_ITEM_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "id": {"type": "string"}, "shape": {"type": "string", "enum": ["sphere", "cylinder"]},
+        "c": {"type": "array", "items": {"type": "number"}, "description": "centre [m, world]"},
+        "cd": {"type": "array", "items": {"type": "number"}, "description": "velocity [m/s, world]"},
+        "r": {"type": "number", "description": "radius [m]"},
+        "a": {"type": "array", "items": {"type": "number"}, "description": "unit axis (zeros: a sphere)"},
+    },
+}  # fmt: skip
+
+
+def _field_schema(spec: Any) -> dict[str, Any]:
+    if type(spec) is int:
+        return {"type": "array", "items": {"type": "number"}, "minItems": spec, "maxItems": spec}
+    simple: dict[str, dict[str, Any]] = {
+        "f": {"type": "number"},
+        "i": {"type": "integer"},
+        "s": {"type": "string"},
+        "b": {"type": "boolean"},
+        "ls": {"type": "array", "items": {"type": "string"}},
+        "obs": {"type": "array", "items": _ITEM_SCHEMA},
+    }
+    return simple.get(spec, {"type": "array", "items": {"type": "number"}})  # "vf"
+
+
+def json_schema(kind: str) -> dict[str, Any]:
+    """The JSON schema of a recorded message of ``kind`` (:func:`record_of`'s fields:
+    header and body, each with its description and unit), as Foxglove lists them."""
+    header = {"kind": {"type": "string", "const": kind}, "src": {"type": "string"}, "seq": {"type": "integer"},
+              "t": {"type": "number"}, "k": {"type": "integer"}}  # fmt: skip
+    props = header | {name: _field_schema(spec) for name, spec in SCHEMAS[kind].items()}
+    for name, p in props.items():
+        if name in FIELD_DOCS:
+            p["description"] = FIELD_DOCS[name]
+    return {"title": f"c3swarm.{kind}", "type": "object", "properties": props, "required": list(props)}

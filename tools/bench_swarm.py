@@ -12,8 +12,10 @@ averaged over agents, as a percentage of one core; ``world_cpu_percent`` likewis
 sends a measurement -> receives that tick's command), ``cpu_us_per_agent_tick`` (an
 agent's CPU per control tick [us], start-up excluded, averaged over agents),
 ``rx_bytes_per_agent_tick`` (payload bytes an agent received per tick), ``missed_neighbours``
-(near neighbours whose state was not there when used, summed over agents), plus
-collisions, late ticks and the minimum separation. Each run's folder is kept under ``--out``.
+(near neighbours whose state was not there when used, summed over agents),
+``recorder_cpu_us_per_tick`` (the recorder's CPU per world tick [us], start-up excluded: the
+message channels, the Foxglove scene and the log), plus collisions, late ticks and the minimum
+separation. Each run's folder is kept under ``--out``.
 """
 
 from __future__ import annotations
@@ -71,6 +73,9 @@ def run_row(
     per_tick = [((a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"], a.get("rx_bytes", 0) / a["ticks"])
                 for a in agents if a.get("ticks")]  # fmt: skip
     us, rx = np.mean(per_tick, axis=0).tolist() if per_tick else (float("nan"), float("nan"))
+    rec_path = h.out / "recorder.json"
+    rec = json.loads(rec_path.read_text()) if rec_path.exists() else {}
+    rec_us = ((rec["cpu_s"] - rec["startup_cpu_s"]) * 1e6 / rec["clocks"]) if rec.get("clocks") else float("nan")
     return {
         "agents": n, "mode": mode, "rate_hz": rate_hz, "neighbour_source": source,
         "topology": cfg.topology, "access_control": access_control,
@@ -84,6 +89,7 @@ def run_row(
         "late_ticks": world.get("late"), "collisions": metrics.get("collisions"),
         "min_separation_m": metrics.get("min_separation_m"),
         "world_cpu_percent": round((world.get("cpu_s", 0) - world.get("startup_cpu_s", 0)) / wall * 100, 1),
+        "recorder_cpu_us_per_tick": round(rec_us, 1),
         "stop_reason": reason,
     }  # fmt: skip
 

@@ -1,4 +1,4 @@
-"""The ``swarm`` command line (click): run, world, agent, record, metrics.
+"""The ``swarm`` command line (click): run, world, agent, record, metrics, view.
 
 ``swarm run`` validates the config before anything starts, writes the resolved config
 into the run folder, starts the recorder, one process per agent and the world (each in
@@ -57,6 +57,7 @@ def run_scenario(
     stop_on_agent_death: bool = False,
     run_id: str | None = None,
     secrets: Path | None = None,
+    live_port: int | None = None,
 ) -> tuple[int, dict[str, Any]]:
     """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -70,7 +71,13 @@ def run_scenario(
     old = {sig: signal.signal(sig, lambda s, f: interrupted.__setitem__("now", True)) for sig in stop_signals}
     try:
         handle = RunHandle.start(
-            cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted["now"], secrets=secrets
+            cfg,
+            out,
+            gui=gui,
+            run_id=run_id,
+            cancelled=lambda: interrupted["now"],
+            secrets=secrets,
+            live_port=live_port,
         )
     except BaseException:
         for sig, handler in old.items():
@@ -136,6 +143,15 @@ def cli() -> None:
 @click.option("--stop-on-agent-death", is_flag=True, help="stop the run when any agent process dies")
 @click.option("--no-progress", is_flag=True)
 @click.option("--run-id", help="Zenoh run id (default: <name>-<random>); keys live under swarm/<run-id>/")
+@click.option(
+    "--live",
+    "live_port",
+    type=int,
+    is_flag=False,
+    flag_value=8765,
+    default=None,
+    help="serve the scene live to Foxglove (ws://127.0.0.1:PORT, default 8765) while the run goes",
+)
 @_SECRETS
 def run(
     config: str,
@@ -145,6 +161,7 @@ def run(
     stop_on_agent_death: bool,
     no_progress: bool,
     run_id: str | None,
+    live_port: int | None,
     secrets: Path | None,
 ) -> None:
     """Run a scenario: world, one process per agent, recorder."""
@@ -152,7 +169,7 @@ def run(
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     code, metrics = run_scenario(
         cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death, run_id=run_id,
-        secrets=secrets,
+        secrets=secrets, live_port=live_port,
     )  # fmt: skip
     if metrics.get("agents"):
         keys = ("collisions", "min_separation_m", "min_obstacle_clearance_m", "all_reached_goal", "duration_s",
@@ -265,8 +282,11 @@ def agent(
 @click.option("--out", required=True, type=click.Path(path_type=Path))
 @click.option("--run", "run_id")
 @click.option("--port", type=int)
+@click.option("--live", "live_port", type=int, help="also serve the channels to Foxglove on ws://127.0.0.1:PORT")
 @_SECRETS
-def record(config: str, out: Path, run_id: str | None, port: int | None, secrets: Path | None) -> None:
+def record(
+    config: str, out: Path, run_id: str | None, port: int | None, live_port: int | None, secrets: Path | None
+) -> None:
     """Start the recorder alone."""
     _pin_cpu()
     from swarm import transport as tp
@@ -280,7 +300,7 @@ def record(config: str, out: Path, run_id: str | None, port: int | None, secrets
     real = any(a.backend == "crazyflie" for a in cfg.agents)
     linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
     conf = _zenoh_config(cfg, run_name, tp.Role.RECORDER, secrets)
-    os._exit(record_main(run_name, out, conf, linger_s))
+    os._exit(record_main(run_name, out, conf, linger_s, live_port))
 
 
 @cli.command()
@@ -304,6 +324,20 @@ def metrics(run_dir: Path) -> None:
     from tools.runfiles import write_metrics
 
     click.echo(json.dumps(write_metrics(run_dir), indent=2))
+
+
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--port", type=int, default=9090, show_default=True, help="the web viewer's HTTP port (127.0.0.1)")
+@click.option("--no-browser", is_flag=True, help="serve only; open the printed address yourself")
+def view(run_dir: Path, port: int, no_browser: bool) -> None:
+    """The run in 3-D in a web browser, offline (Rerun's web viewer; RUN_DIR/view.rrd)."""
+    from tools.view import main as view_main
+
+    if not (run_dir / "run.mcap").exists():
+        click.echo(f"error: {run_dir}: no run.mcap", err=True)
+        sys.exit(2)
+    sys.exit(view_main(run_dir, port, browser=not no_browser))
 
 
 @cli.command()

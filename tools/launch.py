@@ -26,6 +26,7 @@ from typing import Any
 from swarm import access
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
+from swarm.layout import run_layout_json
 from swarm.messages import DecodeError, decode
 
 
@@ -118,7 +119,7 @@ class RunHandle:
     @classmethod
     def start(
         cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None,
-        cancelled: Callable[[], bool] = lambda: False, secrets: Path | None = None,
+        cancelled: Callable[[], bool] = lambda: False, secrets: Path | None = None, live_port: int | None = None,
     ) -> RunHandle:  # fmt: skip
         """Start the recorder, the world and the first agent, wait for that agent's
         liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
@@ -126,7 +127,8 @@ class RunHandle:
 
         With ``network.access_control`` (the default) the run's credentials are in
         ``secrets`` (default ``out/secrets``; made there unless it already holds them,
-        see :func:`ensure_secrets`)."""
+        see :func:`ensure_secrets`). With ``live_port`` the recorder serves the run to
+        Foxglove live (``tools.record``)."""
         port = cfg.network.port or free_port(cfg.network.host)
         cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
         sitl = cfg.mocap is not None and cfg.mocap.type == "sitl"
@@ -139,6 +141,7 @@ class RunHandle:
         (out / "logs").mkdir(exist_ok=True)
         cfg_path = out / "config.yaml"
         cfg_path.write_text(dump(cfg))
+        (out / "foxglove_layout.json").write_text(run_layout_json([a.id for a in cfg.agents]))
         common = [str(cfg_path), "--run", h.run, *(["--secrets", str(h.secrets)] if h.secrets else [])]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
         launcher_conf = tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER))
@@ -150,7 +153,8 @@ class RunHandle:
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
             h._start_sitl()
-        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out)], cpus.get("recorder"))
+        live = ["--live", str(live_port)] if live_port is not None else []
+        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
         h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
                  cpus.get("world"))  # fmt: skip
         try:

@@ -1,12 +1,21 @@
 """The recorder process: every message under ``swarm/<run>/**`` into ``run.mcap``.
 
-    swarm record CONFIG --out DIR [--run RUN] [--port P]
+    swarm record CONFIG --out DIR [--run RUN] [--port P] [--live PORT]
 
-Messages are decoded (checked) and written as JSON (one MCAP channel per key expression,
-JSON schema encoding), so Foxglove can open and plot the file; orjson writes it (the
-clock's few hundred floats cost 190 us per tick with the standard library, 15 us here). Undecodable messages are
-counted and written raw to ``/dropped``. The file is flushed every ``FLUSH_S`` seconds:
-a crash loses at most that much. Stops when the world reports done or disappears.
+Messages are decoded (checked) and written as JSON, one MCAP channel per key expression
+(less its ``swarm/<run>/`` prefix, so that a layout fits every run: ``/agent/cf1/command``),
+each with its kind's JSON schema (``swarm.messages.json_schema``: every field with its
+unit), so Foxglove lists and plots the fields by name; orjson writes them. Next to them go
+the run's 3-D scene and its log (``swarm.scene``: ``/tf`` ``foxglove.FrameTransforms``,
+``/scene`` ``foxglove.SceneUpdate``, ``/log`` ``foxglove.Log``, schemas from foxglove-sdk).
+The log lines are the processes' own, read from ``DIR/logs`` as they are written (stamped
+with the sim time at which the recorder read them). Undecodable messages are counted and
+written raw to ``/dropped``. The file is flushed every ``FLUSH_S`` seconds: a crash loses
+at most that much. Stops when the world reports done or disappears.
+
+With ``live_port`` the same channels also go to Foxglove's WebSocket server
+(foxglove-sdk's, on 127.0.0.1): Foxglove's "Open connection" shows the run as it goes.
+The server lives in this process, which is pinned apart from the agents and the world.
 """
 
 from __future__ import annotations
@@ -15,12 +24,15 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import orjson
 from mcap.writer import CompressionType, Writer
 
 from swarm import transport as tp
-from swarm.messages import DecodeError, decode, record_of
+from swarm.messages import DecodeError, decode, json_schema, record_of
+from swarm.scene import SCHEMAS as SCENE_SCHEMAS
+from swarm.scene import Scene
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
@@ -29,71 +41,209 @@ QUEUE = 1 << 16  # samples Zenoh holds for the recorder between batches (36 per 
 TAIL_S = 0.3  # keep listening this long after the world says done
 
 
-def main(run: str, out_dir: Path, conf, linger_s: float = 0.0) -> int:
+class Sinks:
+    """``run.mcap`` (the mcap library's writer) and, optionally, Foxglove's live server:
+    one channel per topic in each, registered on first use."""
+
+    def __init__(self, f: Any, live_port: int | None = None) -> None:
+        self.writer = Writer(f, compression=CompressionType.NONE, use_chunking=False)
+        self.writer.start(profile="", library="c3swarm")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._live: dict[str, Any] = {}
+        self.server = None
+        if live_port is not None:
+            import foxglove
+
+            self.server = foxglove.start_server(host="127.0.0.1", port=live_port, name="c3swarm")
+
+    def _schema(self, name: str, encoding: str, data: bytes) -> int:
+        if name not in self._schemas:
+            self._schemas[name] = self.writer.register_schema(name, encoding, data)
+        return self._schemas[name]
+
+    def channel(self, topic: str, encoding: str, schema: tuple[str, str, bytes]) -> int:
+        """The MCAP channel id of ``topic`` (``schema`` = name, encoding, data)."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            ch = self._channels[topic] = self.writer.register_channel(topic, encoding, self._schema(*schema))
+            if self.server is not None:
+                import foxglove
+
+                self._live[topic] = foxglove.Channel(
+                    topic, message_encoding=encoding, schema=foxglove.Schema(name=schema[0], encoding=schema[1],
+                                                                             data=schema[2])
+                )  # fmt: skip
+        return ch
+
+    def write(self, ch: int, topic: str, data: bytes, log_ns: int, now_ns: int, seq: int = 0) -> None:
+        self.writer.add_message(ch, log_ns, data, now_ns, sequence=seq)
+        live = self._live.get(topic)
+        if live is not None:
+            live.log(data, log_time=log_ns)
+
+    def close(self) -> None:
+        self.writer.finish()
+        if self.server is not None:
+            self.server.stop()
+
+
+_RAW = ("c3swarm.raw", "jsonschema", json.dumps({"type": "object"}).encode())
+
+
+class LogTail:
+    """New lines of the run's process logs (``logs/<name>.log``), read as they grow."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self._offset: dict[Path, int] = {}
+
+    def lines(self) -> list[tuple[str, str]]:
+        """(process name, line) of every complete line written since the last call."""
+        out = []
+        for path in sorted(self.folder.glob("*.log")) if self.folder.is_dir() else ():
+            at = self._offset.get(path, 0)
+            try:
+                with open(path, "rb") as f:
+                    f.seek(at)
+                    chunk = f.read()
+            except OSError:
+                continue
+            end = chunk.rfind(b"\n") + 1
+            self._offset[path] = at + end
+            out += [(path.stem, ln) for ln in chunk[:end].decode(errors="replace").splitlines() if ln.strip()]
+        return out
+
+
+class Recorder:
+    """One recording: :meth:`handle` each sample, :meth:`tail_logs` now and then, :meth:`close`."""
+
+    def __init__(self, run: str, out_dir: Path, live_port: int | None = None) -> None:
+        self.run = run
+        self._prefix = f"swarm/{run}/"
+        self._by_key: dict[str, tuple[int, str]] = {}  # key expression -> (MCAP channel, topic)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.f = open(out_dir / "run.mcap", "wb")  # closed in close()
+        self.sinks = Sinks(self.f, live_port)
+        self.scene = Scene()
+        self.logs = LogTail(out_dir / "logs")
+        self.counter = tp.Counter()
+        self.count = 0
+        self.sim_t = 0.0
+        self.done = False  # the world's status said the run is over
+        self.clocks = 0
+        self.startup_cpu_s = 0.0  # CPU [s] spent before the first sample (imports, session)
+        self._fg = {t: (c.get_schema().name, c.get_schema().encoding, c.get_schema().data)
+                    for t, c in SCENE_SCHEMAS.items()}  # fmt: skip
+        for topic, schema in self._fg.items():  # before any client connects: a live client that
+            self.sinks.channel(topic, "protobuf", schema)  # subscribes at once to a channel
+            # advertised while the server registers it is refused ("unknown channel")
+
+    def handle(self, key: str, data: bytes, now_ns: int) -> None:
+        """Decode one sample and write it, and the scene messages it makes."""
+        try:
+            m = decode(data, self.run)
+        except DecodeError as exc:
+            self.counter.drop(str(exc))
+            rec = {"key": key, "reason": str(exc), "hex": data[:256].hex()}
+            ch = self.sinks.channel("/dropped", "json", _RAW)
+            self.sinks.write(ch, "/dropped", json.dumps(rec).encode(), now_ns, now_ns)
+            return
+        known = self._by_key.get(key)
+        if known is None:
+            topic = "/" + key.removeprefix(self._prefix)  # /agent/cf1/command: the same in every run
+            known = self._by_key[key] = (self.sinks.channel(topic, "json", (f"c3swarm.{m.kind}", "jsonschema",
+                                                                            _schema_bytes(m.kind))), topic)  # fmt: skip
+        ch, topic = known
+        log_ns = int(m.t * 1e9)
+        rec = record_of(m)
+        self.sinks.write(ch, topic, orjson.dumps(rec, option=orjson.OPT_SERIALIZE_NUMPY), log_ns, now_ns,
+                         m.seq & 0xFFFFFFFF)  # fmt: skip
+        self.count += 1
+        self.sim_t = max(self.sim_t, m.t)
+        if m.kind == "clock":
+            self.clocks += 1
+            self._scene(self.scene.on_clock(rec), log_ns, now_ns)
+        elif m.kind == "collision":
+            self._scene(self.scene.on_collision(rec), log_ns, now_ns)
+        elif m.kind == "status" and m["done"]:
+            self.done = True
+
+    def _scene(self, messages: list[tuple[str, Any]], log_ns: int, now_ns: int) -> None:
+        for topic, msg in messages:
+            ch = self.sinks.channel(topic, "protobuf", self._fg[topic])
+            self.sinks.write(ch, topic, msg.encode(), log_ns, now_ns)
+
+    def tail_logs(self) -> None:
+        """The processes' new log lines, stamped with the latest sim time seen."""
+        now_ns = time.time_ns()
+        for name, line in self.logs.lines():
+            self._scene([Scene.log(self.sim_t, name, line)], int(self.sim_t * 1e9), now_ns)
+
+    def flush(self) -> None:
+        self.tail_logs()
+        self.f.flush()
+
+    def close(self, out_dir: Path) -> None:
+        self.tail_logs()
+        self.sinks.close()
+        self.f.close()
+        (out_dir / "recorder.json").write_text(
+            json.dumps(
+                {
+                    "messages": self.count,
+                    "dropped": self.counter.dropped,
+                    "reasons": self.counter.reasons,
+                    "clocks": self.clocks,
+                    "cpu_s": time.process_time(),
+                    "startup_cpu_s": self.startup_cpu_s,
+                }
+            )
+        )
+
+
+_SCHEMA_BYTES: dict[str, bytes] = {}
+
+
+def _schema_bytes(kind: str) -> bytes:
+    if kind not in _SCHEMA_BYTES:
+        _SCHEMA_BYTES[kind] = json.dumps(json_schema(kind)).encode()
+    return _SCHEMA_BYTES[kind]
+
+
+def main(run: str, out_dir: Path, conf, linger_s: float = 0.0, live_port: int | None = None) -> int:
     """Record until the world disappears, or ``linger_s`` + a short tail after it says
     done (``linger_s``: how long real drones may take to land after the end)."""
     keys = tp.Keys(run)
     stop = StopFlag()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    f = open(out_dir / "run.mcap", "wb")  # closed in finally
-    writer = Writer(f, compression=CompressionType.NONE, use_chunking=False)
-    writer.start(profile="", library="c3swarm")
-    schema = writer.register_schema("c3swarm.message", "jsonschema", json.dumps({"type": "object"}).encode())
-    raw_schema = writer.register_schema("c3swarm.raw", "jsonschema", json.dumps({"type": "object"}).encode())
-    channels: dict[str, int] = {}
-    dropped_channel = writer.register_channel("/dropped", "json", raw_schema)
-
+    rec = Recorder(run, out_dir, live_port)
     session = tp.open_session(conf)
     # a channel, not a callback: between batches Zenoh queues the samples itself, no Python
-    # runs per message (at 16 agents the recorder's CPU per tick went from about 2.3 to 1.5-1.8 ms)
+    # runs per message
     sub = tp.open_channel(session, keys.everything, QUEUE)
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
-    counter = tp.Counter()
-    world_seen = False
+    rec.startup_cpu_s = time.process_time()
     done_at: float | None = None
     last_flush = time.monotonic()
-    count = 0
     try:
         while not stop:
             # wake every BATCH_S, not for each message: a wake per command would take the
             # CPU from the agents just when they compute their next one
             time.sleep(BATCH_S)
             for s in tp.drain(sub):
-                key = str(s.key_expr)
-                data = tp.payload(s)
-                now_ns = time.time_ns()
-                try:
-                    m = decode(data, run)
-                except DecodeError as exc:
-                    counter.drop(str(exc))
-                    rec = {"key": key, "reason": str(exc), "hex": data[:256].hex()}
-                    writer.add_message(dropped_channel, now_ns, json.dumps(rec).encode(), now_ns)
-                    continue
-                ch = channels.get(key)
-                if ch is None:
-                    ch = channels[key] = writer.register_channel("/" + key, "json", schema)
-                log_ns = int(m.t * 1e9)
-                rec = orjson.dumps(record_of(m), option=orjson.OPT_SERIALIZE_NUMPY)
-                writer.add_message(ch, log_ns, rec, now_ns, sequence=m.seq & 0xFFFFFFFF)
-                count += 1
-                if m.kind == "status" and m["done"] and done_at is None:
-                    done_at = time.monotonic() + linger_s
+                rec.handle(str(s.key_expr), tp.payload(s), time.time_ns())
+            if rec.done and done_at is None:
+                done_at = time.monotonic() + linger_s
             for name, up in tp.liveliness_events(live_sub):
-                if name == "world":
-                    world_seen |= up
-                    if not up:
-                        done_at = min(done_at or math.inf, time.monotonic())
+                if name == "world" and not up:
+                    done_at = min(done_at or math.inf, time.monotonic())
             if time.monotonic() - last_flush > FLUSH_S:
-                f.flush()
+                rec.flush()
                 last_flush = time.monotonic()
             if done_at is not None and time.monotonic() - done_at > TAIL_S:
                 break
     finally:
-        writer.finish()
-        f.close()
+        rec.close(out_dir)
         token.undeclare()
-    (out_dir / "recorder.json").write_text(
-        json.dumps({"messages": count, "dropped": counter.dropped, "reasons": counter.reasons})
-    )
     return 0

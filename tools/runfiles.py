@@ -44,7 +44,8 @@ def read_recording(path: Path) -> Recording:
     """Every whole message of ``path``, and whether the file is whole.
 
     Each clock is followed by the measurements and obstacles it carries
-    (:func:`expand_record`); ``/dropped`` (what the recorder could not decode) is left out."""
+    (:func:`expand_record`); ``/dropped`` (what the recorder could not decode) and the
+    scene's channels (``/tf``, ``/scene``, ``/log``) are left out."""
     out: list[dict[str, Any]] = []
     topics: dict[int, str] = {}
     total = path.stat().st_size
@@ -55,7 +56,8 @@ def read_recording(path: Path) -> Recording:
         try:
             for record in reader.records:
                 if isinstance(record, Channel):
-                    topics[record.id] = record.topic
+                    # the swarm's JSON messages; not the scene's protobuf channels (swarm.scene)
+                    topics[record.id] = record.topic if record.message_encoding == "json" else "/dropped"
                 elif isinstance(record, Message) and topics.get(record.channel_id, "/dropped") != "/dropped":
                     rec = json.loads(record.data)
                     rec["topic"] = topics[record.channel_id]

@@ -24,6 +24,8 @@ import stat
 from pathlib import Path
 from typing import Any
 
+from swarm.errors import SecretsError
+
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
 LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
 
@@ -48,10 +50,6 @@ def make_secrets(folder: Path, agent_ids: list[str]) -> Path:
         for user in run_users(agent_ids):
             f.write(f"{user}:{secrets.token_urlsafe(24)}\n")
     return folder
-
-
-class SecretsError(RuntimeError):
-    """The run's credentials are missing, unreadable or open to other users."""
 
 
 def password(folder: Path, user: str) -> str:

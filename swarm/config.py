@@ -20,16 +20,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from swarm.barriers import BarrierKind
 from swarm.crazyflie_fw import pwm_per_newton
+from swarm.errors import ConfigError
 from swarm.filter import FilterConfig
 from swarm.model import CommandLevel, Layout, QuadParams
 
 SCHEMA_VERSION = 1
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-
-
-class ConfigError(ValueError):
-    """A config that cannot run: ``file: field.path: reason``."""
 
 
 class TimeMode(StrEnum):
@@ -83,7 +80,7 @@ class FilterSettings(_Strict):
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
-            level=level, barrier=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
+            level=level, kind=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
             sensing_radius_m=self.sensing_radius_m, margin_m=self.margin_m, backend=self.backend,
             floor_z_m=self.floor_z_m, live=self.live,
         )  # fmt: skip

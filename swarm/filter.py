@@ -209,7 +209,8 @@ class FilterConfig:
     """Settings of one agent's filter."""
 
     level: CommandLevel = CommandLevel.ROTORS
-    barrier: BarrierKind = BarrierKind.C3BF
+    kind: BarrierKind = BarrierKind.C3BF
+    """Which barrier builds the rows (the config's ``filter.kind``)."""
     gamma: float = 1.0
     """Class-K gain [1/s]: ``kappa(h) = gamma h`` (the paper's 1)."""
     gamma_ho: float = 1.0
@@ -244,7 +245,7 @@ class FilterConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
-        object.__setattr__(self, "barrier", BarrierKind(self.barrier))
+        object.__setattr__(self, "kind", BarrierKind(self.kind))
         if self.floor_z_m is not None and not math.isfinite(self.floor_z_m):
             raise InputError(f"FilterConfig.floor_z_m: must be finite or None, got {self.floor_z_m!r}")
         for name in ("gamma", "gamma_ho", "sensing_radius_m", "eps_w_mps", "slack_weight", "floor_gain_per_s"):
@@ -319,7 +320,7 @@ class SafetyFilter:
         self._fallback = None if cfg.backend == "daqp" else make_backend("daqp", self.m, 0)
         self._slack_cache: dict[tuple[int, int], tuple[FloatArray, ...]] = {}  # (rows, input set) -> arrays
         self._own = OwnDynamics(cfg.level, model)
-        self._live = live_settings(cfg.live and cfg.barrier is BarrierKind.C3BF, cfg.live_lo_mps, cfg.live_hi_mps)
+        self._live = live_settings(cfg.live and cfg.kind is BarrierKind.C3BF, cfg.live_lo_mps, cfg.live_hi_mps)
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
@@ -339,7 +340,7 @@ class SafetyFilter:
         ``u_ref`` also their residuals at it (against ``input_set``, default the filter's)."""
         cfg = self.config
         return assemble(
-            cfg.barrier, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
+            cfg.kind, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
             rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
             input_set=input_set or self.input_set, sel=sel, live=self._live,
         )  # fmt: skip
@@ -361,7 +362,7 @@ class SafetyFilter:
             validate, state.x_w, state.v_w, state.q, state.Omega_b, u_ref, cfg.level is CommandLevel.ROTORS, own.K,
             own.consts, own.Aa_att, obs.c_w, obs.c_dot_w, obs.c_ddot_w, obs.radius_m, obs.axis_w, obs.is_neighbour,
             cfg.sensing_radius_m**2, cfg.max_rows, cfg.floor_z_m is not None, cfg.floor_z_m or 0.0,
-            cfg.floor_gain_per_s, self.model.params.mass_kg, ins.lb, ins.ub, ins.C, ins.d, cfg.barrier.code,
+            cfg.floor_gain_per_s, self.model.params.mass_kg, ins.lb, ins.ub, ins.C, ins.d, cfg.kind.code,
             self.r_own_m, cfg.rho, cfg.gamma, cfg.eps_w_mps, cfg.gamma_ho, cfg.escape_speed_mps, self._live,
         )  # fmt: skip
         if bad != _BAD_NONE:  # the checking path raises, naming the field

@@ -20,6 +20,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from swarm.errors import DecodeError
 from swarm.model import all_finite
 
 VERSION = 6  # 2: the clock carries the measurements and obstacles; the command the filter report
@@ -72,10 +73,6 @@ CLOCK_XVR, CLOCK_MEAS = 7, 13
 HEADER = ("ver", "kind", "run", "src", "seq", "t", "k")
 _NUMBER = (float, int)
 _F8 = np.dtype("<f8")  # the vectors' wire type
-
-
-class DecodeError(ValueError):
-    """A message that is malformed, of another version or run, or of an unexpected kind."""
 
 
 @dataclass(frozen=True)

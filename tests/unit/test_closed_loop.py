@@ -67,7 +67,7 @@ def test_c3bf_brakes_straight_at_a_wall_like_sphere():
 
 @pytest.mark.parametrize("level", list(CommandLevel))
 def test_hocbf_baseline_also_runs_closed_loop(level):
-    log = fly(level, ObstacleArrays.build([2.5, 0.1, 1.0], [0.3]), duration=8.0, barrier=BarrierKind.HOCBF)
+    log = fly(level, ObstacleArrays.build([2.5, 0.1, 1.0], [0.3]), duration=8.0, kind=BarrierKind.HOCBF)
     assert np.isfinite(log.array("x_w")).all()
     assert np.linalg.norm(log.x_w[-1] - np.array([5, 0, 1.0])) < 0.1  # it got past the sphere
     if level is CommandLevel.ROTORS:  # its own model: the margin holds (measured 0.5 mm short of it)

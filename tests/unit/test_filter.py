@@ -17,7 +17,7 @@ from .helpers import random_state
 
 MODEL = QuadModel()
 FILTERS = {
-    (level, backend, kind): SafetyFilter(MODEL, FilterConfig(level=level, backend=backend, barrier=kind, rho=0.5))
+    (level, backend, kind): SafetyFilter(MODEL, FilterConfig(level=level, backend=backend, kind=kind, rho=0.5))
     for level in CommandLevel
     for backend in ("daqp", "osqp")
     for kind in BarrierKind

@@ -45,7 +45,7 @@ def _richardson(h_of_t, d=2e-5):
 def test_hdot_matches_finite_difference_along_motion(level, kind, shape, motion):
     rng = np.random.default_rng(zlib.crc32(f"{level}{kind}{shape}{motion}".encode()))  # stable across runs
     model = QuadModel()
-    filt = SafetyFilter(model, FilterConfig(level=level, barrier=kind, gamma_ho=0.8))
+    filt = SafetyFilter(model, FilterConfig(level=level, kind=kind, gamma_ho=0.8))
     checked = 0
     for _ in range(40):
         state = random_state(rng)

@@ -47,17 +47,21 @@ def stamp(t_s: float) -> fg.Timestamp:
     return fg.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
-def _quat_z_to(a: Any) -> fg.Quaternion:
-    """The rotation taking +z to the unit vector ``a`` (3,) [world], scalar-last."""
+def quat_z_to(a: Any) -> np.ndarray:
+    """The rotation (x, y, z, w) taking +z to the direction of ``a`` (3,) [world]: a
+    cylinder's pose (Foxglove's and Rerun's cylinders lie along their +z)."""
     a = np.asarray(a, dtype=float)
     n = float(np.linalg.norm(a))
     if n < 1e-9:
-        return fg.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+        return np.array([0.0, 0.0, 0.0, 1.0])
     a = a / n
     if a[2] < -1.0 + 1e-9:  # opposite of z: half a turn about x
-        return fg.Quaternion(x=1.0, y=0.0, z=0.0, w=0.0)
+        return np.array([1.0, 0.0, 0.0, 0.0])
     q = np.array([-a[1], a[0], 0.0, 1.0 + a[2]])  # (z x a, 1 + z.a), normalised
-    q /= np.linalg.norm(q)
+    return q / np.linalg.norm(q)
+
+
+def _quat(q: np.ndarray) -> fg.Quaternion:
     return fg.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
 
 
@@ -83,7 +87,7 @@ def obstacle_entity(item: dict, t_s: float) -> fg.SceneEntity:
     cylinders, spheres = [], []
     if any(item["a"]):
         size = fg.Vector3(x=d, y=d, z=CYLINDER_LENGTH_M)
-        pose = _pose(item["c"], _quat_z_to(item["a"]))
+        pose = _pose(item["c"], _quat(quat_z_to(item["a"])))
         cylinders.append(fg.CylinderPrimitive(pose=pose, size=size, bottom_scale=1.0, top_scale=1.0, color=_OBSTACLE))
     else:
         spheres.append(fg.SpherePrimitive(pose=_pose(item["c"]), size=fg.Vector3(x=d, y=d, z=d), color=_OBSTACLE))
@@ -140,7 +144,7 @@ class Scene:
             while trail[0][0] < t - self.trail_s:
                 trail.popleft()
             q = attitude.get(name)
-            rot = _IDENTITY if q is None else fg.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+            rot = _IDENTITY if q is None else _quat(q)
             transforms.append(fg.FrameTransform(timestamp=stamp(t), parent_frame_id=WORLD_FRAME, child_frame_id=name,
                                                 translation=fg.Vector3(x=float(x[0]), y=float(x[1]), z=float(x[2])),
                                                 rotation=rot))  # fmt: skip

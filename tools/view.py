@@ -27,7 +27,7 @@ import numpy as np
 import rerun as rr
 
 from swarm.messages import CLOCK_XVR
-from swarm.scene import CYLINDER_LENGTH_M
+from swarm.scene import CYLINDER_LENGTH_M, quat_z_to
 from tools.runfiles import read_records
 
 TRAIL_S = 5.0  # s of trail per drone
@@ -36,14 +36,6 @@ _DRONE = (30, 115, 240)
 _OBSTACLE = (140, 150, 175)
 _TRAIL = (240, 140, 25)
 _CONTACT = (230, 15, 15)
-
-
-def _axis_rotation(a: np.ndarray) -> rr.Quaternion:
-    """The rotation taking +z (Rerun's cylinder axis) to the unit vector ``a``."""
-    if a[2] < -1.0 + 1e-9:
-        return rr.Quaternion(xyzw=[1.0, 0.0, 0.0, 0.0])
-    q = np.array([-a[1], a[0], 0.0, 1.0 + a[2]])
-    return rr.Quaternion(xyzw=q / np.linalg.norm(q))
 
 
 def _obstacles(items: list[dict]) -> None:
@@ -57,7 +49,7 @@ def _obstacles(items: list[dict]) -> None:
         rr.log("world/obstacles/cylinders", rr.Cylinders3D(
             lengths=[CYLINDER_LENGTH_M] * len(cylinders), radii=[it["r"] for it in cylinders],
             centers=[it["c"] for it in cylinders],
-            quaternions=[_axis_rotation(np.asarray(it["a"], dtype=float)) for it in cylinders],
+            quaternions=[rr.Quaternion(xyzw=quat_z_to(it["a"])) for it in cylinders],
             colors=_OBSTACLE, fill_mode="solid", labels=[it["id"] for it in cylinders]))  # fmt: skip
 
 

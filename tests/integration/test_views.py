@@ -219,13 +219,13 @@ def test_swarm_view_shows_the_run_in_headless_chromium(crash_run: Path, tmp_path
         assert "open http://127.0.0.1" in first, first
         url = first.split("open ", 1)[1].split(" ", 1)[0]
         assert (crash_run / "view.rrd").stat().st_size > 0
-        while True:  # the web viewer answers
-            try:
-                urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).read(1)
+        seen = []
+        for line in view.stdout:  # Rerun's own line once its web server listens (EOF if it dies)
+            seen.append(line)
+            if "Hosting a web-viewer at" in line:
                 break
-            except OSError:
-                assert view.poll() is None, view.stdout.read()
-                time.sleep(0.05)
+        else:
+            raise AssertionError(f"the web viewer never started: {''.join(seen)[-2000:]}")
         profile = tempfile.mkdtemp(dir=tmp_path)
         browser = subprocess.Popen(
             [CHROMIUM, "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",

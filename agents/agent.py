@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm import transport as tp
+from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm.cells import Interest, cell_of
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
@@ -280,7 +280,7 @@ def follow_cells(interest: Interest, subs: tp.Channels, keys: tp.Keys, x_b_w: np
 
 class RealDrone:
     """The supervisor of a real Crazyflie, apart from the control step: its radio link
-    (``agents.crazyflie.CrazyflieLink``), its flight phases, and the rules that stop it
+    (``swarm.agents.crazyflie.CrazyflieLink``), its flight phases, and the rules that stop it
     (link lost, body lost to motion capture, geofence, filter fault, the run's end)."""
 
     def __init__(self, agent_id: str, plan: FlightPlan, link: CrazyflieLink, mocap_timeout_s: float) -> None:

@@ -126,7 +126,7 @@ CHECK_STEPS = [
 
 
 def check(uri: str, thrust: Any, hold_s: float = 0.3) -> list[dict[str, Any]]:
-    """PROPELLERS OFF. Send :data:`CHECK_STEPS` as an agent would (``agents.crazyflie.rpyt``
+    """PROPELLERS OFF. Send :data:`CHECK_STEPS` as an agent would (``swarm.agents.crazyflie.rpyt``
     with the calibration ``thrust``) and read back what the firmware decoded: its log
     group ``ctrltarget`` (stabilizer.c: roll, pitch [deg], yaw rate [deg/s], thrust)
     through cflib's log subsystem. Each row says what was asked, what the firmware
@@ -140,7 +140,7 @@ def check(uri: str, thrust: Any, hold_s: float = 0.3) -> list[dict[str, Any]]:
     from cflib.crazyflie.log import Log, LogConfig
     from cflib.crazyflie.toccache import TocCache
 
-    from agents.crazyflie import rpyt
+    from swarm.agents.crazyflie import rpyt
 
     link = _Link(uri)
     try:

@@ -1,6 +1,6 @@
 """The Crazyflie link guard: the one process on a machine that holds the radio links.
 
-    python -m agents.cf_guard --serve SOCKET [--exit-when-idle]
+    python -m swarm.agents.cf_guard --serve SOCKET [--exit-when-idle]
 
 A Crazyradio is one USB device. cflib can share it among several links, but only
 within one process. So every real drone on a machine talks through one guard server,

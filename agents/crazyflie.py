@@ -18,7 +18,7 @@ Crazyflie's legacy RPYT setpoint:
 Fly a new setup with the propellers off first, and check these signs against the
 client's attitude display.
 
-The radio belongs to the machine's link guard (:mod:`agents.cf_guard`), one process
+The radio belongs to the machine's link guard (:mod:`swarm.agents.cf_guard`), one process
 that serves every real drone on the machine, since a Crazyradio can be shared only
 within one process. When the agent dies, even by SIGKILL, its connection closes and
 the guard sends the emergency stop. The agent stops the drone itself on:
@@ -44,7 +44,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from agents.cf_guard import default_socket
+from swarm.agents.cf_guard import default_socket
 from swarm.config import AgentConfig, CrazyflieSettings, ThrustCalibration
 from swarm.control import PathTracker
 from swarm.crazyflie_fw import wire_yaw_rate_dps
@@ -127,7 +127,7 @@ class FlightPlan:
 
 
 class CrazyflieLink:
-    """The agent's connection to the machine's link guard (:mod:`agents.cf_guard`),
+    """The agent's connection to the machine's link guard (:mod:`swarm.agents.cf_guard`),
     started here in a session of its own if none is running."""
 
     def __init__(self, settings: CrazyflieSettings, name: str, socket_path: Path | None = None) -> None:
@@ -154,7 +154,7 @@ class CrazyflieLink:
                 s.close()
             if not started:  # no guard on this machine yet: start one that outlives us
                 subprocess.Popen(
-                    [sys.executable, "-m", "agents.cf_guard", "--serve", str(self.path), "--exit-when-idle"],
+                    [sys.executable, "-m", "swarm.agents.cf_guard", "--serve", str(self.path), "--exit-when-idle"],
                     stdin=subprocess.DEVNULL, start_new_session=True,
                 )  # fmt: skip
                 started = True

@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 from swarm.config import load
-from tools.launch import RunHandle
+from swarm.runs.launch import RunHandle
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

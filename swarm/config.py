@@ -404,7 +404,7 @@ class DeadlockSettings(_Strict):
 class MocapSettings(_Strict):
     """The motion-capture system the world relays for real drones (libmotioncapture:
     vicon, qualisys, optitrack, vrpn, ..., or ``mock`` for tests), or ``sitl``: software-
-    in-the-loop Crazyflies (``tools.sitl_cf``) that ``swarm run`` starts itself, one per
+    in-the-loop Crazyflies (``swarm.world.sitl_cf``) that ``swarm run`` starts itself, one per
     real agent at its ``udp://127.0.0.1:PORT``, on the ground below its start with its yaw
     turned by ``options.yaw_offset_deg``, the release ``options.firmware``; their poses
     are the capture (``options.port``, 0 or absent: a free one)."""

@@ -1,8 +1,8 @@
 """The Crazyflie firmware's rules for the legacy RPYT setpoint, as its source states them
 (bitcraze/crazyflie-firmware, tag 2026.08). Pure: numbers in, numbers out.
 
-A client (``agents.crazyflie``) uses the encoding half; the software-in-the-loop stand-in
-(``tools.sitl_cf``) uses :class:`Firmware`, which applies every rule to the setpoints it
+A client (``swarm.agents.crazyflie``) uses the encoding half; the software-in-the-loop stand-in
+(``swarm.world.sitl_cf``) uses :class:`Firmware`, which applies every rule to the setpoints it
 decodes, so a sign or scale error of the client shows in the stand-in's flight as it
 would in a lab.
 

@@ -1,6 +1,6 @@
 """A run's 3-D scene as Foxglove messages, built from the swarm's own messages (no I/O).
 
-The recorder (``tools.record``) feeds every decoded clock and collision record to a
+The recorder (``swarm.runs.record``) feeds every decoded clock and collision record to a
 :class:`Scene` and writes what it returns to ``run.mcap`` (and, with ``--live``, to
 Foxglove's WebSocket server). Topics and their Foxglove schemas:
 
@@ -196,5 +196,5 @@ class Scene:
         return LOG_TOPIC, fg.Log(timestamp=stamp(t_s), level=level, message=line, name=name)
 
 
-SCHEMAS = {TF_TOPIC: fg.FrameTransforms, SCENE_TOPIC: fg.SceneUpdate, LOG_TOPIC: fg.Log}
+SCHEMAS: dict[str, Any] = {TF_TOPIC: fg.FrameTransforms, SCENE_TOPIC: fg.SceneUpdate, LOG_TOPIC: fg.Log}
 """Topic -> its foxglove-sdk message class (``get_schema()`` gives the published schema)."""

@@ -38,7 +38,7 @@ import numpy as np
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, load
 from swarm.messages import decode, encode
-from tools.launch import RunHandle
+from swarm.runs.launch import RunHandle
 
 ROOT = Path(__file__).resolve().parents[1]
 FAULT_AT_S = 2.0
@@ -197,7 +197,7 @@ def bad_config(out: Path, mode: str) -> dict[str, Any]:
     slowest, codes = 0.0, set()
     for _case, (path, _needle) in _write_bad_files(out).items():
         t0 = time.monotonic()
-        p = subprocess.run([sys.executable, "-m", "tools.cli", "run", str(path), "--out", str(out / "never")],
+        p = subprocess.run([sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out / "never")],
                            capture_output=True, timeout=60, cwd=ROOT)  # fmt: skip
         slowest = max(slowest, time.monotonic() - t0)
         codes.add(p.returncode)

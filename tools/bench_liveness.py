@@ -6,7 +6,7 @@ agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the 
 roster of body centres each tick) for every seed, and reports the success rate (every
 agent at its goal, no contact), collisions (pairs and obstacle contacts), deadlocked
 agents, infeasible agent ticks (ticks without the guarantee), and the mean and worst time
-to goal over the straight-line time (distance / target speed). ORCA (``tools.orca``) runs
+to goal over the straight-line time (distance / target speed). ORCA (``swarm.orca``) runs
 the same scene where it is planar, with its figures under ``orca``; ``null`` otherwise.
 
     python -m tools.bench_liveness                 # every family (about 15 min on 2 cores)
@@ -88,7 +88,7 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
 
 
 def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
-    from tools.orca import run_orca
+    from swarm.orca import run_orca
 
     with tempfile.TemporaryDirectory() as tmp:
         try:

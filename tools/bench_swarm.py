@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import resolve
+from swarm.runs.launch import RunHandle
 from swarm.scenario import SwapSettings, circle_swap
-from tools.launch import RunHandle
 
 
 def summaries(run_dir: Path) -> tuple[dict, list[dict]]:

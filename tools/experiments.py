@@ -30,10 +30,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from swarm.config import load
-from tools.compare import compare, markdown
-from tools.launch import unpinned
-from tools.report import make_report
-from tools.sweep import parse_axes, sweep
+from swarm.runs.compare import compare, markdown
+from swarm.runs.launch import unpinned
+from swarm.runs.report import make_report
+from swarm.runs.sweep import parse_axes, sweep
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "experiments"

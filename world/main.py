@@ -42,8 +42,8 @@ from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.shutdown import StopFlag
-from world.mocap import BodyEstimate, MocapRelay, connect
-from world.physics import PhysicsWorld
+from swarm.world.mocap import BodyEstimate, MocapRelay, connect
+from swarm.world.physics import PhysicsWorld
 
 
 @dataclass

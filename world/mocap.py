@@ -87,7 +87,7 @@ class PoseDifferentiator:
 class SitlMocap:
     """The ``sitl`` motion-capture source: libmotioncapture's interface
     (``waitForNextFrame``, ``rigidBodies`` with ``position`` and ``rotation.x/y/z/w``) over
-    the software-in-the-loop stand-in's pose datagrams (``tools.sitl_cf``) on
+    the software-in-the-loop stand-in's pose datagrams (``swarm.world.sitl_cf``) on
     127.0.0.1:``port``: msgpack ``[[name, x, y, z, qx, qy, qz, qw], ...]`` per frame."""
 
     @dataclass

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from swarm.config import ScenarioConfig, load
-from tools.launch import RunHandle
+from swarm.runs.launch import RunHandle
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -1,5 +1,5 @@
 """``swarm cf``: find Crazyflies, read their supervisor, recover, reboot: the CLI through
-cflib against a software-in-the-loop Crazyflie (tools/sitl_cf.py), which answers the
+cflib against a software-in-the-loop Crazyflie (world/sitl_cf.py), which answers the
 supervisor's requests as crtp_supervisor.c does."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from swarm.rotation import euler_to_quat
-from tools.sitl_cf import SitlDrone, run
+from swarm.world.sitl_cf import SitlDrone, run
 
 PORT = 19858  # in cflib's UDP scan range (19850-19859), apart from the mixed runs' 19850 and 19851
 
@@ -39,7 +39,7 @@ def _free_udp_port() -> int:
 
 
 def swarm_cf(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tools.cli", "cf", *args], capture_output=True, text=True, timeout=60)
+    return subprocess.run([sys.executable, "-m", "swarm.cli", "cf", *args], capture_output=True, text=True, timeout=60)
 
 
 def _send(d: SitlDrone, header: int, body: bytes) -> None:

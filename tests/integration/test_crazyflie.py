@@ -1,7 +1,7 @@
 """A real-Crazyflie agent against a stand-in drone, with no hardware.
 
 The agent process is the real one (``swarm agent``): it starts its cflib link guard,
-which talks CRTP over cflib's UDP driver to a stand-in (tools/sitl_cf.py, not stepped: it
+which talks CRTP over cflib's UDP driver to a stand-in (world/sitl_cf.py, not stepped: it
 decodes, answers and records, and its firmware model judges). The
 test plays the world: it declares the world's liveliness and publishes the clock and
 the motion-capture measurements over Zenoh at 100 Hz. Every wait is on a condition
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.crazyflie import thrust_command
 from swarm import transport as tp
+from swarm.agents.crazyflie import thrust_command
 from swarm.config import ScenarioConfig, dump, resolve
 from swarm.messages import decode, encode
-from tools.launch import ensure_secrets, free_port
-from tools.sitl_cf import SitlDrone as StandIn
+from swarm.runs.launch import ensure_secrets, free_port
+from swarm.world.sitl_cf import SitlDrone as StandIn
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -105,7 +105,7 @@ def rig(tmp_path):
         world = FakeWorld(cfg, run, secrets)
         log = open(tmp_path / f"agent{len(made)}.log", "wb")
         agent = subprocess.Popen(
-            [sys.executable, "-m", "tools.cli", "agent", str(path), "--id", "cf1", "--run", run,
+            [sys.executable, "-m", "swarm.cli", "agent", str(path), "--id", "cf1", "--run", run,
              "--port", str(cfg.network.port), "--secrets", str(secrets)],
             cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
         )  # fmt: skip
@@ -168,8 +168,8 @@ def test_mixed_swarm_with_mock_motion_capture(tmp_path):
     """configs/mixed_mock.yaml: two real agents held by the mock capture system, flown
     through stand-ins; two simulated agents fly through their space and go around them."""
     from swarm.config import load
-    from tools.launch import RunHandle
-    from tools.runfiles import read_records
+    from swarm.runs.launch import RunHandle
+    from swarm.runs.runfiles import read_records
 
     stand = {"real1": StandIn.start(), "real2": StandIn.start()}
     try:

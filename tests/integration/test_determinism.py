@@ -23,8 +23,8 @@ import numpy as np
 
 from swarm.config import ScenarioConfig, load
 from swarm.messages import measurement_agent
-from tools.launch import RunHandle
-from tools.runfiles import read_records
+from swarm.runs.launch import RunHandle
+from swarm.runs.runfiles import read_records
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "tests" / "data" / "reference_swap3.json"

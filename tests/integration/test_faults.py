@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from swarm.metrics import compute
-from tools.runfiles import read_config, read_recording
+from swarm.runs.runfiles import read_config, read_recording
 
 from .conftest import scenario
 
@@ -65,7 +65,7 @@ def test_killed_recorder_leaves_incomplete_metrics_that_match_the_whole_run_so_f
     # a file cut in the middle of a record: swarm metrics recovers what is whole and says so
     data = (whole.out / "run.mcap").read_bytes()
     (whole.out / "run.mcap").write_bytes(data[: len(data) // 2 + 7])
-    p = subprocess.run([sys.executable, "-m", "tools.cli", "metrics", str(whole.out)], capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "swarm.cli", "metrics", str(whole.out)], capture_output=True, text=True,
                        timeout=60)  # fmt: skip
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)

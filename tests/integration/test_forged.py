@@ -26,7 +26,7 @@ import zenoh
 from swarm import transport as tp
 from swarm.cells import cell_of
 from swarm.messages import decode, encode
-from tools.launch import RunHandle
+from swarm.runs.launch import RunHandle
 
 from .conftest import scenario, wait_linked
 

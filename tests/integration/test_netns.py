@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 from swarm.config import dump
-from tools.runfiles import write_metrics
+from swarm.runs.runfiles import write_metrics
 
 from .conftest import scenario
 
@@ -95,7 +95,7 @@ class Hosts:
 
     def start(self, name: str, netns: str, *args: str) -> subprocess.Popen[bytes]:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        command = " ".join(["exec", sys.executable, "-m", "tools.cli", *map(shlex.quote, args)])
+        command = " ".join(["exec", sys.executable, "-m", "swarm.cli", *map(shlex.quote, args)])
         p = subprocess.Popen(["ip", "netns", "exec", netns, "sh", "-c", f"readlink /proc/self/ns/net; {command}"],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
                              env=env)  # fmt: skip
@@ -161,7 +161,7 @@ def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_p
     path = tmp_path / "lan.yaml"
     path.write_text(dump(cfg))
     out, keys = tmp_path / "run", tmp_path / "secrets"
-    made = subprocess.run([sys.executable, "-m", "tools.cli", "secrets", str(path), "--out", str(keys)],
+    made = subprocess.run([sys.executable, "-m", "swarm.cli", "secrets", str(path), "--out", str(keys)],
                           capture_output=True, text=True)  # fmt: skip
     assert made.returncode == 0, made.stderr
     common = [str(path), "--run", "lan", "--secrets", str(keys)]

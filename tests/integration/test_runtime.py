@@ -20,7 +20,7 @@ import pytest
 from swarm import transport as tp
 from swarm.cells import cell_of
 from swarm.messages import VERSION, encode, measurement_agent
-from tools.runfiles import read_records
+from swarm.runs.runfiles import read_records
 
 from .conftest import CONFIGS, scenario
 
@@ -68,7 +68,7 @@ def _cpus_of(pid: int) -> set[frozenset[int]]:
 
 
 def test_circle_8_realtime_completes_without_collision_with_each_process_on_its_cpu(start_run):
-    from tools.launch import cpu_plan
+    from swarm.runs.launch import cpu_plan
 
     # (late commands brake, as before the firmware's watchdog: this test is of realtime and CPU placement)
     cfg = scenario("circle_8.yaml", time={"mode": "realtime", "late_command": "brake"})
@@ -184,7 +184,7 @@ def test_a_malformed_config_fails_before_anything_starts(tmp_path):
     out = tmp_path / "out"
     t0 = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "-m", "tools.cli", "run", str(bad), "--out", str(out), "--no-progress"],
+        [sys.executable, "-m", "swarm.cli", "run", str(bad), "--out", str(out), "--no-progress"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert proc.returncode == 2
@@ -209,7 +209,7 @@ def _processes_mentioning(text: str) -> list[int]:
 def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
     from swarm import transport as tp
     from swarm.config import dump, load
-    from tools.launch import ensure_secrets, free_port
+    from swarm.runs.launch import ensure_secrets, free_port
 
     out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
     cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
@@ -219,7 +219,7 @@ def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig
                                                                                    secrets)))  # fmt: skip
     status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
+        [sys.executable, "-m", "swarm.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
          "--no-progress", "--run-id", run_id, "--secrets", str(secrets)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
     )  # fmt: skip
@@ -241,7 +241,7 @@ def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig
 
 
 def test_report_writes_plots_and_a_summary(start_run):
-    from tools.report import make_report
+    from swarm.runs.report import make_report
 
     h = start_run(scenario("single_static_sphere.yaml", duration_s=4.0))
     assert h.wait() == "completed"
@@ -257,7 +257,7 @@ def test_report_writes_plots_and_a_summary(start_run):
 
 
 def test_compare_runs_each_filter_and_saves_the_table(tmp_path):
-    from tools.compare import compare
+    from swarm.runs.compare import compare
 
     rows = compare(scenario("single_static_sphere.yaml", duration_s=8.0), ["c3bf", "hocbf"], tmp_path)
     assert [r["filter"] for r in rows] == ["c3bf", "hocbf"]
@@ -321,7 +321,7 @@ def test_paper_scenarios_show_their_behaviour_without_collision(start_run, name)
 
 def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
     out = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "tools.cli", "sweep", str(CONFIGS / "sweeps/head_on.yaml"),
+    cmd = [sys.executable, "-m", "swarm.cli", "sweep", str(CONFIGS / "sweeps/head_on.yaml"),
            "--axis", "filter=c3bf,hocbf", "--axis", "obstacle_speed=1", "--jobs", "2", "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr

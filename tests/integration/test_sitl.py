@@ -1,5 +1,5 @@
 """The real-drone path closed through cflib against software-in-the-loop Crazyflies that
-apply the firmware's rules (tools/sitl_cf.py): a sign or scale error of the client shows
+apply the firmware's rules (world/sitl_cf.py): a sign or scale error of the client shows
 as a drone that drifts, turns away, falls or never spins up. Realtime, as real drones fly."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 
 from swarm.messages import measurement_agent
 from swarm.rotation import R_to_euler, quat_to_R
-from tools.runfiles import read_records
+from swarm.runs.runfiles import read_records
 
 from .conftest import scenario
 

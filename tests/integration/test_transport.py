@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from swarm import transport as tp
-from tools.launch import free_port
+from swarm.runs.launch import free_port
 
 
 def test_inbox_wakes_once_enough_samples_are_queued_or_at_the_deadline():
@@ -52,7 +52,7 @@ def test_inbox_wakes_once_enough_samples_are_queued_or_at_the_deadline():
 _BATCH_CHECK = """
 import json, os, time
 from swarm import transport as tp
-from tools.launch import free_port
+from swarm.runs.launch import free_port
 before = set(os.listdir("/proc/self/task"))
 endpoint = tp.world_endpoint("127.0.0.1", free_port())
 listener = tp.open_session(tp.session_config(listen=[endpoint]))

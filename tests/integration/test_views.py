@@ -25,8 +25,8 @@ from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
-from tools.launch import RunHandle, free_port
-from tools.runfiles import read_records
+from swarm.runs.launch import RunHandle, free_port
+from swarm.runs.runfiles import read_records
 
 from .conftest import CONFIGS, scenario
 
@@ -134,7 +134,7 @@ async def _receive(ws, want: set[str], got: dict[str, list[bytes]], schemas: dic
 def test_the_live_server_serves_the_scene_while_the_run_goes(tmp_path: Path) -> None:
     port = free_port("127.0.0.1")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "run", str(CONFIGS / "swap_2.yaml"), "--out", str(tmp_path / "live"),
+        [sys.executable, "-m", "swarm.cli", "run", str(CONFIGS / "swap_2.yaml"), "--out", str(tmp_path / "live"),
          "--no-progress", "--live", str(port), "--mode", "realtime"],  # realtime: seconds of flight to watch
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
     )  # fmt: skip
@@ -210,7 +210,7 @@ def test_swarm_view_shows_the_run_in_headless_chromium(crash_run: Path, tmp_path
             pytest.fail("chromium is missing: .ci/run should have installed it")
         pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run installs it)")
     port, debug_port = free_port("127.0.0.1"), free_port("127.0.0.1")
-    view = subprocess.Popen([sys.executable, "-m", "tools.cli", "view", str(crash_run), "--port", str(port),
+    view = subprocess.Popen([sys.executable, "-m", "swarm.cli", "view", str(crash_run), "--port", str(port),
                              "--no-browser"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)  # fmt: skip
     browser = None

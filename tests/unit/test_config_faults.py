@@ -120,7 +120,7 @@ def test_swarm_run_refuses_each_bad_file_with_exit_2_fast_and_starts_nothing(tmp
     for case, (path, needle) in _write_bad_files(tmp_path).items():
         out = tmp_path / f"run-{case}"
         t0 = time.monotonic()
-        p = subprocess.run([sys.executable, "-m", "tools.cli", "run", str(path), "--out", str(out)],
+        p = subprocess.run([sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out)],
                            capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
         took = time.monotonic() - t0
         slowest = max(slowest, took)

@@ -1,12 +1,12 @@
 """The Crazyflie firmware's rules (swarm.crazyflie_fw, after crazyflie-firmware 2026.08)
-and the client's side of them (agents.crazyflie, the guard's landing sequence, the
+and the client's side of them (swarm.agents.crazyflie, the guard's landing sequence, the
 filter's thrust bounds). Each rule here is one a first lab flight would hit."""
 
 import math
 
 import pytest
 
-from agents.crazyflie import rpyt, thrust_command
+from swarm.agents.crazyflie import rpyt, thrust_command
 from swarm.config import ConfigError, ThrustCalibration, resolve
 from swarm.crazyflie_fw import (
     RPYT_MAX_THRUST,

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from agents.crazyflie import FlightPlan, Phase, rpyt, thrust_command
+from swarm.agents.crazyflie import FlightPlan, Phase, rpyt, thrust_command
 from swarm.config import ConfigError, ThrustCalibration, resolve
 from swarm.rotation import FloatArray
-from world.mocap import MocapRelay, PoseDifferentiator
+from swarm.world.mocap import MocapRelay, PoseDifferentiator
 
 
 def _quat_z(yaw: float) -> FloatArray:

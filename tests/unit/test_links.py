@@ -8,7 +8,7 @@ from swarm.config import ConfigError, resolve
 
 
 def test_the_cpu_plan_spreads_agents_round_robin_around_world_and_recorder():
-    from tools.launch import cpu_plan
+    from swarm.runs.launch import cpu_plan
 
     assert cpu_plan(3, [0]) == {}  # one CPU: nothing to choose
     assert cpu_plan(4, [0, 1]) == {"world": 0, "recorder": 1, 0: 1, 1: 0, 2: 1, 3: 0}
@@ -83,7 +83,7 @@ def test_star_links_every_process_to_the_hubs_alone():
 def test_free_port_leaves_room_for_the_hubs():
     import socket
 
-    from tools.launch import free_port
+    from swarm.runs.launch import free_port
 
     port = free_port()
     for p in range(port, port + 3):

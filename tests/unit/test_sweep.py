@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from swarm.config import ConfigError, load
-from tools.sweep import build, grid, parse_axes
+from swarm.runs.sweep import build, grid, parse_axes
 
 BASE = load("configs/sweeps/head_on.yaml").model_dump(mode="json")
 
@@ -61,7 +61,7 @@ def test_an_obstacle_that_would_start_on_the_agent_is_refused():
 
 
 def test_plots_run_against_the_axis_that_varies():
-    from tools.sweep import aggregate
+    from swarm.runs.sweep import aggregate
 
     rows = [
         {"filter": f, "obstacle_speed": "1", "gamma": g, "success": 1, "time_to_goal_s": 8.0 + float(g)}

@@ -1,6 +1,6 @@
 """Software-in-the-loop Crazyflies: CRTP over cflib's UDP driver, the firmware's rules, a body.
 
-    python -m tools.sitl_cf --mocap-port 19900 --drone real1,19850,1.0,0.3,0.0,20 [--drone ...]
+    python -m swarm.world.sitl_cf --mocap-port 19900 --drone real1,19850,1.0,0.3,0.0,20 [--drone ...]
 
 Each ``--drone NAME,PORT,X,Y,Z,YAW_DEG`` binds 127.0.0.1:PORT, where cflib's UDP driver
 (``udp://127.0.0.1:PORT``) finds it, and starts at rest at (X, Y, Z) [m, world] with yaw
@@ -23,7 +23,7 @@ motors do; an attitude controller of the stand-in's own (the geometric SO(3) law
 ``swarm.control``, tracking the firmware's roll, pitch and integrated yaw setpoint)
 turns that into rotor thrusts, and RK4 integrates the Crazyflie 2.1 body at 500 Hz in
 wall-clock time, with the ground at z = 0. The bodies' poses go out as the ``sitl``
-motion-capture source (``world.mocap.SitlMocap``, what the world's relay reads for
+motion-capture source (``swarm.world.mocap.SitlMocap``, what the world's relay reads for
 ``mocap.type: sitl``) to 127.0.0.1:``--mocap-port`` at 100 Hz: one datagram per frame,
 msgpack ``[[name, x, y, z, qx, qy, qz, qw], ...]``.
 """

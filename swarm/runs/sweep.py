@@ -10,7 +10,7 @@ first numeric axis with one line per combination of the other axes (seeds averag
 Knobs (the config's names; units in brackets):
 
 * ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
-  or ``orca``: the ORCA baseline (``tools/orca.py``) instead of the swarm.
+  or ``orca``: the ORCA baseline (``swarm/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
   ``sensing_radius_m`` [m] (neighbours farther away get no row).
 * ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
@@ -39,9 +39,9 @@ import numpy as np
 
 from swarm.config import ConfigError, ScenarioConfig, resolve
 from swarm.model import QuadParams
+from swarm.orca import run_orca
+from swarm.runs.launch import RunHandle, unpinned
 from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
-from tools.launch import RunHandle, unpinned
-from tools.orca import run_orca
 
 Raw = dict[str, Any]
 Knob = Callable[[Raw, str], Raw]
@@ -341,7 +341,7 @@ def aggregate(rows: list[dict[str, Any]], axes: list[str]) -> tuple[str | None, 
     """Group rows by the non-x, non-seed axes; average each metric over seeds per x."""
     xs = [a for a in axes if a != "seed" and _numeric([str(r[a]) for r in rows])]
     varied = [a for a in xs if len({str(r[a]) for r in rows}) > 1]
-    x_axis = (varied or xs or [None])[0]  # the first numeric axis that varies
+    x_axis = next(iter(varied or xs), None)  # the first numeric axis that varies
     group_axes = [a for a in axes if a not in (x_axis, "seed")]
     groups: dict[tuple, dict[float, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:

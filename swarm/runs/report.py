@@ -24,8 +24,8 @@ from matplotlib.patches import Circle, Polygon  # noqa: E402
 from swarm.config import ScenarioConfig  # noqa: E402
 from swarm.messages import measurement_agent  # noqa: E402
 from swarm.rotation import quat_to_R  # noqa: E402
+from swarm.runs.runfiles import read_config, read_records, write_metrics  # noqa: E402
 from swarm.scenario import items_to_arrays, surface_clearance  # noqa: E402
-from tools.runfiles import read_config, read_records, write_metrics  # noqa: E402
 
 
 def _series(cfg: ScenarioConfig, records: list[dict[str, Any]]) -> dict[str, Any]:
@@ -163,11 +163,11 @@ def make_report(run_dir: Path) -> Path:
         t = np.array(s["t"][a])
         xb = np.array(s["xb"][a])
         if ks:
-            clear = []
+            rows = []
             for tt, p in zip(t, xb, strict=True):
                 k = min(ks, key=lambda kk: abs(s["obstacles"][kk][0] - tt))
-                clear.append(surface_clearance(p[None, :], items_to_arrays(s["obstacles"][k][1]))[0])
-            clear = np.array(clear)
+                rows.append(surface_clearance(p[None, :], items_to_arrays(s["obstacles"][k][1]))[0])
+            clear = np.array(rows)
             for n, item in enumerate(first):
                 ax.plot(t, clear[:, n], label=f"{a} to {item['id']}")
     for i, a in enumerate(agents):

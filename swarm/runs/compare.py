@@ -16,8 +16,8 @@ from typing import Any
 
 from swarm.barriers import BarrierKind
 from swarm.config import ScenarioConfig
-from tools.launch import RunHandle
-from tools.sweep import summarise
+from swarm.runs.launch import RunHandle
+from swarm.runs.sweep import summarise
 
 COLUMNS = (
     ("filter", "filter"),
@@ -45,7 +45,7 @@ def with_filter(cfg: ScenarioConfig, name: str) -> ScenarioConfig:
 
 
 def row(name: str, metrics: dict[str, Any]) -> dict[str, Any]:
-    """One table row: the sweep's summary of the run (``tools.sweep.summarise``)."""
+    """One table row: the sweep's summary of the run (``swarm.runs.sweep.summarise``)."""
     return {"filter": name, **summarise(metrics)}
 
 

@@ -64,7 +64,7 @@ def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
         pass
 
 
-CPU_ENV = "SWARM_CPU"  # the CPU a child of swarm run pins itself to (tools.cli)
+CPU_ENV = "SWARM_CPU"  # the CPU a child of swarm run pins itself to (swarm.cli)
 
 
 def _with_sitl_port(cfg: ScenarioConfig) -> ScenarioConfig:
@@ -115,6 +115,7 @@ class RunHandle:
         self.reason: str | None = None
         self.result: dict[str, Any] = {}  # metrics.json as finish() wrote it
         self._session: Any = None
+        self._status: Any = None  # the run's status channel (tp.open_channel), once started
 
     @classmethod
     def start(
@@ -128,7 +129,7 @@ class RunHandle:
         With ``network.access_control`` (the default) the run's credentials are in
         ``secrets`` (default ``out/secrets``; made there unless it already holds them,
         see :func:`ensure_secrets`). With ``live_port`` the recorder serves the run to
-        Foxglove live (``tools.record``)."""
+        Foxglove live (``swarm.runs.record``)."""
         port = cfg.network.port or free_port(cfg.network.host)
         cfg = cfg.model_copy(update={"network": cfg.network.model_copy(update={"port": port})})
         sitl = cfg.mocap is not None and cfg.mocap.type == "sitl"
@@ -146,7 +147,7 @@ class RunHandle:
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
         launcher_conf = tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER))
         if cfg.topology == "router":  # everyone links to the router: it comes first
-            h._spawn("router", ["-m", "tools.cli", "router", *common])
+            h._spawn("router", ["-m", "swarm.cli", "router", *common])
             h._session = h._open_via_router(launcher_conf)
         else:
             h._session = tp.open_session(launcher_conf)
@@ -154,14 +155,14 @@ class RunHandle:
         if sitl:
             h._start_sitl()
         live = ["--live", str(live_port)] if live_port is not None else []
-        h._spawn("recorder", ["-m", "tools.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
-        h._spawn("world", ["-m", "tools.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
+        h._spawn("recorder", ["-m", "swarm.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
+        h._spawn("world", ["-m", "swarm.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
                  cpus.get("world"))  # fmt: skip
         try:
             for i, a in enumerate(cfg.agents):
                 if cancelled():  # stopped while the first agent came up: start no more
                     break
-                h._spawn(f"agent-{a.id}", ["-m", "tools.cli", "agent", *common, "--id", a.id], cpus.get(i))
+                h._spawn(f"agent-{a.id}", ["-m", "swarm.cli", "agent", *common, "--id", a.id], cpus.get(i))
                 if i == 0:
                     h._wait_alive(a.id, cancelled)
         except BaseException:
@@ -190,8 +191,15 @@ class RunHandle:
         cfg = self.cfg
         assert cfg.mocap is not None
         opts = cfg.mocap.options
-        args = ["-m", "tools.sitl_cf", "--mocap-port", opts["port"], "--firmware", opts.get("firmware", "2026.04")]
-        ports = []
+        args = [
+            "-m",
+            "swarm.world.sitl_cf",
+            "--mocap-port",
+            opts["port"],
+            "--firmware",
+            opts.get("firmware", "2026.04"),
+        ]
+        ports: list[int] = []
         for a in cfg.agents:
             if a.crazyflie is None:
                 continue
@@ -208,13 +216,13 @@ class RunHandle:
         probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         probe.settimeout(0.1)
         try:
-            for p in ports:
+            for port_n in ports:
                 while True:
                     if self.procs["sitl"].poll() is not None:
                         raise RuntimeError(f"the sitl stand-ins exited: {self._last_line('sitl')}")
                     if time.monotonic() > deadline:
-                        raise RuntimeError(f"the sitl stand-in at udp://127.0.0.1:{p} did not answer")
-                    probe.sendto(b"\xff", ("127.0.0.1", p))
+                        raise RuntimeError(f"the sitl stand-in at udp://127.0.0.1:{port_n} did not answer")
+                    probe.sendto(b"\xff", ("127.0.0.1", port_n))
                     try:
                         probe.recv(64)
                         break
@@ -247,7 +255,7 @@ class RunHandle:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         env.pop(CPU_ENV, None)
         if cpu is not None:
-            env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (tools.cli)
+            env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (swarm.cli)
         self.procs[name] = subprocess.Popen(
             [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
         )
@@ -379,7 +387,7 @@ class RunHandle:
     def metrics(self) -> dict[str, Any]:
         """Write ``metrics.json`` from what the recording holds, whatever stopped the run
         (``complete`` says whether it is the whole run)."""
-        from tools.runfiles import write_metrics
+        from swarm.runs.runfiles import write_metrics
 
         codes = {n: p.returncode for n, p in self.procs.items()}
         try:

@@ -62,7 +62,7 @@ def run_scenario(
     """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from tools.launch import RunHandle
+    from swarm.runs.launch import RunHandle
 
     interrupted = {"now": False}
     # Ctrl-C, `kill` and a closed terminal all stop the run the same way: the children run
@@ -122,7 +122,7 @@ def _pin_cpu() -> None:
     """Pin this process to the CPU ``swarm run`` chose for it (``time.pin_cpus``): every
     thread it has now (numpy's BLAS threads start at import) and, through inheritance,
     the ones it starts later (Zenoh's)."""
-    from tools.launch import CPU_ENV
+    from swarm.runs.launch import CPU_ENV
 
     cpu = os.environ.get(CPU_ENV)
     if cpu:
@@ -226,7 +226,7 @@ def world(
     """Start the world process alone (runs spread over machines)."""
     _pin_cpu()
     from swarm import transport as tp
-    from world.main import main as world_main
+    from swarm.world.main import main as world_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
     conf = _zenoh_config(cfg, run_name, tp.Role.WORLD, secrets)
@@ -242,7 +242,7 @@ def router(config: str, run_id: str | None, port: int | None, secrets: Path | No
     """Start the run's Zenoh router (network.topology: router) alone."""
     _pin_cpu()
     from swarm import transport as tp
-    from tools.router import main as router_main
+    from swarm.runs.router import main as router_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
     if cfg.topology != "router":
@@ -264,8 +264,8 @@ def agent(
 ) -> None:
     """Start one agent process alone."""
     _pin_cpu()
-    from agents.agent import main as agent_main
     from swarm import transport as tp
+    from swarm.agents.agent import main as agent_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
     try:
@@ -290,7 +290,7 @@ def record(
     """Start the recorder alone."""
     _pin_cpu()
     from swarm import transport as tp
-    from tools.record import main as record_main
+    from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
     out.mkdir(parents=True, exist_ok=True)
@@ -310,7 +310,7 @@ def secrets(config: str, out: Path) -> None:
     """Write credentials (and, with network.tls on and no files given, a certificate
     authority and certificate) for runs of CONFIG into OUT, to hand to processes started
     by hand on several machines with --secrets OUT. Copy OUT only to machines you trust."""
-    from tools.launch import ensure_secrets
+    from swarm.runs.launch import ensure_secrets
 
     cfg = _load_or_exit(config, {})
     ensure_secrets(cfg, out)
@@ -321,7 +321,7 @@ def secrets(config: str, out: Path) -> None:
 @click.argument("run_dir", type=click.Path(exists=True, path_type=Path))
 def metrics(run_dir: Path) -> None:
     """Recompute metrics.json of a run folder from its run.mcap."""
-    from tools.runfiles import write_metrics
+    from swarm.runs.runfiles import write_metrics
 
     click.echo(json.dumps(write_metrics(run_dir), indent=2))
 
@@ -332,7 +332,7 @@ def metrics(run_dir: Path) -> None:
 @click.option("--no-browser", is_flag=True, help="serve only; open the printed address yourself")
 def view(run_dir: Path, port: int, no_browser: bool) -> None:
     """The run in 3-D in a web browser, offline (Rerun's web viewer; RUN_DIR/view.rrd)."""
-    from tools.view import main as view_main
+    from swarm.runs.view import main as view_main
 
     if not (run_dir / "run.mcap").exists():
         click.echo(f"error: {run_dir}: no run.mcap", err=True)
@@ -344,7 +344,7 @@ def view(run_dir: Path, port: int, no_browser: bool) -> None:
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 def report(run_dir: Path) -> None:
     """Plots (PNG) and a markdown summary of a run folder, in RUN_DIR/report/."""
-    from tools.report import make_report
+    from swarm.runs.report import make_report
 
     out = make_report(run_dir)
     click.echo(f"report: {out / 'summary.md'}")
@@ -360,8 +360,8 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     from rich.console import Console
     from rich.table import Table
 
-    from tools.compare import COLUMNS, _fmt
-    from tools.compare import compare as run_compare
+    from swarm.runs.compare import COLUMNS, _fmt
+    from swarm.runs.compare import compare as run_compare
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
     bad = [f for f in names if f not in ("c3bf", "hocbf", "none")]
@@ -391,7 +391,7 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
 def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> None:
     """Run a grid of variants of CONFIG (a file, or circle, sphere or random for generated
     swaps); write results.csv and one plot per metric."""
-    from tools import sweep as sw
+    from swarm.runs import sweep as sw
 
     try:
         if config in sw.GENERATORS:
@@ -438,8 +438,8 @@ def scenario(kind: str, n: int, radius: float | None, density: float, perturb: f
     import yaml
 
     from swarm.config import resolve
+    from swarm.runs.sweep import default_radius
     from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
-    from tools.sweep import default_radius
 
     settings = SwapSettings(speed_mps=speed, perturb_m=perturb, rotation_rad=math.radians(rotate_deg), seed=seed,
                             mode=mode)  # fmt: skip
@@ -466,13 +466,13 @@ def scenario(kind: str, n: int, radius: float | None, density: float, perturb: f
 
 @cli.group()
 def cf() -> None:
-    """Real Crazyflies through cflib: scan, status, recover, reboot (agents.cf_admin)."""
+    """Real Crazyflies through cflib: scan, status, recover, reboot (swarm.agents.cf_admin)."""
 
 
 @cf.command("scan")
 def cf_scan() -> None:
     """List the Crazyflies cflib finds (radios, USB, UDP stand-ins on 19850-19859)."""
-    from agents.cf_admin import scan
+    from swarm.agents.cf_admin import scan
 
     found = scan()
     click.echo("\n".join(found) if found else "no Crazyflie found")
@@ -490,7 +490,7 @@ def _cf_call(what: Callable[[], object]) -> object:
 @click.argument("uri")
 def cf_status(uri: str) -> None:
     """The supervisor's state bits of the drone at URI."""
-    from agents.cf_admin import status
+    from swarm.agents.cf_admin import status
 
     click.echo(", ".join(_cf_call(lambda: status(uri))) or "(no state bit set)")  # type: ignore[arg-type]
 
@@ -499,7 +499,7 @@ def cf_status(uri: str) -> None:
 @click.argument("uri")
 def cf_recover(uri: str) -> None:
     """Recover a crashed (tumbled) drone that is upright again; prints its states after."""
-    from agents.cf_admin import recover
+    from swarm.agents.cf_admin import recover
 
     click.echo(", ".join(_cf_call(lambda: recover(uri))) or "(no state bit set)")  # type: ignore[arg-type]
 
@@ -511,7 +511,7 @@ def cf_recover(uri: str) -> None:
 def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
     """PROPELLERS OFF: send a known setpoint sequence and compare what the firmware decoded
     (its ctrltarget log) with what its rules say it must: signs and thrust on your drone."""
-    from agents.cf_admin import check
+    from swarm.agents.cf_admin import check
     from swarm.config import ThrustCalibration
 
     try:
@@ -533,7 +533,7 @@ def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
 @click.argument("uri")
 def cf_reboot(uri: str) -> None:
     """Power-cycle the drone (a locked one needs this) through its Crazyradio."""
-    from agents.cf_admin import reboot
+    from swarm.agents.cf_admin import reboot
 
     _cf_call(lambda: reboot(uri))
     click.echo(f"{uri}: rebooted")

@@ -75,7 +75,7 @@ class Agent:
         self.roster_ids: list[str] = []
         self._roster_key: tuple[str, ...] = ()  # the clock's ids the roster rows were indexed for
         self._roster_rows = np.zeros(0, dtype=np.intp)  # indices of the other drones in the clock's ids
-        self._roster_const = (np.zeros((0, 3)), np.zeros(0, dtype=bool))  # shared by each tick's roster rows
+        self._roster_shares = np.zeros(0, dtype=bool)  # each roster drone does its share (a neighbour row)
         self.obstacle_ids: list[str] = []
         self.clock_live: dict[int, list[str]] = {}  # tick -> agents the world expects answers from
         self._newest_k = -1  # newest tick whose clock arrived
@@ -89,10 +89,21 @@ class Agent:
         # real tick pays for it.
         hover = {"x": np.asarray(me.start, float), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3)}
         self.tick(Message("measurement", "", "warm-up", 0, 0.0, 0, hover), lockstep=False)
-        encode("command", "", agent_id, 0, 0.0, 0, level=self.level.value, u=np.zeros(4), intervention=0.0,
-               dropped=0, **self._report("ok"))  # fmt: skip
+        encode(
+            "command",
+            "",
+            agent_id,
+            0,
+            0.0,
+            0,
+            level=self.level.value,
+            u=np.zeros(4),
+            intervention=0.0,
+            dropped=0,
+            **self._report("ok"),
+        )
         warm_up()
-        roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.zeros((1, 3)), np.ones(1, dtype=bool))
+        roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.ones(1, dtype=bool))
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
@@ -112,14 +123,19 @@ class Agent:
                 for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
                     filt.filter(state, u, obstacles)
 
-    def _report(self, status: str, solve_us: float = 0.0, row_ids: list[str] | None = None,
-                h_rows: np.ndarray | None = None) -> dict:  # fmt: skip
+    def _report(
+        self, status: str, solve_us: float = 0.0, row_ids: list[str] | None = None, h_rows: np.ndarray | None = None
+    ) -> dict:
         """The filter's report of this tick, sent with the command."""
         return dict(
-            status=status, solve_us=solve_us, row_ids=row_ids or [], h_rows=np.zeros(0) if h_rows is None else h_rows,
-            min_h=self.min_h if math.isfinite(self.min_h) else 1e9, infeasible=self.infeasible,
+            status=status,
+            solve_us=solve_us,
+            row_ids=row_ids or [],
+            h_rows=np.zeros(0) if h_rows is None else h_rows,
+            min_h=self.min_h if math.isfinite(self.min_h) else 1e9,
+            infeasible=self.infeasible,
             goal_reached=self.reached,
-        )  # fmt: skip
+        )
 
     def _motors_off(self, x_b: np.ndarray, v_b: np.ndarray) -> tuple[dict, dict]:
         off = dict(level=self.level.value, u=np.zeros(4), intervention=0.0, **self._report("ok"))
@@ -155,12 +171,11 @@ class Agent:
                 self._roster_key = ids
                 self._roster_rows = np.array([i for i, name in enumerate(ids) if name in self.others], dtype=np.intp)
                 self.roster_ids = [ids[i] for i in self._roster_rows.tolist()]
-                n = len(self._roster_rows)
-                self._roster_const = (np.zeros((n, 3)), np.ones(n, dtype=bool))  # no acceleration, spheres
-            zeros, shares = self._roster_const
+                self._roster_shares = np.ones(len(self._roster_rows), dtype=bool)
+            shares = self._roster_shares
             if m["solo"]:  # drones not doing their share: this agent takes all of each of those pairs
                 shares = np.array([name not in m["solo"] for name in self.roster_ids], dtype=bool)
-            self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, zeros, shares))
+            self.roster[m.k] = (m.t, roster_arrays(m["xvr"], self._roster_rows, shares))
             _keep_newest(self.roster, 5)
         _keep_newest(self.clock_live, 5)
         return [n for n in left if n in self.others]
@@ -191,8 +206,9 @@ class Agent:
             t_r, arr = self.roster[max(ks)]
         if t == t_r:
             return arr
-        return ObstacleArrays(arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m,
-                              arr.axis_w, arr.is_neighbour)  # fmt: skip
+        return ObstacleArrays(
+            arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m, arr.axis_w, arr.is_neighbour
+        )
 
     def missing(self, k: int) -> int:
         """Lockstep: how many messages tick k still waits for: its clock, then (agents
@@ -308,8 +324,9 @@ class RealDrone:
         """Between ticks: False once the link is lost, the body has not been measured for
         the motion-capture timeout (it is then stopped), or the drone has landed or stopped."""
         if self.link.lost.is_set():
-            print(f"agent {self.id}: Crazyflie link lost ({self.link.lost_reason}); the guard stopped it",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"agent {self.id}: Crazyflie link lost ({self.link.lost_reason}); the guard stopped it", file=sys.stderr
+            )
             self.link.stopped = True
             return False
         silent_s = time.monotonic() - max(self.last_meas, self.last_tick_end)  # while we listened
@@ -361,16 +378,23 @@ class AgentProcess:
         self.meas_key, self.tick_key = keys.measurement(agent_id), keys.tick(agent_id)
         neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
         self.real = agent.plan is not None  # measured by motion capture on its own key, not in the clock
-        self.inbox = tp.Inbox(session, [self.tick_key if agent.ticked else keys.clock, *neighbour_keys,
-                                        *([self.meas_key] if self.real else [])])  # fmt: skip
+        self.inbox = tp.Inbox(
+            session,
+            [self.tick_key if agent.ticked else keys.clock, *neighbour_keys, *([self.meas_key] if self.real else [])],
+        )
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
         # with neighbours from the world's roster nobody needs this agent's own state message
         self.pub_state = None if agent.from_world or agent.cells else session.declare_publisher(keys.state(agent_id))
         self.cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
         self.cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
         if agent.cells:  # listen to the cells near the start before anyone can see this agent
-            start_b = body_centre(np.asarray(agent.me.start, float), np.zeros(3), np.array([0, 0, 0, 1.0]),
-                                  np.zeros(3), agent.model.params.l_m)[0]  # fmt: skip
+            start_b = body_centre(
+                np.asarray(agent.me.start, float),
+                np.zeros(3),
+                np.array([0, 0, 0, 1.0]),
+                np.zeros(3),
+                agent.model.params.l_m,
+            )[0]
             follow_cells(agent.interest, self.cell_subs, keys, start_b)
         self.pub_cmd = session.declare_publisher(keys.command(agent_id))
         self.token = tp.declare_liveliness(session, keys.alive(agent_id))
@@ -530,8 +554,9 @@ class AgentProcess:
             self.seq += 1
             self.pub_state.put(encode("state", run, self.id, self.seq, msg.t, msg.k, **state_body))
         self.seq += 1
-        self.pub_cmd.put(encode("command", run, self.id, self.seq, msg.t, msg.k, dropped=self.counter.dropped,
-                                **cmd_body))  # fmt: skip
+        self.pub_cmd.put(
+            encode("command", run, self.id, self.seq, msg.t, msg.k, dropped=self.counter.dropped, **cmd_body)
+        )
 
     def loop(self) -> None:
         wake_s = 0.02 if self.drone is not None else 0.1
@@ -554,11 +579,18 @@ class AgentProcess:
         ts = np.array(self.tick_s or [0.0]) * 1e3
         agent, counter = self.agent, self.counter
         return {
-            "id": self.id, "ticks": len(self.tick_s), "compute_median_ms": float(np.median(ts)),
-            "compute_p99_ms": float(np.percentile(ts, 99)), "waited_s": self.waited_s, "cpu_s": time.process_time(),
-            "startup_cpu_s": self.startup_cpu_s, "dropped": counter.dropped, "rx_bytes": counter.rx_bytes,
-            "missed_neighbours": agent.missed, "cells_declared": agent.interest.declared,
-        }  # fmt: skip
+            "id": self.id,
+            "ticks": len(self.tick_s),
+            "compute_median_ms": float(np.median(ts)),
+            "compute_p99_ms": float(np.percentile(ts, 99)),
+            "waited_s": self.waited_s,
+            "cpu_s": time.process_time(),
+            "startup_cpu_s": self.startup_cpu_s,
+            "dropped": counter.dropped,
+            "rx_bytes": counter.rx_bytes,
+            "missed_neighbours": agent.missed,
+            "cells_declared": agent.interest.declared,
+        }
 
     def run(self) -> int:
         """Connect a real drone, fly until the run ends or a rule stops it, report; 2 when

@@ -94,13 +94,28 @@ class _Shim:
 
 
 class _Drone:
-    """One connection: one drone's link."""
+    """One connection: one drone's link. :meth:`serve` runs its phases: :meth:`_open`
+    (the hello frame, the cflib driver, the thrust unlock, the link-watch thread),
+    :meth:`_fly` (the agent's frames until ``bye`` or the connection closes) and
+    :meth:`_close` (the emergency stop or silence when the agent is gone)."""
 
     def __init__(self, conn: socket.socket) -> None:
         self.conn = conn
         self.send_lock = threading.Lock()
         self.lost = threading.Event()
+        self.answered = threading.Event()  # the drone answered a packet
         self.uri = "?"
+        self.link_timeout_s = 0.0
+        self.expect_replies = True
+        self.silent_on_loss = False  # on_agent_loss: watchdog
+        self.errors: list[str] = []  # the link's error callbacks
+        self.motors_off = True  # zero-thrust keep-alive while off
+        self.thrust_t = 0.0  # monotonic s of the last thrust
+        self.keepalive_t = 0.0  # monotonic s of the last keep-alive setpoint
+        self.driver: Any = None
+        self.cf: Any = None  # the _Shim over the driver
+        self.commander: Any = None
+        self.loc: Any = None
 
     def reply(self, frame: list) -> None:
         with self.send_lock:
@@ -110,110 +125,125 @@ class _Drone:
                 pass
 
     def serve(self) -> None:
+        frames = self._frames(msgpack.Unpacker(raw=False))
+        if not self._open(next(frames, None)):
+            return
+        clean = self._fly(frames)
+        self._close(clean)
+
+    def _open(self, hello: Any) -> bool:
+        """Open the link the hello frame names; False (after saying why) when it cannot."""
         import cflib.crtp
         from cflib.crazyflie.commander import Commander
+        from cflib.crazyflie.localization import Localization
+
+        if not (isinstance(hello, list) and len(hello) == 5 and hello[0] == "hello"):
+            self.reply(["lost", f"expected hello, got {hello!r}"])
+            return False
+        self.uri, self.link_timeout_s, self.expect_replies = str(hello[1]), float(hello[2]), bool(hello[3])
+        self.silent_on_loss = hello[4] == "watchdog"
+        self.driver = cflib.crtp.get_link_driver(self.uri, link_error_callback=lambda msg: self.errors.append(str(msg)))
+        if self.driver is None:
+            self.reply(["lost", f"no cflib driver for {self.uri}"])
+            return False
+        self.cf = _Shim(self.driver)
+        self.commander, self.loc = Commander(self.cf), Localization(self.cf)
+        for _ in range(3):
+            self.commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlock the RPYT commander's thrust
+        threading.Thread(target=self._watch_link, daemon=True).start()
+        if self.expect_replies and not self.answered.wait(CONNECT_TIMEOUT_S):
+            self.lost.set()
+            self.reply(["lost", f"{self.uri} did not answer within {CONNECT_TIMEOUT_S:.0f} s"])
+            self.driver.close()
+            return False
+        self.reply(["ready"])
+        return True
+
+    def _estop(self, reason: str) -> None:
+        """The emergency stop both ways (supervisor command, legacy localization packet), three times."""
         from cflib.crazyflie.localization import Localization
         from cflib.crazyflie.supervisor import CMD_EMERGENCY_STOP, SUPERVISOR_CH_COMMAND
         from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 
-        unpacker = msgpack.Unpacker(raw=False)
-        frames = self._frames(unpacker)
-        hello = next(frames, None)
-        if not (isinstance(hello, list) and len(hello) == 5 and hello[0] == "hello"):
-            self.reply(["lost", f"expected hello, got {hello!r}"])
-            return
-        self.uri, link_timeout_s, expect_replies = str(hello[1]), float(hello[2]), bool(hello[3])
-        silent_on_loss = hello[4] == "watchdog"
-        errors: list[str] = []
-        driver = cflib.crtp.get_link_driver(self.uri, link_error_callback=lambda msg: errors.append(str(msg)))
-        if driver is None:
-            self.reply(["lost", f"no cflib driver for {self.uri}"])
-            return
-        cf = _Shim(driver)
-        commander, loc = Commander(cf), Localization(cf)
-        answered = threading.Event()
-        motors = {"off": True, "thrust_t": 0.0}  # zero-thrust keep-alive while off; last thrust [monotonic s]
-
-        def estop(reason: str) -> None:
-            for _ in range(3):
-                pk = CRTPPacket()
-                pk.set_header(CRTPPort.SUPERVISOR, SUPERVISOR_CH_COMMAND)
-                pk.data = struct.pack("<B", CMD_EMERGENCY_STOP)
-                cf.send_packet(pk)
-                legacy = CRTPPacket()
-                legacy.set_header(CRTPPort.LOCALIZATION, Localization.GENERIC_CH)
-                legacy.data = struct.pack("<B", Localization.EMERGENCY_STOP)
-                cf.send_packet(legacy)
-            print(f"cf_guard {self.uri}: emergency stop ({reason})", file=sys.stderr, flush=True)
-
-        last_keepalive = [0.0]
-
-        def watch_link() -> None:
-            last_rx = time.monotonic()
-            while not self.lost.is_set():
-                cf.send_packet(CRTPPacket(0xFF))  # a null packet: port 15, channel 3, no data
-                pk = driver.receive_packet(0.05)
-                now = time.monotonic()
-                while pk is not None:
-                    last_rx = now
-                    answered.set()
-                    pk = driver.receive_packet(0)
-                if motors["off"] and now - last_keepalive[0] >= KEEPALIVE_S:
-                    commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlocks the thrust; keeps the watchdog fed
-                    last_keepalive[0] = now
-                reason = None
-                if errors:
-                    reason = f"link error: {errors[0]}"
-                elif expect_replies and now - last_rx > link_timeout_s:
-                    reason = f"no reply for {now - last_rx:.2f} s"
-                if reason and not self.lost.is_set():
-                    self.lost.set()
-                    estop(f"link lost: {reason}")
-                    self.reply(["lost", reason])
-
         for _ in range(3):
-            commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlock the RPYT commander's thrust
-        threading.Thread(target=watch_link, daemon=True).start()
-        if expect_replies and not answered.wait(CONNECT_TIMEOUT_S):
-            self.lost.set()
-            self.reply(["lost", f"{self.uri} did not answer within {CONNECT_TIMEOUT_S:.0f} s"])
-            driver.close()
-            return
-        self.reply(["ready"])
-        clean = False
+            pk = CRTPPacket()
+            pk.set_header(CRTPPort.SUPERVISOR, SUPERVISOR_CH_COMMAND)
+            pk.data = struct.pack("<B", CMD_EMERGENCY_STOP)
+            self.cf.send_packet(pk)
+            legacy = CRTPPacket()
+            legacy.set_header(CRTPPort.LOCALIZATION, Localization.GENERIC_CH)
+            legacy.data = struct.pack("<B", Localization.EMERGENCY_STOP)
+            self.cf.send_packet(legacy)
+        print(f"cf_guard {self.uri}: emergency stop ({reason})", file=sys.stderr, flush=True)
+
+    def _watch_link(self) -> None:
+        """The link thread: null packets every 50 ms, the keep-alive while the motors are
+        off, and the emergency stop when the link reports an error or stops answering."""
+        from cflib.crtp.crtpstack import CRTPPacket
+
+        last_rx = time.monotonic()
+        while not self.lost.is_set():
+            self.cf.send_packet(CRTPPacket(0xFF))  # a null packet: port 15, channel 3, no data
+            pk = self.driver.receive_packet(0.05)
+            now = time.monotonic()
+            while pk is not None:
+                last_rx = now
+                self.answered.set()
+                pk = self.driver.receive_packet(0)
+            if self.motors_off and now - self.keepalive_t >= KEEPALIVE_S:
+                self.commander.send_setpoint(0.0, 0.0, 0.0, 0)  # unlocks the thrust; keeps the watchdog fed
+                self.keepalive_t = now
+            reason = None
+            if self.errors:
+                reason = f"link error: {self.errors[0]}"
+            elif self.expect_replies and now - last_rx > self.link_timeout_s:
+                reason = f"no reply for {now - last_rx:.2f} s"
+            if reason and not self.lost.is_set():
+                self.lost.set()
+                self._estop(f"link lost: {reason}")
+                self.reply(["lost", reason])
+
+    def _fly(self, frames: Any) -> bool:
+        """Pass the agent's frames to the drone; True on a clean ``bye``."""
         for frame in frames:
             kind = frame[0] if isinstance(frame, list) and frame else None
             if kind == "sp":
-                motors["off"] = int(frame[4]) == 0
-                if not motors["off"]:
-                    motors["thrust_t"] = time.monotonic()
-                commander.send_setpoint(float(frame[1]), float(frame[2]), float(frame[3]), int(frame[4]))
+                self.motors_off = int(frame[4]) == 0
+                if not self.motors_off:
+                    self.thrust_t = time.monotonic()
+                self.commander.send_setpoint(float(frame[1]), float(frame[2]), float(frame[3]), int(frame[4]))
             elif kind == "pose":
-                loc.send_extpose([float(v) for v in frame[1:4]], [float(v) for v in frame[4:8]])
+                self.loc.send_extpose([float(v) for v in frame[1:4]], [float(v) for v in frame[4:8]])
             elif kind == "stop":
-                commander.send_stop_setpoint()
-                motors["off"] = True
+                self.commander.send_stop_setpoint()
+                self.motors_off = True
             elif kind == "estop":
-                estop(str(frame[1]) if len(frame) > 1 else "asked")
+                self._estop(str(frame[1]) if len(frame) > 1 else "asked")
             elif kind == "bye":
-                commander.send_stop_setpoint()
-                motors["off"] = True
-                while time.monotonic() - motors["thrust_t"] < LANDED_AFTER_S and not self.lost.is_set():
+                self.commander.send_stop_setpoint()
+                self.motors_off = True
+                while time.monotonic() - self.thrust_t < LANDED_AFTER_S and not self.lost.is_set():
                     time.sleep(KEEPALIVE_S)  # (the link thread sends the zero setpoints)
-                commander.send_notify_setpoint_stop()
-                clean = True
-                break
+                self.commander.send_notify_setpoint_stop()
+                return True
             else:
                 print(f"cf_guard {self.uri}: unknown frame {frame!r} dropped", file=sys.stderr)
-        if not clean and silent_on_loss:
-            motors["off"] = False  # no keep-alive either: the firmware's watchdog takes over
-            print(f"cf_guard {self.uri}: the agent is gone; silent, the firmware's watchdog decides",
-                  file=sys.stderr, flush=True)  # fmt: skip
+        return False
+
+    def _close(self, clean: bool) -> None:
+        """End the link: after an unclean end an emergency stop, or silence for the firmware's watchdog."""
+        if not clean and self.silent_on_loss:
+            self.motors_off = False  # no keep-alive either: the firmware's watchdog takes over
+            print(
+                f"cf_guard {self.uri}: the agent is gone; silent, the firmware's watchdog decides",
+                file=sys.stderr,
+                flush=True,
+            )
         elif not clean:
-            estop("the agent is gone (its connection closed)")
+            self._estop("the agent is gone (its connection closed)")
         self.lost.set()
         time.sleep(0.05)  # let the last packets leave the socket or radio
-        driver.close()
+        self.driver.close()
 
     def _frames(self, unpacker: msgpack.Unpacker) -> Any:
         while True:

@@ -155,8 +155,9 @@ class CrazyflieLink:
             if not started:  # no guard on this machine yet: start one that outlives us
                 subprocess.Popen(
                     [sys.executable, "-m", "swarm.agents.cf_guard", "--serve", str(self.path), "--exit-when-idle"],
-                    stdin=subprocess.DEVNULL, start_new_session=True,
-                )  # fmt: skip
+                    stdin=subprocess.DEVNULL,
+                    start_new_session=True,
+                )
                 started = True
             if time.monotonic() > deadline:
                 raise RuntimeError(f"agent {self.name}: no Crazyflie link guard at {self.path}")

@@ -19,8 +19,10 @@ def main() -> None:
     u_ref = np.array([0.3, 0.0, model.params.weight_N])  # N, world: hover while pushing on towards it
     filt.filter(state, u_ref, sphere)  # the first call loads the compiled kernels (about a second)
     res = filt.filter(state, u_ref, sphere)
-    print(f"status {res.status.value}, u = {np.round(res.u, 4).tolist()} N, h = {np.round(res.h, 4).tolist()}, "
-          f"intervention {res.intervention:.4f} N, solved in {res.solve_time_s * 1e6:.0f} us")  # fmt: skip
+    print(
+        f"status {res.status.value}, u = {np.round(res.u, 4).tolist()} N, h = {np.round(res.h, 4).tolist()}, "
+        f"intervention {res.intervention:.4f} N, solved in {res.solve_time_s * 1e6:.0f} us"
+    )
 
 
 if __name__ == "__main__":

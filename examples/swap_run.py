@@ -19,8 +19,10 @@ def main(out: Path) -> dict:
     run = RunHandle.start(cfg, out)
     reason = run.wait()  # "completed", or why it stopped
     metrics = json.loads((out / "metrics.json").read_text())
-    print(f"{reason}: collisions {metrics['collisions']}, closest {metrics['min_separation_m']:.3f} m, "
-          f"all at their goals {metrics['all_reached_goal']}")  # fmt: skip
+    print(
+        f"{reason}: collisions {metrics['collisions']}, closest {metrics['min_separation_m']:.3f} m, "
+        f"all at their goals {metrics['all_reached_goal']}"
+    )
     return metrics
 
 

@@ -94,8 +94,14 @@ def acl(
     only its own keys (as ``identified``); ``"client"`` for every other process, whose one
     link is to the router: it accepts everything of the run the router forwards."""
     root = f"swarm/{run}"
-    listen = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query", "declare_queryable",
-              "reply"]  # fmt: skip
+    listen = [
+        "declare_subscriber",
+        "declare_liveliness_subscriber",
+        "liveliness_query",
+        "query",
+        "declare_queryable",
+        "reply",
+    ]
     publish = ["put", "delete", "liveliness_token"]
     who = "cert_common_names" if identified else "usernames"
     rules: list[dict[str, Any]] = [
@@ -105,7 +111,7 @@ def acl(
             "flows": ["egress"],
             "messages": [*listen, *publish],
             "key_exprs": [f"{root}/**"],
-        },  # fmt: skip
+        },
         {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": listen, "key_exprs": [f"{root}/**"]},
     ]
     # a subject with no property is any linked session (both ends of every link)
@@ -113,19 +119,28 @@ def acl(
     policies: list[dict[str, Any]] = [{"rules": ["send", "listen"], "subjects": ["anyone"]}]
     own = {LAUNCHER: [f"{root}/**"], **{agent_user(a): [f"{root}/agent/{a}/**"] for a in agent_ids}}
     if router == "client":  # the router checked every sender
-        rules.append({"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish,
-                      "key_exprs": [f"{root}/**"]})  # fmt: skip
+        rules.append(
+            {
+                "id": "shared",
+                "permission": "allow",
+                "flows": ["ingress"],
+                "messages": publish,
+                "key_exprs": [f"{root}/**"],
+            }
+        )
         policies[0]["rules"].append("shared")
     elif identified or router == "router":
         own |= {WORLD: [f"{root}/world/**", f"{root}/alive/world"], RECORDER: [f"{root}/alive/recorder"]}
-        own |= {agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"]
-                for a in agent_ids}  # fmt: skip
+        own |= {
+            agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"] for a in agent_ids
+        }
     else:
         shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/cell/**", f"{root}/alive/*"]
         if not flies_commands:
             shared.append(f"{root}/agent/*/command")
-        rules.append({"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish,
-                      "key_exprs": shared})  # fmt: skip
+        rules.append(
+            {"id": "shared", "permission": "allow", "flows": ["ingress"], "messages": publish, "key_exprs": shared}
+        )
         policies[0]["rules"].append("shared")
     for user, keys in own.items():
         rules.append({"id": user, "permission": "allow", "flows": ["ingress"], "messages": publish, "key_exprs": keys})
@@ -158,14 +173,30 @@ def make_tls(folder: Path, hosts: list[str], users: list[str], days: int = 30) -
     ca_key = ec.generate_private_key(ec.SECP256R1())
     ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "c3swarm run CA")])
     ca = (
-        x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name).public_key(ca_key.public_key())
-        .serial_number(x509.random_serial_number()).not_valid_before(now).not_valid_after(until)
+        x509.CertificateBuilder()
+        .subject_name(ca_name)
+        .issuer_name(ca_name)
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(until)
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
-                                     content_commitment=False, key_encipherment=False, data_encipherment=False,
-                                     key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                key_cert_sign=True,
+                crl_sign=True,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
         .sign(ca_key, hashes.SHA256())
-    )  # fmt: skip
+    )
     (folder / "tls").mkdir(mode=0o700, parents=True, exist_ok=True)
     (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
     names = _subject_names(hosts)
@@ -176,8 +207,11 @@ def make_tls(folder: Path, hosts: list[str], users: list[str], days: int = 30) -
         cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "wb") as f:
-            f.write(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                      serialization.NoEncryption()))  # fmt: skip
+            f.write(
+                key.private_bytes(
+                    serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+                )
+            )
 
 
 def _subject_names(hosts: list[str]) -> list[Any]:
@@ -199,11 +233,15 @@ def _leaf(b: Any, user: str, names: list[Any], key: Any, ca_name: Any, now: Any,
     from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
     return (
-        b.subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, user)])).issuer_name(ca_name)
-        .public_key(key.public_key()).serial_number(x509.random_serial_number())
-        .not_valid_before(now).not_valid_after(until)
+        b.subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, user)]))
+        .issuer_name(ca_name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now)
+        .not_valid_after(until)
         .add_extension(x509.SubjectAlternativeName(names), critical=False)
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                       critical=False)
-    )  # fmt: skip
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
+        )
+    )

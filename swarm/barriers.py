@@ -123,6 +123,56 @@ LIVE_W_HI_MPS = 0.02
 """From this relative speed [m/s] up a live row is the exact C3BF row (``d = w/|w|``)."""
 _TINY = 1e-12
 
+ROW_PARAMS = np.dtype(
+    [
+        ("kind", "i8"),  # BarrierKind.code: 0 C3BF, 1 HO-CBF
+        ("gamma", "f8"),  # class-K gain [1/s]
+        ("rho", "f8"),  # responsibility share of neighbour rows, (0, 1]
+        ("r_own", "f8"),  # added to each obstacle's radius [m]: the agent's bounding radius and margin
+        ("eps", "f8"),  # smoothing of |w| [m/s] (paper rows)
+        ("gamma_ho", "f8"),  # HO-CBF gain [m/s]
+        ("v_esc", "f8"),  # separation speed asked inside a safety radius [m/s]
+        ("live", "?"),  # C3BF rows are live rows (module docstring)
+        ("w_lo", "f8"),  # live rows: below this relative speed [m/s] the target alone
+        ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
+    ],
+    align=True,
+)
+"""The row settings the compiled kernels take, as a (1,) structured array (numba reads
+its fields by name; a structured array passes into a kernel as fast as a plain one)."""
+
+
+def row_params(
+    kind: BarrierKind = BarrierKind.C3BF,
+    *,
+    gamma: float = 1.0,
+    rho: float = 1.0,
+    r_own_m: float = 0.0,
+    eps: float = 1e-3,
+    gamma_ho: float = 1.0,
+    escape_speed: float = 0.3,
+    live: bool = False,
+    w_lo_mps: float = LIVE_W_LO_MPS,
+    w_hi_mps: float = LIVE_W_HI_MPS,
+) -> np.ndarray:
+    """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
+    C3BF rows only."""
+    kind = BarrierKind(kind)
+    out = np.zeros(1, dtype=ROW_PARAMS)
+    out[0] = (
+        kind.code,
+        gamma,
+        rho,
+        r_own_m,
+        eps,
+        gamma_ho,
+        escape_speed,
+        live and kind is BarrierKind.C3BF,
+        w_lo_mps,
+        w_hi_mps,
+    )
+    return out
+
 
 @njit(cache=True)
 def _unit_side(P, pp, a, out):
@@ -269,14 +319,18 @@ def cone_row(r, s, pp, pw, ww):
 
 
 @njit(cache=True, fastmath=False)
-def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a_ref, has_ref, nb):
-    """One row. Writes the (projected) p, w and the live direction d into ``Y_out`` (3, 3)
-    and ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d, rate`` into ``coef_out`` (9,); returns
+def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
+    """One row for relative ``p`` [m], ``w`` [m/s], safety radius ``r`` [m] and cylinder
+    axis ``a`` (zeros for a sphere), under the settings ``par`` (a :data:`ROW_PARAMS`
+    record: ``kind``, ``eps``, ``gamma_ho``, ``v_esc``, ``live``, ``w_lo``, ``w_hi``).
+    Writes the (projected) p, w and the live direction d into ``Y_out`` (3, 3) and
+    ``h, a_p, b_p, a_w, b_w, <p,w>, <w,w>, c_d, rate`` into ``coef_out`` (9,); returns
     inside. ``rate`` [1/s] is the least class-K gain of the row (non-zero inside the cone).
 
-    ``live`` = (on, w_lo, w_hi): C3BF rows are live rows (module docstring) when ``on`` is
-    non-zero; ``a_ref`` (3,) [m/s^2, world] is the reference's relative acceleration
-    (read when ``has_ref``); ``nb``: the obstacle is another agent (the side rule)."""
+    With ``par.live`` C3BF rows are live rows (module docstring); ``a_ref`` (3,) [m/s^2,
+    world] is the reference's relative acceleration (read when ``has_ref``); ``nb``: the
+    obstacle is another agent (the side rule)."""
+    kind = par.kind
     ap = a[0] * p[0] + a[1] * p[1] + a[2] * p[2]
     aw = a[0] * w[0] + a[1] * w[1] + a[2] * w[2]
     for k in range(3):
@@ -293,7 +347,7 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
     rate = 0.0
     if s2 > 0.0:
         s = math.sqrt(s2)
-        if kind == 0 and live[0] != 0.0:
+        if kind == 0 and par.live:
             aA = a[0] * a_ref[0] + a[1] * a_ref[1] + a[2] * a_ref[2]
             A = np.empty(3)
             for k in range(3):
@@ -304,19 +358,19 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
             if pw + nw * s < 0.0:  # inside the cone, closing at -c: leave it within half the time to contact
                 rate = RECOVERY_PER_CONTACT * -c / (rp - r)
             band = AXIS_BAND * nw
-            if nw >= live[2] and pw + nw * s < 0.0 and ww - c * c > band * band:  # inside, moving, off the axis: H
+            if nw >= par.w_hi and pw + nw * s < 0.0 and ww - c * c > band * band:  # inside, moving, off the axis: H
                 h, a_p, b_p, a_w, b_w = cone_row(r, s, pp, pw, ww)
             else:
-                dw = live_direction(P, W, A, s, pp, a, has_ref, nb, live[1], live[2], Y_out[2])
+                dw = live_direction(P, W, A, s, pp, a, has_ref, nb, par.w_lo, par.w_hi, Y_out[2])
                 h, a_p, b_p, a_w, b_w, c_d = pw + s * dw, dw / s, 1.0, 1.0, 0.0, s
             inside = False
         elif kind == 0:
-            root = math.sqrt(ww + eps * eps)
-            nw = root - eps
+            root = math.sqrt(ww + par.eps * par.eps)
+            nw = root - par.eps
             h, a_p, b_w = pw + nw * s, nw / s, s / root
         else:
-            h, a_p, b_w = pw + gamma_ho * s, gamma_ho / s, 0.0
-        if kind != 0 or live[0] == 0.0:
+            h, a_p, b_w = pw + par.gamma_ho * s, par.gamma_ho / s, 0.0
+        if kind != 0 or not par.live:
             b_p, a_w = 1.0, 1.0
             inside = False
     else:
@@ -325,7 +379,7 @@ def barrier_row(kind, p, w, r, a, eps, gamma_ho, v_esc, Y_out, coef_out, live, a
             pp = COINCIDENT_M * COINCIDENT_M
             pw = -COINCIDENT_M * W[2]
         d = math.sqrt(pp)
-        h, a_p, b_p, a_w, b_w = pw / d - v_esc, -pw / (d * pp), 1.0 / d, 1.0 / d, 0.0
+        h, a_p, b_p, a_w, b_w = pw / d - par.v_esc, -pw / (d * pp), 1.0 / d, 1.0 / d, 0.0
         inside = True
     coef_out[0] = h
     coef_out[1] = a_p
@@ -351,25 +405,17 @@ def far_gain(p, w, r):
     return 1.0 + (dist / (FAR_GAIN_RADII * r) - 1.0) * fade
 
 
-PAPER = np.zeros(3)
-"""``live`` argument of the kernels for the paper's smoothed rows."""
-
-
-def live_settings(on: bool, w_lo_mps: float = LIVE_W_LO_MPS, w_hi_mps: float = LIVE_W_HI_MPS) -> FloatArray:
-    """The kernels' ``live`` argument: (on, w_lo [m/s], w_hi [m/s])."""
-    return np.array([1.0 if on else 0.0, w_lo_mps, w_hi_mps])
-
-
 @njit(cache=True)
-def barrier_rows(kind, Y, r, axis, eps, gamma_ho, v_esc, live, a_ref, has_ref, nb):
-    """All rows of stacked ``Y = [p; w]`` (n, 2, 3): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
+def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb):
+    """All rows of stacked ``Y = [p; w]`` (n, 2, 3) under ``params`` (a (1,) :data:`ROW_PARAMS`
+    array): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
+    par = params[0]
     n = Y.shape[0]
     Y_out = np.empty((n, 3, 3))
     coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        inside[i] = barrier_row(kind, Y[i, 0], Y[i, 1], r[i], axis[i], eps, gamma_ho, v_esc, Y_out[i], coef[i],
-                                live, a_ref[i], has_ref, nb[i])  # fmt: skip
+        inside[i] = barrier_row(par, Y[i, 0], Y[i, 1], r[i], axis[i], Y_out[i], coef[i], a_ref[i], has_ref, nb[i])
     return Y_out, coef, inside
 
 
@@ -425,10 +471,8 @@ def evaluate(
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
-    Y_used, coef, inside = barrier_rows(
-        kind.code, Y, np.ascontiguousarray(r, dtype=float), axis, eps, gamma_ho, escape_speed,
-        live_settings(live), A, a_ref is not None, nb,
-    )  # fmt: skip
+    params = row_params(kind, eps=eps, gamma_ho=gamma_ho, escape_speed=escape_speed, live=live)
+    Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
     return BarrierRows(Y_used, coef, inside)
 
 

@@ -48,6 +48,40 @@ _SECRETS = click.option(
 )
 
 
+class _StopSignals:
+    """While entered, Ctrl-C, ``kill`` and a closed terminal (SIGINT, SIGTERM, SIGHUP) set
+    :attr:`now` instead of killing the launcher: the children run in their own process
+    groups, so a launcher that just died would leave them flying."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self) -> None:
+        self.now = False
+        self._old: dict[int, Any] = {}
+
+    def _set(self, signum: int, frame: Any) -> None:
+        self.now = True
+
+    def __enter__(self) -> _StopSignals:
+        self._old = {sig: signal.signal(sig, self._set) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def _status_info(st: dict[str, Any]) -> str:
+    """The progress bar's line for the world's status message."""
+    sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
+    info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
+    if st.get("stalls"):
+        info += f"  [yellow]stalls {st['stalls']}[/]"
+    if st.get("dead"):
+        info += f"  [red]dead {','.join(st['dead'])}[/]"
+    return info
+
+
 def run_scenario(
     cfg: ScenarioConfig,
     out: Path,
@@ -64,57 +98,38 @@ def run_scenario(
 
     from swarm.runs.launch import RunHandle
 
-    interrupted = {"now": False}
-    # Ctrl-C, `kill` and a closed terminal all stop the run the same way: the children run
-    # in their own process groups, so a launcher that just died would leave them flying
-    stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-    old = {sig: signal.signal(sig, lambda s, f: interrupted.__setitem__("now", True)) for sig in stop_signals}
-    try:
+    with _StopSignals() as interrupted:
         handle = RunHandle.start(
-            cfg,
-            out,
-            gui=gui,
-            run_id=run_id,
-            cancelled=lambda: interrupted["now"],
-            secrets=secrets,
-            live_port=live_port,
+            cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted.now, secrets=secrets, live_port=live_port
         )
-    except BaseException:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
-        raise
-    bar = Progress(
-        TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
-        TextColumn("{task.fields[info]}"), TimeElapsedColumn(), disable=not progress,
-    )  # fmt: skip
-    limit = time.monotonic() + handle.wall_limit_s
-    reason: str | None = None
-    info = ""
-    try:
-        with bar:
-            task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
-            while reason is None:
-                reason = handle.poll(stop_on_agent_death, wait_s=0.05)
-                st = handle.progress.status
-                if st:
-                    sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
-                    info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
-                    if st.get("stalls"):
-                        info += f"  [yellow]stalls {st['stalls']}[/]"
-                    if st.get("dead"):
-                        info += f"  [red]dead {','.join(st['dead'])}[/]"
-                    bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
-                if interrupted["now"]:
-                    reason = "interrupted"
-                elif reason is None and time.monotonic() > limit:
-                    reason = "wall-clock limit"
-            t_end = handle.progress.t_s
-            if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached
-                bar.update(task, total=t_end, completed=t_end, info=f"{info}  (all goals reached)")
-    finally:
-        handle.finish(reason or "interrupted")
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+        bar = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
+            TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(),
+            disable=not progress,
+        )
+        limit = time.monotonic() + handle.wall_limit_s
+        reason: str | None = None
+        info = ""
+        try:
+            with bar:
+                task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
+                while reason is None:
+                    reason = handle.poll(stop_on_agent_death, wait_s=0.05)
+                    if handle.progress.status:
+                        info = _status_info(handle.progress.status)
+                        bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
+                    if interrupted.now:
+                        reason = "interrupted"
+                    elif reason is None and time.monotonic() > limit:
+                        reason = "wall-clock limit"
+                t_end = handle.progress.t_s
+                if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached
+                    bar.update(task, total=t_end, completed=t_end, info=f"{info}  (all goals reached)")
+        finally:
+            handle.finish(reason or "interrupted")
     return (0 if handle.reason == "completed" else 1), handle.result
 
 
@@ -168,12 +183,28 @@ def run(
     cfg = _load_or_exit(config, _overrides(mode))
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     code, metrics = run_scenario(
-        cfg, out, gui=gui, progress=not no_progress, stop_on_agent_death=stop_on_agent_death, run_id=run_id,
-        secrets=secrets, live_port=live_port,
-    )  # fmt: skip
+        cfg,
+        out,
+        gui=gui,
+        progress=not no_progress,
+        stop_on_agent_death=stop_on_agent_death,
+        run_id=run_id,
+        secrets=secrets,
+        live_port=live_port,
+    )
     if metrics.get("agents"):
-        keys = ("collisions", "min_separation_m", "min_obstacle_clearance_m", "all_reached_goal", "duration_s",
-                "real_time_factor", "late_ticks", "dropped_messages", "lost_agents", "stop_reason")  # fmt: skip
+        keys = (
+            "collisions",
+            "min_separation_m",
+            "min_obstacle_clearance_m",
+            "all_reached_goal",
+            "duration_s",
+            "real_time_factor",
+            "late_ticks",
+            "dropped_messages",
+            "lost_agents",
+            "stop_reason",
+        )
         for k in keys:
             click.echo(f"{k:>26}: {metrics.get(k)}")
         for aid, a in metrics["agents"].items():
@@ -199,8 +230,11 @@ def _zenoh_config(cfg: ScenarioConfig, run: str, role: Any, secrets: Path | None
     if not cfg.network.access_control:
         return tp.process_config(cfg, role)
     if secrets is None:
-        click.echo("config error: network.access_control is on: pass --secrets DIR (the run's credentials, "
-                   "written by swarm run or swarm secrets)", err=True)  # fmt: skip
+        click.echo(
+            "config error: network.access_control is on: pass --secrets DIR (the run's credentials, "
+            "written by swarm run or swarm secrets)",
+            err=True,
+        )
         sys.exit(2)
     try:
         return tp.process_config(cfg, role, tp.Access.of(cfg, run, role, secrets, agent_id))
@@ -220,9 +254,14 @@ def _zenoh_config(cfg: ScenarioConfig, run: str, role: Any, secrets: Path | None
 @click.option("--expect", multiple=True, help="other processes to wait for, e.g. recorder")
 @_SECRETS
 def world(
-    config: str, run_id: str | None, port: int | None, mode: str | None, gui: bool, expect: tuple[str, ...],
+    config: str,
+    run_id: str | None,
+    port: int | None,
+    mode: str | None,
+    gui: bool,
+    expect: tuple[str, ...],
     secrets: Path | None,
-) -> None:  # fmt: skip
+) -> None:
     """Start the world process alone (runs spread over machines)."""
     _pin_cpu()
     from swarm import transport as tp
@@ -382,10 +421,15 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
 
 @cli.command()
 @click.argument("config")
-@click.option("--axis", "axes", multiple=True, metavar="NAME=v1,v2,...",
-              help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
-                   "sensing_radius_m, tiebreak, seed, obstacle_speed, approach_angle_deg; for generated scenarios "
-                   "also agents, radius, perturb_m, density")  # fmt: skip
+@click.option(
+    "--axis",
+    "axes",
+    multiple=True,
+    metavar="NAME=v1,v2,...",
+    help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
+    "sensing_radius_m, tiebreak, seed, obstacle_speed, approach_angle_deg; for generated scenarios "
+    "also agents, radius, perturb_m, density",
+)
 @click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time")
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/sweep-<name>-<time>)")
 def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> None:
@@ -406,8 +450,10 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
 
         def echo(row: dict[str, Any]) -> None:
             done[0] += 1
-            click.echo(f"[{done[0]}/{total}] {row['run']}: success={row['success']} collisions={row['collisions']} "
-                       f"deadlock={row['deadlock']} time_to_goal_s={row['time_to_goal_s']}")  # fmt: skip
+            click.echo(
+                f"[{done[0]}/{total}] {row['run']}: success={row['success']} collisions={row['collisions']} "
+                f"deadlock={row['deadlock']} time_to_goal_s={row['time_to_goal_s']}"
+            )
 
         sw.sweep(base, grid_axes, out, jobs=jobs, on_done=echo)
     except ConfigError as exc:
@@ -421,8 +467,13 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
 @click.option("--agents", "n", type=int, required=True, help="number of agents")
 @click.option("--radius", type=float, help="circle or sphere radius [m] (default grows with N, 2 m at least)")
 @click.option("--density", type=float, default=0.5, show_default=True, help="random sets: agents per m^2")
-@click.option("--perturb", type=float, default=0.0, show_default=True,
-              help="uniform random offset [m] of each start and goal (0: exact symmetry)")  # fmt: skip
+@click.option(
+    "--perturb",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="uniform random offset [m] of each start and goal (0: exact symmetry)",
+)
 @click.option("--rotate-deg", type=float, default=0.0, show_default=True, help="turn the pattern about z [deg]")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--speed", type=float, default=0.8, show_default=True, help="target speed [m/s]")
@@ -430,8 +481,20 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
 @click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="right_hand", show_default=True)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
-def scenario(kind: str, n: int, radius: float | None, density: float, perturb: float, rotate_deg: float, seed: int,
-             speed: float, rho: float, tiebreak: str, mode: str, out: Path | None) -> None:  # fmt: skip
+def scenario(
+    kind: str,
+    n: int,
+    radius: float | None,
+    density: float,
+    perturb: float,
+    rotate_deg: float,
+    seed: int,
+    speed: float,
+    rho: float,
+    tiebreak: str,
+    mode: str,
+    out: Path | None,
+) -> None:
     """Write a swap scenario: antipodal points of a circle or a sphere, or random sets."""
     import math
 
@@ -441,8 +504,9 @@ def scenario(kind: str, n: int, radius: float | None, density: float, perturb: f
     from swarm.runs.sweep import default_radius
     from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 
-    settings = SwapSettings(speed_mps=speed, perturb_m=perturb, rotation_rad=math.radians(rotate_deg), seed=seed,
-                            mode=mode)  # fmt: skip
+    settings = SwapSettings(
+        speed_mps=speed, perturb_m=perturb, rotation_rad=math.radians(rotate_deg), seed=seed, mode=mode
+    )
     try:
         if kind == "random":
             raw = random_swap(n, density, settings)

@@ -33,8 +33,11 @@ def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
     return ObstacleArrays(
         obs0.c_w + obs0.c_dot_w * t_s + 0.5 * obs0.c_ddot_w * t_s**2,
         obs0.c_dot_w + obs0.c_ddot_w * t_s,
-        obs0.c_ddot_w, obs0.radius_m, obs0.axis_w, obs0.is_neighbour,
-    )  # fmt: skip
+        obs0.c_ddot_w,
+        obs0.radius_m,
+        obs0.axis_w,
+        obs0.is_neighbour,
+    )
 
 
 @dataclass
@@ -204,8 +207,9 @@ def simulate_swarm(
         setpoints = []
         for i in range(n):
             nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
-            F_ref = reference_thrust(model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]],
-                                     agents[i].tiebreak)  # fmt: skip
+            F_ref = reference_thrust(
+                model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
+            )
             if agents[i].filtered:
                 res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
                 u, status = res.u, res.status
@@ -236,11 +240,17 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
     """A validated scenario's agents and obstacles (at t = 0) as :func:`simulate_swarm`
     takes them, every filter at the attitude level."""
     agents = [
-        SwarmAgent(np.asarray(a.start, dtype=float), np.asarray(a.path()[1:] or [a.start], dtype=float), a.speed_mps,
-                   a.filter.filter_config(CommandLevel.ATTITUDE), np.asarray(a.start_velocity, dtype=float),
-                   a.tiebreak.pair, a.filter.enabled)
+        SwarmAgent(
+            np.asarray(a.start, dtype=float),
+            np.asarray(a.path()[1:] or [a.start], dtype=float),
+            a.speed_mps,
+            a.filter.filter_config(CommandLevel.ATTITUDE),
+            np.asarray(a.start_velocity, dtype=float),
+            a.tiebreak.pair,
+            a.filter.enabled,
+        )
         for a in cfg.agents
-    ]  # fmt: skip
+    ]
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
 
 
@@ -281,8 +291,13 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
     for i, a in enumerate(cfg.agents):
         goal = np.asarray(a.final_goal, dtype=float)
         t_goal = log.time_to_goal_s[i]
-        if t_goal is None and deadlock_start(log.t_s, x[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m,
-                                             speed_mps=dl.speed_mps, hold_s=dl.hold_s) is not None:  # fmt: skip
+        if (
+            t_goal is None
+            and deadlock_start(
+                log.t_s, x[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s
+            )
+            is not None
+        ):
             deadlocked += 1
         straight = float(np.linalg.norm(goal - np.asarray(a.start))) / a.speed_mps
         if t_goal is not None and straight > 0:

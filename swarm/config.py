@@ -80,10 +80,17 @@ class FilterSettings(_Strict):
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
-            level=level, kind=self.kind, gamma=self.gamma, gamma_ho=self.gamma_ho, rho=self.rho,
-            sensing_radius_m=self.sensing_radius_m, margin_m=self.margin_m, backend=self.backend,
-            floor_z_m=self.floor_z_m, live=self.live,
-        )  # fmt: skip
+            level=level,
+            kind=self.kind,
+            gamma=self.gamma,
+            gamma_ho=self.gamma_ho,
+            rho=self.rho,
+            sensing_radius_m=self.sensing_radius_m,
+            margin_m=self.margin_m,
+            backend=self.backend,
+            floor_z_m=self.floor_z_m,
+            live=self.live,
+        )
 
 
 class AirframeSettings(_Strict):
@@ -478,28 +485,36 @@ class ScenarioConfig(_Strict):
             for j, pt in enumerate(a.path()[1:]):
                 field_ = "goal" if a.goal is not None else f"waypoints.{j}"
                 if pt[2] < 0.0 or (floor is not None and pt[2] < floor):
-                    raise ValueError(f"agents.{i}.{field_}: {pt} is below the floor "
-                                     f"({'z < 0' if pt[2] < 0.0 else f'filter.floor_z_m {floor} m'})")  # fmt: skip
+                    raise ValueError(
+                        f"agents.{i}.{field_}: {pt} is below the floor "
+                        f"({'z < 0' if pt[2] < 0.0 else f'filter.floor_z_m {floor} m'})"
+                    )
             for o in self.obstacles:
                 keep = radius[i] + a.filter.margin_m
                 if _surface_distance(o, a.start) < keep:
-                    raise ValueError(f"agents.{i}.start: {a.start} is within {keep:.3f} m of obstacle {o.id!r} "
-                                     "(inside it or its safety radius)")  # fmt: skip
+                    raise ValueError(
+                        f"agents.{i}.start: {a.start} is within {keep:.3f} m of obstacle {o.id!r} "
+                        "(inside it or its safety radius)"
+                    )
                 if any(o.velocity):
                     continue
                 for j, pt in enumerate(a.path()[1:]):
                     if _surface_distance(o, pt) < keep:
                         field_ = "goal" if a.goal is not None else f"waypoints.{j}"
-                        raise ValueError(f"agents.{i}.{field_}: {pt} is within {keep:.3f} m of obstacle {o.id!r} "
-                                         "(inside it or its safety radius)")  # fmt: skip
+                        raise ValueError(
+                            f"agents.{i}.{field_}: {pt} is within {keep:.3f} m of obstacle {o.id!r} "
+                            "(inside it or its safety radius)"
+                        )
         for i, a in enumerate(self.agents):
             for j in range(i):
                 b = self.agents[j]
                 keep = radius[i] + radius[j] + max(a.filter.margin_m, b.filter.margin_m)
                 for what, p, q in (("start", a.start, b.start), ("goal", a.final_goal, b.final_goal)):
                     if math.dist(p, q) < keep:
-                        raise ValueError(f"agents.{i}.{what}: {a.id} at {p} and {b.id} at {q} are closer than "
-                                         f"their safety radii ({keep:.3f} m)")  # fmt: skip
+                        raise ValueError(
+                            f"agents.{i}.{what}: {a.id} at {p} and {b.id} at {q} are closer than "
+                            f"their safety radii ({keep:.3f} m)"
+                        )
         return self
 
     @model_validator(mode="after")
@@ -529,8 +544,10 @@ class ScenarioConfig(_Strict):
             n = (2 * reach / self.cell_m + 1) ** 3 * math.pi / 6
             if n > MAX_CELLS:
                 least = 2 * reach / ((MAX_CELLS * 6 / math.pi) ** (1 / 3) - 1)
-                raise ValueError(f"neighbours.cell_m: cells of {self.cell_m:g} m would make each agent subscribe to "
-                                 f"about {n:.0f} cells (at most {MAX_CELLS}); use {least:.2f} m or more")  # fmt: skip
+                raise ValueError(
+                    f"neighbours.cell_m: cells of {self.cell_m:g} m would make each agent subscribe to "
+                    f"about {n:.0f} cells (at most {MAX_CELLS}); use {least:.2f} m or more"
+                )
         return self
 
     @model_validator(mode="after")
@@ -622,8 +639,10 @@ def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
     cap = limits.get("max_agents") if isinstance(limits, dict) else None
     cap = cap if isinstance(cap, int) and not isinstance(cap, bool) and cap > 0 else AGENTS_PER_CPU * machine_cpus()
     if isinstance(agents, list) and len(agents) > cap:  # before validating thousands of them
-        raise ConfigError(f"{source}: agents: {len(agents)} agents are more than this machine is trusted to run "
-                          f"({cap}); set limits.max_agents: {len(agents)} to try anyway")  # fmt: skip
+        raise ConfigError(
+            f"{source}: agents: {len(agents)} agents are more than this machine is trusted to run "
+            f"({cap}); set limits.max_agents: {len(agents)} to try anyway"
+        )
     if isinstance(agents, list):
         layered = []
         for i, a in enumerate(agents):

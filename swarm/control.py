@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -72,14 +73,16 @@ class PathTracker:
 
     def reference(self, x_w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
         """Closest path point [m, world], path tangent, remaining path length [m]."""
-        self.segment, c, tangent, remaining = _path_point(self.W, self._seg_len, self._tail, self.segment,
-                                                          np.asarray(x_w, dtype=float))  # fmt: skip
+        self.segment, c, tangent, remaining = _path_point(
+            self.W, self._seg_len, self._tail, self.segment, np.asarray(x_w, dtype=float)
+        )
         return c, tangent, remaining
 
     def desired_velocity(self, x_w: FloatArray) -> FloatArray:
         """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
-        self.segment, v_des = _desired_velocity(self.W, self._seg_len, self._tail, self.segment,
-                                                np.asarray(x_w, dtype=float), self.speed_mps, self._gains)  # fmt: skip
+        self.segment, v_des = _desired_velocity(
+            self.W, self._seg_len, self._tail, self.segment, np.asarray(x_w, dtype=float), self.speed_mps, self._gains
+        )
         return v_des
 
     def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None) -> FloatArray:
@@ -95,9 +98,18 @@ class PathTracker:
         :meth:`desired_accel`. Without ``v_des_w``, one compiled call does the whole tracker."""
         p = model.params
         if v_des_w is None:
-            self.segment, F = _tracker_thrust(self.W, self._seg_len, self._tail, self.segment,
-                                              np.asarray(x_w, dtype=float), np.asarray(v_w, dtype=float),
-                                              self.speed_mps, self._gains, p.mass_kg, p.g_mps2)  # fmt: skip
+            self.segment, F = _tracker_thrust(
+                self.W,
+                self._seg_len,
+                self._tail,
+                self.segment,
+                np.asarray(x_w, dtype=float),
+                np.asarray(v_w, dtype=float),
+                self.speed_mps,
+                self._gains,
+                p.mass_kg,
+                p.g_mps2,
+            )
             return F
         a = self.desired_accel(x_w, v_w, v_des_w)
         a[2] += p.g_mps2
@@ -173,9 +185,13 @@ def _tracker_thrust(W, seg_len, tail, segment, x, v, speed, gains, mass, g):
 
 
 def right_hand_bias(
-    x_w: FloatArray, heading_w: FloatArray, others_w: FloatArray, trigger_m: float, speed_mps: float,
+    x_w: FloatArray,
+    heading_w: FloatArray,
+    others_w: FloatArray,
+    trigger_m: float,
+    speed_mps: float,
     cruise_mps: float | None = None,
-) -> FloatArray:  # fmt: skip
+) -> FloatArray:
     """The right-hand rule, a deadlock tie-break [m/s, world].
 
     For every other agent ``others_w`` (k, 3) [m] closer than ``trigger_m`` and in front
@@ -204,9 +220,14 @@ def right_hand_bias(
 
 
 def reference_thrust(
-    model: QuadModel, tracker: PathTracker, x_w: FloatArray, v_w: FloatArray, x_b_w: FloatArray,
-    others_w: FloatArray, tiebreak: tuple[float, float] | None,
-) -> FloatArray:  # fmt: skip
+    model: QuadModel,
+    tracker: PathTracker,
+    x_w: FloatArray,
+    v_w: FloatArray,
+    x_b_w: FloatArray,
+    others_w: FloatArray,
+    tiebreak: tuple[float, float] | None,
+) -> FloatArray:
     """An agent's reference thrust vector [N, world]: the tracker's, with the right-hand
     tie-break (``tiebreak`` = (trigger [m], speed [m/s]); None: none) added to its
     commanded velocity for the other agents' body centres ``others_w`` (k, 3) [m] seen
@@ -331,6 +352,21 @@ def onboard_rotor_thrusts(q, Omega_b, roll, pitch, yaw, thrust, kR, kOm, J, B_in
     return out
 
 
+class OnboardGains(NamedTuple):
+    """The per-drone constants of :func:`onboard_rotor_thrusts` for ``n`` drones."""
+
+    kR: FloatArray  # (n, 3) attitude gains
+    kOm: FloatArray  # (n, 3) angular-rate gains
+    J: FloatArray  # (n, 3) kg m^2: inertia diagonal
+    B_inv: FloatArray  # (n, 4, 4) inverse mixers
+    f_max: FloatArray  # (n,) N: rotor thrust limits
+
+    @staticmethod
+    def stack(gains: list[OnboardGains]) -> OnboardGains:
+        """The gains of several drones, one row each (each of ``gains`` has one drone)."""
+        return OnboardGains(*(np.concatenate(parts) for parts in zip(*gains, strict=True)))
+
+
 class OnboardController:
     """Emulates the Crazyflie firmware's attitude loop at physics rate: it integrates
     the yaw-rate setpoint into a yaw target and tracks ``Rz(yaw) Ry(pitch) Rx(roll)``
@@ -340,17 +376,25 @@ class OnboardController:
         self.ctrl = AttitudeController(model, gains)
         self.yaw_sp_rad = yaw0_rad
         c = self.ctrl
-        self.consts = (
-            c.kR[None, :].copy(), c.kOm[None, :].copy(), np.diag(model.J)[None, :].copy(),
-            model.B_inv[None, :, :].copy(), np.array([c.f_max]),
-        )  # fmt: skip
+        self.gains = OnboardGains(
+            c.kR[None, :].copy(),
+            c.kOm[None, :].copy(),
+            np.diag(model.J)[None, :].copy(),
+            model.B_inv[None, :, :].copy(),
+            np.array([c.f_max]),
+        )
 
     def rotor_thrusts(self, state: QuadState, sp: AttitudeSetpoint, dt_s: float) -> FloatArray:
         self.yaw_sp_rad += sp.yaw_rate_radps * dt_s
         return onboard_rotor_thrusts(
-            state.q[None, :], state.Omega_b[None, :], np.array([sp.roll_rad]), np.array([sp.pitch_rad]),
-            np.array([self.yaw_sp_rad]), np.array([sp.thrust_N]), *self.consts,
-        )[0]  # fmt: skip
+            state.q[None, :],
+            state.Omega_b[None, :],
+            np.array([sp.roll_rad]),
+            np.array([sp.pitch_rad]),
+            np.array([self.yaw_sp_rad]),
+            np.array([sp.thrust_N]),
+            *self.gains,
+        )[0]
 
 
 def yaw_of(state: QuadState) -> float:

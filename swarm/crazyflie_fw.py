@@ -61,8 +61,10 @@ def pwm_per_newton(firmware: str, propellers: str = "standard") -> float:
         return 65535.0 / (4.0 * THRUST_MAX_N[(firmware, propellers)])
     except KeyError:
         known = ", ".join(sorted({f for f, _ in THRUST_MAX_N}))
-        raise ValueError(f"no linear thrust map for firmware {firmware!r} with {propellers} propellers "
-                         f"(known: {known}); give pwm_per_newton from a hover test") from None  # fmt: skip
+        raise ValueError(
+            f"no linear thrust map for firmware {firmware!r} with {propellers} propellers "
+            f"(known: {known}); give pwm_per_newton from a hover test"
+        ) from None
 
 
 def collective_thrust_N(cmd: int, firmware: str, propellers: str = "standard") -> float:
@@ -131,9 +133,11 @@ class Firmware:
         cmd = 0 if self.thrust_locked or thrust < RPYT_MIN_THRUST else min(thrust, RPYT_MAX_THRUST)
         self.ctrltarget = {"roll": roll_deg, "pitch": pitch_wire_deg, "yaw": -yaw_wire_dps, "thrust": float(cmd)}
         self._sp = Output(
-            math.radians(roll_deg), math.radians(-pitch_wire_deg), math.radians(-yaw_wire_dps),
+            math.radians(roll_deg),
+            math.radians(-pitch_wire_deg),
+            math.radians(-yaw_wire_dps),
             collective_thrust_N(cmd, self.firmware, self.propellers),
-        )  # fmt: skip
+        )
         self._sp_t = t
 
     def stop(self, t: float) -> None:

@@ -18,7 +18,7 @@ from enum import StrEnum
 import numpy as np
 from numba import njit
 
-from swarm.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, live_settings
+from swarm.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, row_params
 from swarm.errors import InputError
 from swarm.model import (
     Q_NORM2_MAX,
@@ -68,18 +68,35 @@ def _residuals(G, b, u, lb, ub, C, d, tol):
     return c, active, v
 
 
+FILTER_PARAMS = np.dtype(
+    [
+        ("r2", "f8"),  # m^2: squared sensing radius (neighbours farther get no row)
+        ("max_rows", "i8"),  # most rows a call builds
+        ("floor", "?"),  # the floor row is on (FilterConfig.floor_z_m not None)
+        ("floor_z", "f8"),  # m, world: the floor's height
+        ("floor_k", "f8"),  # 1/s: the floor's HO-CBF gain
+    ],
+    align=True,
+)
+"""The selection and floor settings :func:`_prepare` takes, as a (1,) structured array."""
+
+
 @njit(cache=True)
-def _select(c, is_nb, x, r2, max_rows):
-    """(indices of the rows, ascending; number of non-neighbours): every non-neighbour,
-    and the neighbours with ``|c - x|^2 <= r2``, nearest first (stable) while fewer than
-    ``max_rows`` rows. The caller raises when the non-neighbours alone are too many."""
-    n = c.shape[0]
+def _select(obs, x, r2, max_rows):
+    """(indices of the rows, ascending; number of non-neighbours) of the obstacles ``obs``
+    (:data:`swarm.obstacles.OBSTACLE`): every non-neighbour, and the neighbours with
+    ``|c - x|^2 <= r2``, nearest first (stable) while fewer than ``max_rows`` rows. The
+    caller raises when the non-neighbours alone are too many."""
+    n = obs.shape[0]
     d2 = np.empty(n)
     keep = np.empty(n, dtype=np.bool_)
+    is_nb = np.empty(n, dtype=np.bool_)
     fixed = 0
     near = 0
     for i in range(n):
-        d2[i] = (c[i, 0] - x[0]) ** 2 + (c[i, 1] - x[1]) ** 2 + (c[i, 2] - x[2]) ** 2
+        c = obs[i].c
+        d2[i] = (c[0] - x[0]) ** 2 + (c[1] - x[1]) ** 2 + (c[2] - x[2]) ** 2
+        is_nb[i] = obs[i].is_nb
         if not is_nb[i]:
             keep[i] = True
             fixed += 1
@@ -95,14 +112,16 @@ def _select(c, is_nb, x, r2, max_rows):
 
 
 @njit(cache=True)
-def _floor_row(attitude, C_row, d, j, z, vz, q, floor_z, k, mass, g, ub):
-    """Fill the floor row ``C_row u <= d[j]`` (see ``FilterConfig.floor_z_m``) for the
+def _floor_row(af, fp, C_row, d, j, z, vz, q, ub):
+    """Fill the floor row ``C_row u <= d[j]`` (see ``FilterConfig.floor_z_m``; ``fp`` a
+    :data:`FILTER_PARAMS` record, ``af`` a :data:`swarm.rows.AIRFRAME` record) for the
     centre-of-mass height ``z`` [m] and vertical speed ``vz`` [m/s]: ``-F_z <= -need`` at
     the attitude level, ``-R33 sum f <= -need`` at the rotor level (no row when upside
     down or on edge, ``R33 < 0.1``); ``need`` is capped at 95 % of what the inputs give."""
-    a_min = -2.0 * k * vz - k * k * (z - floor_z)  # m/s^2
-    need = mass * (g + a_min)  # N of vertical thrust
-    if attitude:
+    k = fp.floor_k
+    a_min = -2.0 * k * vz - k * k * (z - fp.floor_z)  # m/s^2
+    need = af.mass * (af.g + a_min)  # N of vertical thrust
+    if not af.rotor:
         C_row[0], C_row[1], C_row[2] = 0.0, 0.0, -1.0
         d[j] = -min(need, 0.95 * ub[2])
         return
@@ -120,17 +139,20 @@ _BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
 
 
 @njit(cache=True)
-def _prepare(
-    check, x, v, q, Om, u_ref, rotor, K, consts, Aa_att, c, cd, cdd, r, axis, is_nb, r2, max_rows,
-    floor, floor_z, floor_k, mass, lb, ub, C, d, kind, r_own, rho, gamma, eps, gamma_ho, v_esc, live,
-):  # fmt: skip
-    """One filter call's work before the QP, in one compiled call: with ``check`` the
-    state's finiteness, shapes and quaternion norm and ``u_ref``'s finiteness (a failure
-    returns its ``_BAD_*`` code at once; the caller raises the named error) and the
-    quaternion normalised; then :func:`_select`, the floor row (``floor``), the own
-    dynamics (:func:`swarm.rows.own_affine`) and :func:`swarm.rows.rows_kernel` at
-    ``u_ref``. Returns (bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok,
-    any_inside); ``fixed`` as :func:`_select` gives it."""
+def _prepare(check, x, v, q, Om, u_ref, obs, air, params, fparams, lb, ub, C, d):
+    """One filter call's work before the QP, in one compiled call, for the state ``x``
+    [m], ``v`` [m/s], ``q`` (scalar-last), ``Om`` [rad/s, body], the reference ``u_ref``,
+    the obstacles ``obs`` (an (n,) :data:`swarm.obstacles.OBSTACLE` array), the (1,)
+    settings arrays ``air`` (:data:`swarm.rows.AIRFRAME`), ``params``
+    (:data:`swarm.barriers.ROW_PARAMS`) and ``fparams`` (:data:`FILTER_PARAMS`), and the
+    input set ``lb <= u <= ub``, ``C u <= d`` (the floor row, when on, is its last row,
+    refilled here). With ``check`` the state's finiteness, shapes and quaternion norm and
+    ``u_ref``'s finiteness (a failure returns its ``_BAD_*`` code at once; the caller
+    raises the named error) and the quaternion normalised; then :func:`_select`, the
+    floor row, the own dynamics (:func:`swarm.rows.own_affine`) and
+    :func:`swarm.rows.rows_kernel` at ``u_ref``. Returns (bad, fixed, idx, Y, coef,
+    inside, Lf, A, b_all, c_ref, ref_ok, any_inside); ``fixed`` as :func:`_select` gives it."""
+    fp = fparams[0]
     m = lb.shape[0]
     qn = np.empty(4)
     for i in range(4):
@@ -150,36 +172,27 @@ def _prepare(
             bad = _BAD_UREF
         if bad != 0:
             z1 = np.zeros(0)
-            return (bad, 0, np.zeros(0, dtype=np.intp), np.zeros((0, 3, 3)), np.zeros((0, 9)),
-                    np.zeros(0, dtype=np.bool_), z1, np.zeros((0, m)), z1, z1, False, False)  # fmt: skip
-    idx, fixed = _select(c, is_nb, x, r2, max_rows)
-    if floor:
+            return (
+                bad,
+                0,
+                np.zeros(0, dtype=np.intp),
+                np.zeros((0, 3, 3)),
+                np.zeros((0, 9)),
+                np.zeros(0, dtype=np.bool_),
+                z1,
+                np.zeros((0, m)),
+                z1,
+                z1,
+                False,
+                False,
+            )
+    idx, fixed = _select(obs, x, fp.r2, fp.max_rows)
+    if fp.floor:
         j = C.shape[0] - 1
-        _floor_row(not rotor, C[j], d, j, x[2], v[2], qn, floor_z, floor_k, mass, consts[1], ub)
-    xv_b, Aa = own_affine(rotor, x, v, qn, Om, K, consts, Aa_att)
+        _floor_row(air[0], fp, C[j], d, j, x[2], v[2], qn, ub)
+    xv_b, Aa = own_affine(air, x, v, qn, Om)
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
-        kind,
-        c,
-        cd,
-        r,
-        r_own,
-        axis,
-        cdd,
-        is_nb,
-        idx,
-        rho,
-        xv_b,
-        Aa,
-        gamma,
-        eps,
-        gamma_ho,
-        v_esc,
-        u_ref,
-        lb,
-        ub,
-        C,
-        d,
-        live,
+        obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
     return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside
 
@@ -308,8 +321,9 @@ class SafetyFilter:
         self.r_own_m = model.params.body_radius_m + cfg.margin_m
         ins = self.input_set
         if cfg.floor_z_m is not None:  # the floor: one more input row, refilled every call
-            self._floor_set = LinearInputSet(ins.lb, ins.ub, np.vstack([ins.C, np.zeros((1, self.m))]),
-                                             np.append(ins.d, 0.0))  # fmt: skip
+            self._floor_set = LinearInputSet(
+                ins.lb, ins.ub, np.vstack([ins.C, np.zeros((1, self.m))]), np.append(ins.d, 0.0)
+            )
         k_in = self.input_set.d.shape[0] + (cfg.floor_z_m is not None)
         self._qp = make_backend(cfg.backend, self.m, cfg.max_rows + k_in)
         # The least-violation QP always uses daqp: its slack weights make ADMM (OSQP)
@@ -320,30 +334,64 @@ class SafetyFilter:
         self._fallback = None if cfg.backend == "daqp" else make_backend("daqp", self.m, 0)
         self._slack_cache: dict[tuple[int, int], tuple[FloatArray, ...]] = {}  # (rows, input set) -> arrays
         self._own = OwnDynamics(cfg.level, model)
-        self._live = live_settings(cfg.live and cfg.kind is BarrierKind.C3BF, cfg.live_lo_mps, cfg.live_hi_mps)
+        self._params = row_params(
+            cfg.kind,
+            gamma=cfg.gamma,
+            rho=cfg.rho,
+            r_own_m=self.r_own_m,
+            eps=cfg.eps_w_mps,
+            gamma_ho=cfg.gamma_ho,
+            escape_speed=cfg.escape_speed_mps,
+            live=cfg.live,
+            w_lo_mps=cfg.live_lo_mps,
+            w_hi_mps=cfg.live_hi_mps,
+        )
+        self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
+        self._fparams[0] = (
+            cfg.sensing_radius_m**2,
+            cfg.max_rows,
+            cfg.floor_z_m is not None,
+            cfg.floor_z_m or 0.0,
+            cfg.floor_gain_per_s,
+        )
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
         within the sensing radius (nearest first while rows remain). More obstacles than
         ``max_rows`` raise :class:`InputError`: an obstacle is never silently dropped."""
-        idx, fixed = _select(obstacles.c_w, obstacles.is_neighbour, state.x_w, self.config.sensing_radius_m**2,
-                             self.config.max_rows)  # fmt: skip
+        idx, fixed = _select(obstacles.rec, state.x_w, self.config.sensing_radius_m**2, self.config.max_rows)
         if fixed > self.config.max_rows:
             raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {self.config.max_rows}")
         return idx
 
     def rows(
-        self, state: QuadState, obstacles: ObstacleArrays, u_ref: FloatArray | None = None,
-        input_set: LinearInputSet | None = None, sel: IntArray | None = None,
-    ) -> Rows:  # fmt: skip
+        self,
+        state: QuadState,
+        obstacles: ObstacleArrays,
+        u_ref: FloatArray | None = None,
+        input_set: LinearInputSet | None = None,
+        sel: IntArray | None = None,
+    ) -> Rows:
         """The barrier rows for ``obstacles`` (all of them, or those ``sel`` indexes); with
         ``u_ref`` also their residuals at it (against ``input_set``, default the filter's)."""
         cfg = self.config
         return assemble(
-            cfg.kind, self._own(state), obstacles, self.r_own_m, gamma=cfg.gamma,
-            rho=cfg.rho, eps=cfg.eps_w_mps, gamma_ho=cfg.gamma_ho, escape_speed=cfg.escape_speed_mps, u_ref=u_ref,
-            input_set=input_set or self.input_set, sel=sel, live=self._live,
-        )  # fmt: skip
+            cfg.kind,
+            self._own(state),
+            obstacles,
+            self.r_own_m,
+            gamma=cfg.gamma,
+            rho=cfg.rho,
+            eps=cfg.eps_w_mps,
+            gamma_ho=cfg.gamma_ho,
+            escape_speed=cfg.escape_speed_mps,
+            u_ref=u_ref,
+            input_set=input_set or self.input_set,
+            sel=sel,
+            live=cfg.live,
+            live_lo_mps=cfg.live_lo_mps,
+            live_hi_mps=cfg.live_hi_mps,
+        )
 
     def filter(
         self, state: QuadState, u_ref: FloatArray, obstacles: ObstacleArrays, *, validate: bool = True
@@ -351,24 +399,36 @@ class SafetyFilter:
         """Filter ``u_ref`` against ``obstacles``. With ``validate`` the state and
         reference are checked and a bad one raises :class:`InputError`."""
         t0 = time.perf_counter()
-        cfg, own, m = self.config, self._own, self.m
-        if validate and not (_is_vector(state.x_w) and _is_vector(state.v_w) and _is_vector(state.q)
-                             and _is_vector(state.Omega_b) and _is_vector(u_ref)):  # fmt: skip
+        cfg, m = self.config, self.m
+        if validate and not (
+            _is_vector(state.x_w)
+            and _is_vector(state.v_w)
+            and _is_vector(state.q)
+            and _is_vector(state.Omega_b)
+            and _is_vector(u_ref)
+        ):
             state = state.validated()  # not float64 vectors: checked and converted, or the field named
             u_ref = check_finite("u_ref", u_ref, (m,))
         ins = self.input_set if cfg.floor_z_m is None else self._floor_set
-        obs = obstacles
         bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = _prepare(
-            validate, state.x_w, state.v_w, state.q, state.Omega_b, u_ref, cfg.level is CommandLevel.ROTORS, own.K,
-            own.consts, own.Aa_att, obs.c_w, obs.c_dot_w, obs.c_ddot_w, obs.radius_m, obs.axis_w, obs.is_neighbour,
-            cfg.sensing_radius_m**2, cfg.max_rows, cfg.floor_z_m is not None, cfg.floor_z_m or 0.0,
-            cfg.floor_gain_per_s, self.model.params.mass_kg, ins.lb, ins.ub, ins.C, ins.d, cfg.kind.code,
-            self.r_own_m, cfg.rho, cfg.gamma, cfg.eps_w_mps, cfg.gamma_ho, cfg.escape_speed_mps, self._live,
-        )  # fmt: skip
-        if bad != _BAD_NONE:  # the checking path raises, naming the field
+            validate,
+            state.x_w,
+            state.v_w,
+            state.q,
+            state.Omega_b,
+            u_ref,
+            obstacles.rec,
+            self._own.air,
+            self._params,
+            self._fparams,
+            ins.lb,
+            ins.ub,
+            ins.C,
+            ins.d,
+        )
+        if bad != _BAD_NONE:  # the same checks as _prepare's, in Python: one of them raises, naming the field
             state.validated()
             check_finite("u_ref", u_ref, (m,))
-            raise InputError(f"filter inputs: check {bad} failed")  # (not reached: one of the above raises)
         if fixed > cfg.max_rows:
             raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
         rows = Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), ins.d.size, bool(any_inside))
@@ -414,9 +474,12 @@ class SafetyFilter:
             A_s = np.zeros((k + n, m + n))
             A_s[k:, m:] = -np.eye(n)
             arrays = self._slack_cache[key] = (
-                np.diag(np.concatenate([np.full(m, 2.0), np.full(n, 2.0 * W)])), np.zeros(m + n),
-                np.concatenate([ins.lb, np.zeros(n)]), np.concatenate([ins.ub, np.full(n, np.inf)]), A_s,
-            )  # fmt: skip
+                np.diag(np.concatenate([np.full(m, 2.0), np.full(n, 2.0 * W)])),
+                np.zeros(m + n),
+                np.concatenate([ins.lb, np.zeros(n)]),
+                np.concatenate([ins.ub, np.full(n, np.inf)]),
+                A_s,
+            )
         return arrays
 
     def _qp_slack_solve(self, problem: QPProblem) -> FloatArray | None:
@@ -444,7 +507,15 @@ class SafetyFilter:
         else:
             c, active, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d, ACTIVE_TOL)  # c = Lg_h u - lower
         return FilterResult(
-            u=u, u_ref=u_ref, status=status, row_index=idx, h=rows.h, constraint=c,
-            active=active, inside=rows.inside, slack=slack,
-            solve_time_s=time.perf_counter() - t0, max_violation=viol,
-        )  # fmt: skip
+            u=u,
+            u_ref=u_ref,
+            status=status,
+            row_index=idx,
+            h=rows.h,
+            constraint=c,
+            active=active,
+            inside=rows.inside,
+            slack=slack,
+            solve_time_s=time.perf_counter() - t0,
+            max_violation=viol,
+        )

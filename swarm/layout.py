@@ -18,8 +18,9 @@ from swarm.scene import LOG_TOPIC, SCENE_TOPIC, WORLD_FRAME
 
 
 def _plot(title: str, field: str, agent_ids: Sequence[str], unit: str) -> fl.PlotPanel:
-    series = [fl.PlotSeries(value=f"/agent/{a}/command.{field}", label=a, timestamp_method="receiveTime")
-              for a in agent_ids]  # fmt: skip
+    series = [
+        fl.PlotSeries(value=f"/agent/{a}/command.{field}", label=a, timestamp_method="receiveTime") for a in agent_ids
+    ]
     return fl.PlotPanel(title=f"{title} [{unit}]", config=fl.PlotConfig(paths=series, show_legend=True))
 
 
@@ -28,12 +29,14 @@ def run_layout(agent_ids: Sequence[str]) -> fl.Layout:
     three_d = fl.ThreeDeePanel(
         title="swarm",
         config=fl.ThreeDeeConfig(
-            follow_tf=WORLD_FRAME, fixed_frame=WORLD_FRAME,
+            follow_tf=WORLD_FRAME,
+            fixed_frame=WORLD_FRAME,
             topics={SCENE_TOPIC: fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
-            camera_state=fl.ThreeDeeCameraState(distance=9.0, perspective=True, phi=55.0, theta_offset=45.0,
-                                                target=(0.0, 0.0, 1.0)),
+            camera_state=fl.ThreeDeeCameraState(
+                distance=9.0, perspective=True, phi=55.0, theta_offset=45.0, target=(0.0, 0.0, 1.0)
+            ),
         ),
-    )  # fmt: skip
+    )
     status = fl.StateTransitionsPanel(
         title="filter status",
         config=fl.StateTransitionsConfig(

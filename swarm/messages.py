@@ -40,27 +40,51 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     # of this tick for the record: status, intervention |u - u_ref|, solve time [us],
     # the names and h of the rows, and the agent's running counts
     "command": {
-        "level": "s", "u": "vf", "intervention": "f", "status": "s", "solve_us": "f", "row_ids": "ls",
-        "h_rows": "vf", "min_h": "f", "infeasible": "i", "goal_reached": "b", "dropped": "i",
+        "level": "s",
+        "u": "vf",
+        "intervention": "f",
+        "status": "s",
+        "solve_us": "f",
+        "row_ids": "ls",
+        "h_rows": "vf",
+        "min_h": "f",
+        "infeasible": "i",
+        "goal_reached": "b",
+        "dropped": "i",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
     # uses: theirs of tick k-1), and whether the run is over. Its size does not grow with N.
     "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "done": "b"},
     "clock": {
-        "live": "ls", "done": "b", "ids": "ls", "xvr": "vf", "meas_ids": "ls", "meas": "vf", "items": "obs",
+        "live": "ls",
+        "done": "b",
+        "ids": "ls",
+        "xvr": "vf",
+        "meas_ids": "ls",
+        "meas": "vf",
+        "items": "obs",
         "solo": "ls",
     },
     "status": {
-        "rtf": "f", "min_sep": "f", "min_clear": "f", "collisions": "i", "late": "i",
-        "dropped": "i", "live": "ls", "done": "b", "infeasible": "i", "stalls": "i", "dead": "ls",
+        "rtf": "f",
+        "min_sep": "f",
+        "min_clear": "f",
+        "collisions": "i",
+        "late": "i",
+        "dropped": "i",
+        "live": "ls",
+        "done": "b",
+        "infeasible": "i",
+        "stalls": "i",
+        "dead": "ls",
     },
     # a contact that began at this tick; dead: one of the two is a dead agent's drone (landing,
     # or left to the firmware), counted apart from collisions among live agents
     "collision": {"a": "s", "b": "s", "dead": "b"},
     # a lockstep tick that waited longer than time.stall_warn_s for these agents' commands
     "stall": {"agents": "ls", "wait_s": "f"},
-}  # fmt: skip
+}
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
 #   ids, xvr         the roster: per drone its body centre [m], velocity [m/s] and radius [m]
@@ -143,11 +167,16 @@ def _obstacles(x: Any) -> list[dict[str, Any]]:
         r = _float(f"items[{i}].r", o.get("r"))
         if r < 0:
             raise DecodeError(f"items[{i}].r: negative radius")
-        out.append({
-            "id": o["id"], "shape": o["shape"], "r": r,
-            "c": _vector(f"items[{i}].c", o.get("c"), 3), "cd": _vector(f"items[{i}].cd", o.get("cd"), 3),
-            "a": _vector(f"items[{i}].a", o.get("a"), 3),
-        })  # fmt: skip
+        out.append(
+            {
+                "id": o["id"],
+                "shape": o["shape"],
+                "r": r,
+                "c": _vector(f"items[{i}].c", o.get("c"), 3),
+                "cd": _vector(f"items[{i}].cd", o.get("cd"), 3),
+                "a": _vector(f"items[{i}].a", o.get("a"), 3),
+            }
+        )
     return out
 
 
@@ -236,8 +265,9 @@ def decode(
     if kind == "clock" and len(body) == len(_CHECKS["clock"]):  # (a whole clock: its sizes agree)
         n, n_meas = len(body["ids"]), len(body["meas_ids"])
         if body["xvr"].size != CLOCK_XVR * n or body["meas"].size != CLOCK_MEAS * n_meas:
-            raise DecodeError(f"clock: xvr of {body['xvr'].size} for {n} ids, meas of {body['meas'].size} "
-                              f"for {n_meas} meas_ids")  # fmt: skip
+            raise DecodeError(
+                f"clock: xvr of {body['xvr'].size} for {n} ids, meas of {body['meas'].size} for {n_meas} meas_ids"
+            )
     return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
 
 
@@ -306,37 +336,59 @@ def measurement_agent(record: dict[str, Any]) -> str:
 
 # what each field means, with its unit and frame, for the recorded channels' JSON schemas
 FIELD_DOCS: dict[str, str] = {
-    "kind": "message kind", "src": "sender id", "seq": "sender's sequence number",
-    "t": "sim time [s]", "k": "control tick",
-    "x": "position [m, world] (a state's and the roster's: the body centre)", "v": "velocity [m/s, world]",
-    "q": "attitude quaternion (x, y, z, w), body to world", "w": "body rates [rad/s, body]",
-    "r": "bounding radius [m]", "solo": "not doing its share of the avoidance (whole rows for it)",
-    "level": "command level (attitude or rotor)", "u": "command: F [N, world] (attitude) or rotor thrusts [N]",
-    "intervention": "|u - u_ref|, the filter's change of the reference [N]", "status": "filter status",
-    "solve_us": "filter call time [us]", "row_ids": "obstacle or agent id of each barrier row",
-    "h_rows": "barrier value h of each row [m^2/s]", "min_h": "smallest h of the rows [m^2/s]",
-    "infeasible": "infeasible ticks so far", "goal_reached": "the agent reached its goal",
-    "dropped": "messages dropped so far", "near": "agents whose states this tick uses",
+    "kind": "message kind",
+    "src": "sender id",
+    "seq": "sender's sequence number",
+    "t": "sim time [s]",
+    "k": "control tick",
+    "x": "position [m, world] (a state's and the roster's: the body centre)",
+    "v": "velocity [m/s, world]",
+    "q": "attitude quaternion (x, y, z, w), body to world",
+    "w": "body rates [rad/s, body]",
+    "r": "bounding radius [m]",
+    "solo": "not doing its share of the avoidance (whole rows for it)",
+    "level": "command level (attitude or rotor)",
+    "u": "command: F [N, world] (attitude) or rotor thrusts [N]",
+    "intervention": "|u - u_ref|, the filter's change of the reference [N]",
+    "status": "filter status",
+    "solve_us": "filter call time [us]",
+    "row_ids": "obstacle or agent id of each barrier row",
+    "h_rows": "barrier value h of each row [m^2/s]",
+    "min_h": "smallest h of the rows [m^2/s]",
+    "infeasible": "infeasible ticks so far",
+    "goal_reached": "the agent reached its goal",
+    "dropped": "messages dropped so far",
+    "near": "agents whose states this tick uses",
     "items": "obstacles: id, shape, centre c [m, world], velocity cd [m/s, world], radius r [m], unit axis a",
-    "done": "the run is over", "live": "agents the world expects answers from",
-    "ids": "roster drone ids", "xvr": "roster: per drone body centre [m], velocity [m/s], radius [m] (7 floats)",
-    "meas_ids": "simulated drones of meas", "meas": "per simulated drone x [m], v [m/s], q, w [rad/s] (13 floats)",
-    "rtf": "real-time factor", "min_sep": "closest pair of body centres so far [m]",
-    "min_clear": "closest body centre to an obstacle surface so far [m]", "collisions": "contacts so far",
-    "late": "late ticks so far", "stalls": "stalled ticks so far", "dead": "agents declared dead",
-    "a": "one side of the contact (agent or obstacle id)", "b": "other side of the contact",
-    "agents": "agents the tick waited for", "wait_s": "how long it waited [s]",
-}  # fmt: skip
+    "done": "the run is over",
+    "live": "agents the world expects answers from",
+    "ids": "roster drone ids",
+    "xvr": "roster: per drone body centre [m], velocity [m/s], radius [m] (7 floats)",
+    "meas_ids": "simulated drones of meas",
+    "meas": "per simulated drone x [m], v [m/s], q, w [rad/s] (13 floats)",
+    "rtf": "real-time factor",
+    "min_sep": "closest pair of body centres so far [m]",
+    "min_clear": "closest body centre to an obstacle surface so far [m]",
+    "collisions": "contacts so far",
+    "late": "late ticks so far",
+    "stalls": "stalled ticks so far",
+    "dead": "agents declared dead",
+    "a": "one side of the contact (agent or obstacle id)",
+    "b": "other side of the contact",
+    "agents": "agents the tick waited for",
+    "wait_s": "how long it waited [s]",
+}
 _ITEM_SCHEMA = {
     "type": "object",
     "properties": {
-        "id": {"type": "string"}, "shape": {"type": "string", "enum": ["sphere", "cylinder"]},
+        "id": {"type": "string"},
+        "shape": {"type": "string", "enum": ["sphere", "cylinder"]},
         "c": {"type": "array", "items": {"type": "number"}, "description": "centre [m, world]"},
         "cd": {"type": "array", "items": {"type": "number"}, "description": "velocity [m/s, world]"},
         "r": {"type": "number", "description": "radius [m]"},
         "a": {"type": "array", "items": {"type": "number"}, "description": "unit axis (zeros: a sphere)"},
     },
-}  # fmt: skip
+}
 
 
 def _field_schema(spec: Any) -> dict[str, Any]:
@@ -356,8 +408,13 @@ def _field_schema(spec: Any) -> dict[str, Any]:
 def json_schema(kind: str) -> dict[str, Any]:
     """The JSON schema of a recorded message of ``kind`` (:func:`record_of`'s fields:
     header and body, each with its description and unit), as Foxglove lists them."""
-    header = {"kind": {"type": "string", "const": kind}, "src": {"type": "string"}, "seq": {"type": "integer"},
-              "t": {"type": "number"}, "k": {"type": "integer"}}  # fmt: skip
+    header = {
+        "kind": {"type": "string", "const": kind},
+        "src": {"type": "string"},
+        "seq": {"type": "integer"},
+        "t": {"type": "number"},
+        "k": {"type": "integer"},
+    }
     props = header | {name: _field_schema(spec) for name, spec in SCHEMAS[kind].items()}
     for name, p in props.items():
         if name in FIELD_DOCS:

@@ -33,9 +33,15 @@ def path_deviation(points_w: np.ndarray, path_w: np.ndarray) -> float:
 
 
 def deadlock_start(
-    t_s: np.ndarray, x_w: np.ndarray, v_w: np.ndarray, goal_w: np.ndarray, tolerance_m: float,
-    *, speed_mps: float = 0.05, hold_s: float = 2.0,
-) -> float | None:  # fmt: skip
+    t_s: np.ndarray,
+    x_w: np.ndarray,
+    v_w: np.ndarray,
+    goal_w: np.ndarray,
+    tolerance_m: float,
+    *,
+    speed_mps: float = 0.05,
+    hold_s: float = 2.0,
+) -> float | None:
     """When [s] an agent became deadlocked, or None.
 
     Deadlocked: outside ``tolerance_m`` of its goal and slower than ``speed_mps`` without
@@ -165,8 +171,12 @@ def _motion(t_s: np.ndarray, v_w: np.ndarray, path_w: np.ndarray) -> dict[str, A
     backwards faster than 2 cm/s; ``final_speed_mps`` is |v| at the last measurement.
     """
     if len(v_w) == 0:
-        return {"min_along_speed_mps": None, "final_along_speed_mps": None, "backward_time_s": 0.0,
-                "final_speed_mps": None}  # fmt: skip
+        return {
+            "min_along_speed_mps": None,
+            "final_along_speed_mps": None,
+            "backward_time_s": 0.0,
+            "final_speed_mps": None,
+        }
     leg = path_w[1] - path_w[0] if len(path_w) > 1 else np.zeros(3)
     n = float(np.linalg.norm(leg))
     along = v_w @ (leg / n) if n > 1e-9 else np.zeros(len(v_w))

@@ -80,18 +80,24 @@ def state_check(x, v, q, Om):
 
 
 @njit(cache=True)
+def body_point_into(R, x, v, wx, wy, l, xv_b):  # noqa: E741
+    """The body centre ``x + l R e3`` [m, world] (``l`` [m] above the centre of mass
+    ``x``) and that point's velocity ``v + l R (Omega x e3)`` [m/s, world], with
+    ``Omega x e3 = (wy, -wx, 0)`` [rad/s, body], into the rows of ``xv_b`` (2, 3)."""
+    for i in range(3):
+        xv_b[0, i] = x[i] + l * R[i, 2]
+        xv_b[1, i] = v[i] + l * (R[i, 0] * wy - R[i, 1] * wx)
+
+
+@njit(cache=True)
 def body_centre(x, v, q, Om, l):  # noqa: E741
     """(x_b (3,) [m, world], v_b (3,) [m/s, world], yaw [rad]) of a state: its body centre
-    ``x + l R e3`` (``l`` [m] above the centre of mass), that point's velocity
-    ``v + l R (Omega x e3)`` and the ZYX yaw of ``R``."""
+    and that point's velocity (:func:`body_point_into`) and the ZYX yaw of ``R``."""
     R = np.empty((3, 3))
     quat_to_R_into(q, R)
-    wx, wy = Om[0], Om[1]
-    x_b, v_b = np.empty(3), np.empty(3)
-    for i in range(3):
-        x_b[i] = x[i] + l * R[i, 2]
-        v_b[i] = v[i] + l * (R[i, 0] * wy - R[i, 1] * wx)
-    return x_b, v_b, math.atan2(R[1, 0], R[0, 0])
+    xv_b = np.empty((2, 3))
+    body_point_into(R, x, v, Om[0], Om[1], l, xv_b)
+    return xv_b[0].copy(), xv_b[1].copy(), math.atan2(R[1, 0], R[0, 0])
 
 
 @dataclass(frozen=True)
@@ -124,9 +130,17 @@ class QuadParams:
 
     def __post_init__(self) -> None:
         positive = (
-            "mass_kg", "g_mps2", "Ixx_kgm2", "Iyy_kgm2", "Izz_kgm2", "kf", "km",
-            "rotor_to_rotor_m", "body_radius_m", "max_tilt_rad",
-        )  # fmt: skip
+            "mass_kg",
+            "g_mps2",
+            "Ixx_kgm2",
+            "Iyy_kgm2",
+            "Izz_kgm2",
+            "kf",
+            "km",
+            "rotor_to_rotor_m",
+            "body_radius_m",
+            "max_tilt_rad",
+        )
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

@@ -11,31 +11,33 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm.obstacles import ObstacleArrays
-from swarm.rotation import FloatArray, IntArray
+from swarm.obstacles import OBSTACLE, ObstacleArrays
+from swarm.rotation import BoolArray, FloatArray, IntArray
 
 
 @njit(cache=True)
-def _roster_columns(xvr, rows):
-    """Rows ``rows`` of a roster ``xvr`` (n * 7,) as contiguous centres (k, 3), velocities
-    (k, 3) and radii (k,)."""
-    k = rows.shape[0]
-    c, cd, r = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
-    for i in range(k):
+def _roster_fill(xvr, rows, is_nb, out):
+    """Fill ``out`` (k,) :data:`swarm.obstacles.OBSTACLE` with the drones ``rows`` of a
+    roster ``xvr`` (n * 7,): centre, velocity, radius; no acceleration, spheres."""
+    for i in range(rows.shape[0]):
         o = 7 * rows[i]
+        ob = out[i]
         for j in range(3):
-            c[i, j] = xvr[o + j]
-            cd[i, j] = xvr[o + 3 + j]
-        r[i] = xvr[o + 6]
-    return c, cd, r
+            ob.c[j] = xvr[o + j]
+            ob.cd[j] = xvr[o + 3 + j]
+            ob.cdd[j] = 0.0
+            ob.axis[j] = 0.0
+        ob.r = xvr[o + 6]
+        ob.is_nb = is_nb[i]
 
 
-def roster_arrays(xvr: FloatArray, rows: IntArray, zeros: FloatArray, ones: np.ndarray) -> ObstacleArrays:
+def roster_arrays(xvr: FloatArray, rows: IntArray, is_neighbour: BoolArray) -> ObstacleArrays:
     """The drones ``rows`` of a world roster ``xvr`` (per drone: body centre [m, world],
-    its velocity [m/s, world], radius [m]) as neighbour rows: no acceleration, spheres.
-    ``zeros`` (k, 3) and ``ones`` (k,) bool are shared by the caller's calls."""
-    c, cd, r = _roster_columns(xvr, rows)
-    return ObstacleArrays(c, cd, zeros, r, zeros, ones)
+    its velocity [m/s, world], radius [m]) as rows: no acceleration, spheres, neighbour
+    rows where ``is_neighbour`` (k,) says so (the others take the whole pair)."""
+    out = np.empty(rows.shape[0], dtype=OBSTACLE)
+    _roster_fill(xvr, rows, is_neighbour, out)
+    return ObstacleArrays.of_records(out)
 
 
 @dataclass

@@ -2,35 +2,98 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from swarm.errors import InputError
 from swarm.model import check_finite
 from swarm.rotation import BoolArray, FloatArray, IntArray
 
-_FIELDS = ("c_w", "c_dot_w", "c_ddot_w", "radius_m", "axis_w", "is_neighbour")
+OBSTACLE = np.dtype(
+    [
+        ("c", "f8", 3),  # m, world: centre (a point on the axis for a cylinder)
+        ("cd", "f8", 3),  # m/s, world: its velocity
+        ("cdd", "f8", 3),  # m/s^2, world: its acceleration
+        ("r", "f8"),  # m: the obstacle's own radius
+        ("axis", "f8", 3),  # unit axis of a cylinder [world], zeros for a sphere
+        ("is_nb", "?"),  # another agent (a neighbour row)
+    ],
+    align=True,
+)
+"""One obstacle as the compiled kernels read it (``obs[o].c[k]``): the one order of the
+obstacle fields everywhere."""
 
 
-@dataclass(frozen=True)
 class ObstacleArrays:
-    """``n`` obstacles (static, moving, or other agents), one filter row each.
+    """``n`` obstacles (static, moving, or other agents), one filter row each, held as one
+    (n,) :data:`OBSTACLE` structured array ``rec`` that the compiled kernels take as it is;
+    the named fields below are views into it.
 
     ``radius_m`` is the obstacle's own radius; the filter adds the agent's bounding
     radius and margin. Neighbour rows get the responsibility share, obstacle rows do
     not. Build with :meth:`build`, which validates; the constructor trusts its input.
     """
 
-    c_w: FloatArray  # (n, 3) m, world: centre (a point on the axis for a cylinder)
-    c_dot_w: FloatArray  # (n, 3) m/s, world
-    c_ddot_w: FloatArray  # (n, 3) m/s^2, world
-    radius_m: FloatArray  # (n,) m
-    axis_w: FloatArray  # (n, 3) unit axis of a cylinder [world], zeros for a sphere
-    is_neighbour: BoolArray  # (n,)
+    __slots__ = ("rec",)
+
+    def __init__(
+        self,
+        c_w: FloatArray,
+        c_dot_w: FloatArray,
+        c_ddot_w: FloatArray,
+        radius_m: FloatArray,
+        axis_w: FloatArray,
+        is_neighbour: BoolArray,
+    ) -> None:
+        rec = np.empty(len(radius_m), dtype=OBSTACLE)
+        rec["c"], rec["cd"], rec["cdd"], rec["r"], rec["axis"], rec["is_nb"] = (
+            c_w,
+            c_dot_w,
+            c_ddot_w,
+            radius_m,
+            axis_w,
+            is_neighbour,
+        )
+        self.rec = rec
+
+    @staticmethod
+    def of_records(rec: np.ndarray) -> ObstacleArrays:
+        """Obstacles over an existing (n,) :data:`OBSTACLE` array (no copy)."""
+        out = ObstacleArrays.__new__(ObstacleArrays)
+        out.rec = rec
+        return out
+
+    @property
+    def c_w(self) -> FloatArray:
+        """(n, 3) m, world: centre (a point on the axis for a cylinder)."""
+        return self.rec["c"]
+
+    @property
+    def c_dot_w(self) -> FloatArray:
+        """(n, 3) m/s, world."""
+        return self.rec["cd"]
+
+    @property
+    def c_ddot_w(self) -> FloatArray:
+        """(n, 3) m/s^2, world."""
+        return self.rec["cdd"]
+
+    @property
+    def radius_m(self) -> FloatArray:
+        """(n,) m."""
+        return self.rec["r"]
+
+    @property
+    def axis_w(self) -> FloatArray:
+        """(n, 3) unit axis of a cylinder [world], zeros for a sphere."""
+        return self.rec["axis"]
+
+    @property
+    def is_neighbour(self) -> BoolArray:
+        """(n,) another agent."""
+        return self.rec["is_nb"]
 
     def __len__(self) -> int:
-        return len(self.radius_m)
+        return len(self.rec)
 
     @staticmethod
     def empty() -> ObstacleArrays:
@@ -74,15 +137,14 @@ class ObstacleArrays:
         return ObstacleArrays(c, vec("c_dot_w", c_dot_w), vec("c_ddot_w", c_ddot_w), r, a, nb)
 
     def subset(self, keep: IntArray | BoolArray) -> ObstacleArrays:
-        return ObstacleArrays(*(getattr(self, f)[keep] for f in _FIELDS))
+        return ObstacleArrays.of_records(self.rec[keep])
 
     @staticmethod
     def concat(parts: list[ObstacleArrays]) -> ObstacleArrays:
         parts = [p for p in parts if len(p)]
         if len(parts) <= 1:
             return parts[0] if parts else _EMPTY
-        return ObstacleArrays(*(np.concatenate([getattr(o, f) for o in parts]) for f in _FIELDS))
+        return ObstacleArrays.of_records(np.concatenate([o.rec for o in parts]))
 
 
-_Z = np.zeros((0, 3))
-_EMPTY = ObstacleArrays(_Z, _Z, _Z, np.zeros(0), _Z, np.zeros(0, dtype=bool))
+_EMPTY = ObstacleArrays.of_records(np.zeros(0, dtype=OBSTACLE))

@@ -33,8 +33,10 @@ def _polygon(centre: list[float], radius_m: float, sides: int = 24) -> list[tupl
     """A disc [m, world x-y] as RVO2's counter-clockwise polygon, circumscribed (its edges
     stay outside the disc)."""
     r = radius_m / math.cos(math.pi / sides)
-    return [(centre[0] + r * math.cos(2 * math.pi * k / sides), centre[1] + r * math.sin(2 * math.pi * k / sides))
-            for k in range(sides)]  # fmt: skip
+    return [
+        (centre[0] + r * math.cos(2 * math.pi * k / sides), centre[1] + r * math.sin(2 * math.pi * k / sides))
+        for k in range(sides)
+    ]
 
 
 NOT_MEASURED = {
@@ -75,9 +77,14 @@ def run_orca(
         p = a.airframe.params()
         radius = p.body_radius_m + 0.5 * a.filter.margin_m
         i = sim.add_agent(
-            (float(a.start[0]), float(a.start[1])), neighbour_dist_m, max_neighbours, time_horizon_s, time_horizon_s,
-            radius, float(a.speed_mps),
-        )  # fmt: skip
+            (float(a.start[0]), float(a.start[1])),
+            neighbour_dist_m,
+            max_neighbours,
+            time_horizon_s,
+            time_horizon_s,
+            radius,
+            float(a.speed_mps),
+        )
         sim.set_agent_velocity(i, (float(a.start_velocity[0]), float(a.start_velocity[1])))
         ids.append(a.id)
         goals.append(np.array(a.final_goal[:2], dtype=float))
@@ -95,8 +102,18 @@ def run_orca(
         P = np.array([sim.get_agent_position(i).to_tuple() for i in range(n)])
         V = np.array([sim.get_agent_velocity(i).to_tuple() for i in range(n)])
         for i, aid in enumerate(ids):
-            records.append({"kind": "measurement", "agent": aid, "t": t, "k": k, "q": q, "w": [0.0, 0.0, 0.0],
-                            "x": [P[i, 0], P[i, 1], z[i]], "v": [V[i, 0], V[i, 1], 0.0]})  # fmt: skip
+            records.append(
+                {
+                    "kind": "measurement",
+                    "agent": aid,
+                    "t": t,
+                    "k": k,
+                    "q": q,
+                    "w": [0.0, 0.0, 0.0],
+                    "x": [P[i, 0], P[i, 1], z[i]],
+                    "v": [V[i, 0], V[i, 1], 0.0],
+                }
+            )
         centres = np.column_stack([P, z + l_m])
         d = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
         for i in range(n):
@@ -116,10 +133,21 @@ def run_orca(
         sim.do_step()
         per_agent_us = (time.perf_counter() - t0) * 1e6 / n
         for aid in ids:
-            records.append({"kind": "command", "src": aid, "t": t, "k": k, "min_h": math.inf, "solve_us": per_agent_us,
-                            "infeasible": 0, "dropped": 0})  # fmt: skip
-    records.append({"kind": "status", "t": k * dt, "k": k, "live": ids, "rtf": 0.0, "late": 0, "dropped": 0,
-                    "done": True})  # fmt: skip
+            records.append(
+                {
+                    "kind": "command",
+                    "src": aid,
+                    "t": t,
+                    "k": k,
+                    "min_h": math.inf,
+                    "solve_us": per_agent_us,
+                    "infeasible": 0,
+                    "dropped": 0,
+                }
+            )
+    records.append(
+        {"kind": "status", "t": k * dt, "k": k, "live": ids, "rtf": 0.0, "late": 0, "dropped": 0, "done": True}
+    )
     metrics = compute(cfg, records)
     # what ORCA does not have is left empty, with the reason, not recorded as a measurement
     metrics["real_time_factor"] = None

@@ -31,11 +31,13 @@ def vee(S: FloatArray) -> FloatArray:
 def quat_to_R(q: FloatArray) -> FloatArray:
     """(3, 3) rotation body to world from a scalar-last unit quaternion (x, y, z, w)."""
     x, y, z, w = q.tolist() if isinstance(q, np.ndarray) else q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])  # fmt: skip
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 @njit(cache=True)

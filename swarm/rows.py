@@ -38,16 +38,18 @@ from swarm.barriers import (
     B_P,
     B_W,
     C_D,
+    LIVE_W_HI_MPS,
+    LIVE_W_LO_MPS,
     N_COEF,
-    PAPER,
     RATE,
     BarrierKind,
     BarrierRows,
     H,
     barrier_row,
     far_gain,
+    row_params,
 )
-from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState
+from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState, body_point_into
 from swarm.obstacles import ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
 
@@ -68,24 +70,37 @@ class OwnAffine:
         return self.Aa[:, -1]
 
 
+AIRFRAME = np.dtype(
+    [
+        ("rotor", "?"),  # rotor level (else the attitude level's thrust-vector point mass)
+        ("l", "f8"),  # m: body centre above the centre of mass
+        ("g", "f8"),  # m/s^2
+        ("J", "f8", 3),  # kg m^2: inertia diagonal (body)
+        ("mass", "f8"),  # kg
+        ("K", "f8", (3, 4)),  # rotor level: A = R K [m/s^2 per N] (module docstring)
+        ("Aa_att", "f8", (3, 4)),  # attitude level: the constant [A | a0_own]
+    ],
+    align=True,
+)
+"""The airframe constants the own-dynamics kernels take, as a (1,) structured array."""
+
+
 @njit(cache=True)
-def _own_rotor(x, v, q, Om, K, consts):
-    """Body-centre state and [A | a0_own] at the rotor level; ``consts`` = (l, g, Jx, Jy, Jz)."""
-    l, g, Jx, Jy, Jz = consts[0], consts[1], consts[2], consts[3], consts[4]  # noqa: E741
+def _own_rotor(x, v, q, Om, af):
+    """Body-centre state and [A | a0_own] at the rotor level, for the :data:`AIRFRAME`
+    record ``af``."""
+    l, g, Jx, Jy, Jz, K = af.l, af.g, af.J[0], af.J[1], af.J[2], af.K  # noqa: E741
     R = np.empty((3, 3))
     quat_to_R_into(q, R)
     wx, wy, wz = Om[0], Om[1], Om[2]
     dx = -(Jz - Jy) * wy * wz / Jx  # Omega'_drift
     dy = -(Jx - Jz) * wz * wx / Jy
-    # body vectors: k0 (a0 part), l e3 (offset), l Omega x e3 (offset rate)
-    k0 = (-l * (wz * wx + dy), l * (dx - wz * wy), l * (wx * wx + wy * wy))
-    rate = (l * wy, -l * wx, 0.0)
+    k0 = (-l * (wz * wx + dy), l * (dx - wz * wy), l * (wx * wx + wy * wy))  # body vector of a0's part
     m = K.shape[1]
     xv_b = np.empty((2, 3))
+    body_point_into(R, x, v, wx, wy, l, xv_b)
     Aa = np.empty((3, m + 1))
     for i in range(3):
-        xv_b[0, i] = x[i] + l * R[i, 2]
-        xv_b[1, i] = v[i] + R[i, 0] * rate[0] + R[i, 1] * rate[1]
         for j in range(m):
             Aa[i, j] = R[i, 0] * K[0, j] + R[i, 1] * K[1, j] + R[i, 2] * K[2, j]
         Aa[i, m] = R[i, 0] * k0[0] + R[i, 1] * k0[1] + R[i, 2] * k0[2]
@@ -93,40 +108,45 @@ def _own_rotor(x, v, q, Om, K, consts):
     return xv_b, Aa
 
 
+def airframe(level: CommandLevel, model: QuadModel) -> np.ndarray:
+    """The (1,) :data:`AIRFRAME` array of ``model`` at ``level``: ``K`` (rotor level, with
+    ``M = J^-1 B[1:4]``) and the attitude level's constant ``[A | a0_own]``."""
+    p = model.params
+    M = model.J_inv @ model.B[1:]
+    out = np.zeros(1, dtype=AIRFRAME)
+    af = out[0]
+    af["rotor"] = level is CommandLevel.ROTORS
+    af["l"], af["g"], af["J"], af["mass"] = p.l_m, p.g_mps2, (p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2), p.mass_kg
+    af["K"] = np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg])
+    af["Aa_att"] = np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]])
+    return out
+
+
 class OwnDynamics:
-    """Builds :class:`OwnAffine` each tick from constants computed once per airframe:
-    ``K`` (3, 4) and ``consts`` (l, g, Jx, Jy, Jz) of the rotor level, ``Aa_att`` the
-    attitude level's constant ``[A | a0_own]``."""
+    """Builds :class:`OwnAffine` each tick from the airframe constants (:func:`airframe`),
+    computed once."""
 
     def __init__(self, level: CommandLevel, model: QuadModel) -> None:
-        p = model.params
         self.level = level
-        M = model.J_inv @ model.B[1:]
-        self.K = np.ascontiguousarray(np.vstack([-p.l_m * M[1], p.l_m * M[0], -model.B[0] / p.mass_kg]))
-        self.consts = np.array([p.l_m, p.g_mps2, p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2])
-        self.Aa_att = np.ascontiguousarray(np.column_stack([-np.eye(3) / p.mass_kg, [0.0, 0.0, p.g_mps2]]))
+        self.air = airframe(level, model)
 
     def __call__(self, state: QuadState) -> OwnAffine:
-        return OwnAffine(*own_affine(self.level is CommandLevel.ROTORS, state.x_w, state.v_w, state.q,
-                                     state.Omega_b, self.K, self.consts, self.Aa_att))  # fmt: skip
+        return OwnAffine(*own_affine(self.air, state.x_w, state.v_w, state.q, state.Omega_b))
 
 
 @njit(cache=True)
-def own_affine(rotor, x, v, q, Om, K, consts, Aa_att):
-    """(xv_b, Aa) of :class:`OwnAffine`: the rotor level's from the state, or at the
-    attitude level the body centre ``x + l R e3`` with the centre of mass's velocity and
-    the constant ``Aa_att``; ``consts`` = (l, g, Jx, Jy, Jz)."""
-    if rotor:
-        return _own_rotor(x, v, q, Om, K, consts)
-    l = consts[0]  # noqa: E741
-    r13 = 2.0 * (q[0] * q[2] + q[1] * q[3])  # R e3, scalar-last (swarm.rotation)
-    r23 = 2.0 * (q[1] * q[2] - q[0] * q[3])
-    r33 = 1.0 - 2.0 * (q[0] * q[0] + q[1] * q[1])
+def own_affine(air, x, v, q, Om):
+    """(xv_b, Aa) of :class:`OwnAffine` for the (1,) :data:`AIRFRAME` array ``air``: the
+    rotor level's from the state, or at the attitude level the body centre ``x + l R e3``
+    with the centre of mass's velocity and the constant ``Aa_att``."""
+    af = air[0]
+    if af.rotor:
+        return _own_rotor(x, v, q, Om, af)
+    R = np.empty((3, 3))
+    quat_to_R_into(q, R)
     xv_b = np.empty((2, 3))
-    xv_b[0, 0], xv_b[0, 1], xv_b[0, 2] = x[0] + l * r13, x[1] + l * r23, x[2] + l * r33
-    for i in range(3):
-        xv_b[1, i] = v[i]
-    return xv_b, Aa_att
+    body_point_into(R, x, v, 0.0, 0.0, af.l, xv_b)  # (this level has no rotation state)
+    return xv_b, af.Aa_att.copy()
 
 
 RING = 16
@@ -151,8 +171,10 @@ def _clear_of(v, Ps, ss, axes, m):
 
 
 @njit(cache=True)
-def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):
-    """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at.
+def free_target(obs, sel, r_own, xv_b, A0, w_hi):
+    """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at,
+    for the obstacles ``obs[sel]`` (:data:`swarm.obstacles.OBSTACLE`), safety radius
+    ``r + r_own`` [m], the own body centre ``xv_b`` (2, 3).
 
     At rest relative to several obstacles the exact condition asks for one direction of
     relative acceleration outside every obstacle's cone; rows aimed at the reference
@@ -167,21 +189,21 @@ def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):
     axes = np.empty((n, 3))
     m = 0
     for i in range(n):
-        o = sel[i]
-        if is_nb[o]:
+        ob = obs[sel[i]]
+        if ob.is_nb:
             continue
-        a = axis[o]
+        a = ob.axis
         ap, aw = 0.0, 0.0
         for k in range(3):
-            ap += a[k] * (c[o, k] - xv_b[0, k])
-            aw += a[k] * (cd[o, k] - xv_b[1, k])
+            ap += a[k] * (ob.c[k] - xv_b[0, k])
+            aw += a[k] * (ob.cd[k] - xv_b[1, k])
         pp, ww = 0.0, 0.0
         for k in range(3):
-            Ps[m, k] = c[o, k] - xv_b[0, k] - ap * a[k]
-            wk = cd[o, k] - xv_b[1, k] - aw * a[k]
+            Ps[m, k] = ob.c[k] - xv_b[0, k] - ap * a[k]
+            wk = ob.cd[k] - xv_b[1, k] - aw * a[k]
             pp += Ps[m, k] * Ps[m, k]
             ww += wk * wk
-        rr = r[o] + r_own
+        rr = ob.r + r_own
         if pp <= rr * rr or ww >= w_hi * w_hi:
             continue
         ss[m] = math.sqrt(pp - rr * rr)
@@ -233,17 +255,18 @@ def free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, A0, w_hi):
 
 
 @njit(cache=True)
-def rows_kernel(
-    kind, c, cd, r, r_own, axis, cdd, is_nb, sel, rho, xv_b, Aa, gamma, eps, gamma_ho, v_esc, u_ref, lb, ub, C, d, live
-):
-    """All rows at once, row i for obstacle ``sel[i]`` (a selection indexes the obstacle
-    arrays, no copy; safety radius ``r + r_own``; responsibility share ``rho`` for the
-    rows with ``is_nb``, 1 for the others), stacked under the input rows ``C u <= d`` as
-    one QP constraint set ``A u <= b_all`` (barrier rows: ``G = -Lg_h``, ``b = -lower``),
-    and the residuals ``b_all - A u_ref`` of a reference command (an empty ``u_ref`` skips
-    them). ``live`` as :func:`swarm.barriers.barrier_row` takes it; the live rows' target
-    is the relative acceleration ``c'' + a0_own + A u_ref`` that ``u_ref`` would give (for
-    the obstacles, its direction clear of all their cones: :func:`free_target`).
+def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
+    """All rows at once, row i for obstacle ``obs[sel[i]]`` (``obs`` an (n,)
+    :data:`swarm.obstacles.OBSTACLE` array; a selection indexes it, no copy), under the
+    settings ``params`` (a (1,) :data:`swarm.barriers.ROW_PARAMS` array: safety radius
+    ``r + r_own``, responsibility share ``rho`` for neighbour rows, 1 for the others),
+    for the own body centre ``xv_b`` and ``Aa`` = [A | a0_own] (:class:`OwnAffine`),
+    stacked under the input rows ``C u <= d`` as one QP constraint set ``A u <= b_all``
+    (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals ``b_all - A u_ref``
+    of a reference command (an empty ``u_ref`` skips them) against those rows and the
+    bounds ``lb <= u <= ub``. The live rows' target is the relative acceleration
+    ``c'' + a0_own + A u_ref`` that ``u_ref`` would give (for the obstacles, its direction
+    clear of all their cones: :func:`free_target`).
 
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
     the cone, twice the inverse time to contact), times :func:`swarm.barriers.far_gain`
@@ -252,6 +275,8 @@ def rows_kernel(
     Returns (Y_used (n,3,3), coef (n,9), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
     c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
     bound and ``any_inside`` that some row is already inside its safety radius."""
+    par = params[0]
+    kind, r_own, live = par.kind, par.r_own, par.live
     n = sel.shape[0]
     k_in = C.shape[0]
     m = Aa.shape[1] - 1
@@ -282,17 +307,16 @@ def rows_kernel(
     static_ref = own_ref
     any_static = False
     for i in range(n):
-        any_static = any_static or not is_nb[sel[i]]
-    if with_ref and live[0] != 0.0 and kind == 0 and any_static:  # (only obstacle rows share a target)
-        static_ref = free_target(c, cd, r, r_own, axis, is_nb, sel, xv_b, own_ref, live[2])
+        any_static = any_static or not obs[sel[i]].is_nb
+    if with_ref and live and kind == 0 and any_static:  # (only obstacle rows share a target)
+        static_ref = free_target(obs, sel, r_own, xv_b, own_ref, par.w_hi)
     for i in range(n):
-        o = sel[i]
+        ob = obs[sel[i]]
         for k in range(3):
-            p[k] = c[o, k] - xv_b[0, k]
-            w[k] = cd[o, k] - xv_b[1, k]
-            a_ref[k] = cdd[o, k] + (own_ref[k] if is_nb[o] else static_ref[k])
-        inside[i] = barrier_row(kind, p, w, r[o] + r_own, axis[o], eps, gamma_ho, v_esc, Y[i], coef[i], live, a_ref,
-                                with_ref, is_nb[o])  # fmt: skip
+            p[k] = ob.c[k] - xv_b[0, k]
+            w[k] = ob.cd[k] - xv_b[1, k]
+            a_ref[k] = ob.cdd[k] + (own_ref[k] if ob.is_nb else static_ref[k])
+        inside[i] = barrier_row(par, p, w, ob.r + r_own, ob.axis, Y[i], coef[i], a_ref, with_ref, ob.is_nb)
         any_inside = any_inside or inside[i]
         co = coef[i]
         rel = 0.0
@@ -301,15 +325,15 @@ def rows_kernel(
             dp[k] = co[A_P] * Y[i, 0, k] + co[B_P] * Y[i, 1, k]
             dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k] + co[C_D] * Y[i, 2, k]
             rel += dp[k] * Y[i, 1, k]
-            own += dw[k] * (cdd[o, k] + Aa[k, m])
+            own += dw[k] * (ob.cdd[k] + Aa[k, m])
         row = k_in + i
         for j in range(m):
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
-        share = rho if is_nb[o] else 1.0
-        gain = max(gamma, co[RATE])
-        if is_nb[o] and live[0] != 0.0 and co[H] > 0.0:
-            gain *= far_gain(p, w, r[o] + r_own)
+        share = par.rho if ob.is_nb else 1.0
+        gain = max(par.gamma, co[RATE])
+        if ob.is_nb and live and co[H] > 0.0:
+            gain *= far_gain(p, w, ob.r + r_own)
         b[row] = own + share * (rel + gain * co[H])
     if with_ref:
         for row in range(k_in + n):
@@ -381,26 +405,47 @@ def assemble(
     u_ref: FloatArray | None = None,
     input_set: LinearInputSet | None = None,
     sel: IntArray | None = None,
-    live: FloatArray = PAPER,
+    live: bool = False,
+    live_lo_mps: float = LIVE_W_LO_MPS,
+    live_hi_mps: float = LIVE_W_HI_MPS,
 ) -> Rows:
     """Build every row at once: one per obstacle, or row i for obstacle ``sel[i]``.
     ``r_own_m`` [m] is added to each obstacle's radius for the full safety radius of its
     row (the agent's own bounding radius and margin).
     With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
     ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``).
-    ``live`` (:func:`swarm.barriers.live_settings`; default the paper's rows) makes the
-    C3BF rows live rows aimed at ``u_ref``."""
+    ``live`` makes the C3BF rows live rows aimed at ``u_ref`` (:mod:`swarm.barriers`;
+    default the paper's rows)."""
     m = own.Aa.shape[1] - 1
     if input_set is None:  # no bounds: residuals of the barrier rows only
         lb, ub = np.full(m, -np.inf), np.full(m, np.inf)
         C, d = np.zeros((0, m)), _NO_REF
     else:
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
+    params = row_params(
+        kind,
+        gamma=gamma,
+        rho=rho,
+        r_own_m=r_own_m,
+        eps=eps,
+        gamma_ho=gamma_ho,
+        escape_speed=escape_speed,
+        live=live,
+        w_lo_mps=live_lo_mps,
+        w_hi_mps=live_hi_mps,
+    )
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
-        kind.code, obstacles.c_w, obstacles.c_dot_w, obstacles.radius_m, r_own_m, obstacles.axis_w, obstacles.c_ddot_w,
-        obstacles.is_neighbour, np.arange(len(obstacles)) if sel is None else sel, rho, own.xv_b, own.Aa, gamma,
-        eps, gamma_ho, escape_speed, _NO_REF if u_ref is None else u_ref, lb, ub, C, d, live,
-    )  # fmt: skip
+        obstacles.rec,
+        np.arange(len(obstacles)) if sel is None else sel,
+        params,
+        own.xv_b,
+        own.Aa,
+        _NO_REF if u_ref is None else u_ref,
+        lb,
+        ub,
+        C,
+        d,
+    )
     return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside))
 
 

@@ -32,10 +32,13 @@ def items_to_arrays(items: list[dict]) -> ObstacleArrays:
         return ObstacleArrays.empty()
     n = len(items)
     return ObstacleArrays(
-        np.array([i["c"] for i in items], dtype=float), np.array([i["cd"] for i in items], dtype=float),
-        np.zeros((n, 3)), np.array([i["r"] for i in items], dtype=float),
-        np.array([i["a"] for i in items], dtype=float), np.zeros(n, dtype=bool),
-    )  # fmt: skip
+        np.array([i["c"] for i in items], dtype=float),
+        np.array([i["cd"] for i in items], dtype=float),
+        np.zeros((n, 3)),
+        np.array([i["r"] for i in items], dtype=float),
+        np.array([i["a"] for i in items], dtype=float),
+        np.zeros(n, dtype=bool),
+    )
 
 
 def surface_clearance(points_w: FloatArray, obs: ObstacleArrays) -> FloatArray:
@@ -94,13 +97,20 @@ def _scenario(name: str, starts: FloatArray, goals: FloatArray, s: SwapSettings,
         for i, (a, b) in enumerate(zip(starts, goals, strict=True))
     ]
     return {
-        "version": 1, "name": name, "seed": s.seed, "duration_s": duration, "goal_tolerance_m": 0.15,
+        "version": 1,
+        "name": name,
+        "seed": s.seed,
+        "duration_s": duration,
+        "goal_tolerance_m": 0.15,
         "time": {"mode": s.mode, "physics_hz": s.physics_hz, "control_hz": s.control_hz},
         "neighbours": {"source": s.neighbours},
-        "defaults": {"speed_mps": s.speed_mps, "command_level": "attitude",
-                     "filter": {"kind": "c3bf", "gamma": 1.0, "rho": 1.0, "sensing_radius_m": s.sensing_radius_m}},
+        "defaults": {
+            "speed_mps": s.speed_mps,
+            "command_level": "attitude",
+            "filter": {"kind": "c3bf", "gamma": 1.0, "rho": 1.0, "sensing_radius_m": s.sensing_radius_m},
+        },
         "agents": agents,
-    }  # fmt: skip
+    }
 
 
 def _turn(points: FloatArray, rotation_rad: float) -> FloatArray:
@@ -138,9 +148,12 @@ def sphere_swap(n: int, radius_m: float = 2.0, settings: SwapSettings | None = N
 
 
 def random_swap(
-    n: int, density_per_m2: float = 0.5, settings: SwapSettings | None = None, name: str | None = None,
+    n: int,
+    density_per_m2: float = 0.5,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
     min_spacing_m: float = 0.5,
-) -> dict:  # fmt: skip
+) -> dict:
     """``n`` agents with random starts and random goals (seeded) in a square at one
     altitude whose side makes ``n / side^2 = density_per_m2``; starts are at least
     ``min_spacing_m`` apart, and so are goals."""
@@ -167,10 +180,15 @@ def random_swap(
 
 
 def sphere_field(
-    n_spheres: int = 8, settings: SwapSettings | None = None, name: str | None = None, *,
-    length_m: float = 7.0, half_width_m: float = 1.0, radius_range_m: tuple[float, float] = (0.15, 0.3),
+    n_spheres: int = 8,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    length_m: float = 7.0,
+    half_width_m: float = 1.0,
+    radius_range_m: tuple[float, float] = (0.15, 0.3),
     clear_m: float = 0.8,
-) -> dict:  # fmt: skip
+) -> dict:
     """One drone at rest at (0, 0, altitude), its goal ``length_m`` ahead along x, and
     ``n_spheres`` static spheres (seeded radii in ``radius_range_m``) scattered in the box
     x in [1, length - 1], |y| <= half_width, |z - altitude| <= 0.5 m, none within
@@ -184,8 +202,13 @@ def sphere_field(
     for _ in range(1000 * max(n_spheres, 1)):
         if len(centres) == n_spheres:
             break
-        c = np.array([rng.uniform(1.0, length_m - 1.0), rng.uniform(-half_width_m, half_width_m),
-                      s.altitude_m + rng.uniform(-0.5, 0.5)])  # fmt: skip
+        c = np.array(
+            [
+                rng.uniform(1.0, length_m - 1.0),
+                rng.uniform(-half_width_m, half_width_m),
+                s.altitude_m + rng.uniform(-0.5, 0.5),
+            ]
+        )
         r = float(rng.uniform(*radius_range_m))
         if min(np.linalg.norm(c - start), np.linalg.norm(c - goal)) - r >= clear_m:
             centres.append(c)
@@ -199,9 +222,15 @@ def sphere_field(
 
 
 def formation(
-    n: int = 4, spacing_m: float = 0.5, settings: SwapSettings | None = None, name: str | None = None, *,
-    run_m: float = 3.0, spread_m: float = 1.5, start_speed_mps: float | None = None,
-) -> dict:  # fmt: skip
+    n: int = 4,
+    spacing_m: float = 0.5,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    run_m: float = 3.0,
+    spread_m: float = 1.5,
+    start_speed_mps: float | None = None,
+) -> dict:
     """``n`` drones side by side along y, ``spacing_m`` apart, all with the same velocity
     along x (``start_speed_mps``, default the target speed), then diverging goals:
     ``run_m`` ahead and fanned out ``spread_m`` per place from the middle, so every
@@ -218,12 +247,23 @@ def formation(
 
 
 def pillar_swap(
-    n: int = 8, radius_m: float = 2.0, pillar_radius_m: float = 0.3, settings: SwapSettings | None = None,
+    n: int = 8,
+    radius_m: float = 2.0,
+    pillar_radius_m: float = 0.3,
+    settings: SwapSettings | None = None,
     name: str | None = None,
-) -> dict:  # fmt: skip
+) -> dict:
     """:func:`circle_swap` around a vertical cylinder of ``pillar_radius_m`` at the centre."""
     raw = circle_swap(n, radius_m, settings, name or f"pillar_{n}")
     alt = (settings or SwapSettings()).altitude_m
-    raw["obstacles"] = [{"id": "pillar", "shape": "cylinder", "center": [0.0, 0.0, alt], "axis": [0.0, 0.0, 1.0],
-                         "radius_m": pillar_radius_m, "length_m": 4.0}]  # fmt: skip
+    raw["obstacles"] = [
+        {
+            "id": "pillar",
+            "shape": "cylinder",
+            "center": [0.0, 0.0, alt],
+            "axis": [0.0, 0.0, 1.0],
+            "radius_m": pillar_radius_m,
+            "length_m": 4.0,
+        }
+    ]
     return raw

@@ -91,8 +91,9 @@ def obstacle_entity(item: dict, t_s: float) -> fg.SceneEntity:
         cylinders.append(fg.CylinderPrimitive(pose=pose, size=size, bottom_scale=1.0, top_scale=1.0, color=_OBSTACLE))
     else:
         spheres.append(fg.SpherePrimitive(pose=_pose(item["c"]), size=fg.Vector3(x=d, y=d, z=d), color=_OBSTACLE))
-    return fg.SceneEntity(timestamp=stamp(t_s), frame_id=WORLD_FRAME, id=f"obstacle/{item['id']}",
-                          cylinders=cylinders, spheres=spheres)  # fmt: skip
+    return fg.SceneEntity(
+        timestamp=stamp(t_s), frame_id=WORLD_FRAME, id=f"obstacle/{item['id']}", cylinders=cylinders, spheres=spheres
+    )
 
 
 def drone_entity(drone_id: str, radius_m: float, t_s: float) -> fg.SceneEntity:
@@ -104,10 +105,17 @@ def drone_entity(drone_id: str, radius_m: float, t_s: float) -> fg.SceneEntity:
     ]
     d = 2.0 * radius_m
     bound = fg.SpherePrimitive(pose=_pose((0, 0, 0)), size=fg.Vector3(x=d, y=d, z=d), color=_BOUND)
-    label = fg.TextPrimitive(pose=_pose((0, 0, radius_m + 0.05)), billboard=True, font_size=14.0, scale_invariant=True,
-                             color=_DRONE, text=drone_id)  # fmt: skip
-    return fg.SceneEntity(timestamp=stamp(t_s), frame_id=drone_id, id=f"drone/{drone_id}", cubes=arms,
-                          spheres=[bound], texts=[label])  # fmt: skip
+    label = fg.TextPrimitive(
+        pose=_pose((0, 0, radius_m + 0.05)),
+        billboard=True,
+        font_size=14.0,
+        scale_invariant=True,
+        color=_DRONE,
+        text=drone_id,
+    )
+    return fg.SceneEntity(
+        timestamp=stamp(t_s), frame_id=drone_id, id=f"drone/{drone_id}", cubes=arms, spheres=[bound], texts=[label]
+    )
 
 
 class Scene:
@@ -145,9 +153,15 @@ class Scene:
                 trail.popleft()
             q = attitude.get(name)
             rot = _IDENTITY if q is None else _quat(q)
-            transforms.append(fg.FrameTransform(timestamp=stamp(t), parent_frame_id=WORLD_FRAME, child_frame_id=name,
-                                                translation=fg.Vector3(x=float(x[0]), y=float(x[1]), z=float(x[2])),
-                                                rotation=rot))  # fmt: skip
+            transforms.append(
+                fg.FrameTransform(
+                    timestamp=stamp(t),
+                    parent_frame_id=WORLD_FRAME,
+                    child_frame_id=name,
+                    translation=fg.Vector3(x=float(x[0]), y=float(x[1]), z=float(x[2])),
+                    rotation=rot,
+                )
+            )
         out: list[tuple[str, Any]] = [(TF_TOPIC, fg.FrameTransforms(transforms=transforms))]
         if t - self._last_scene_t >= self.scene_dt_s - 1e-9:
             self._last_scene_t = t
@@ -160,10 +174,17 @@ class Scene:
             entities.append(drone_entity(name, self._radius[name], t))
             pts = [pt for _, pt in self._trails[name]]
             if len(pts) >= 2:
-                line = fg.LinePrimitive(type=fg.LinePrimitiveLineType.LineStrip, pose=_pose((0, 0, 0)), thickness=2.0,
-                                        scale_invariant=True, points=pts, color=_TRAIL)  # fmt: skip
-                entities.append(fg.SceneEntity(timestamp=stamp(t), frame_id=WORLD_FRAME, id=f"trail/{name}",
-                                               lines=[line]))  # fmt: skip
+                line = fg.LinePrimitive(
+                    type=fg.LinePrimitiveLineType.LineStrip,
+                    pose=_pose((0, 0, 0)),
+                    thickness=2.0,
+                    scale_invariant=True,
+                    points=pts,
+                    color=_TRAIL,
+                )
+                entities.append(
+                    fg.SceneEntity(timestamp=stamp(t), frame_id=WORLD_FRAME, id=f"trail/{name}", lines=[line])
+                )
         return fg.SceneUpdate(entities=entities)
 
     def on_collision(self, rec: dict) -> list[tuple[str, Any]]:
@@ -177,10 +198,17 @@ class Scene:
         self.collisions += 1
         d = 0.12
         mark = fg.SpherePrimitive(pose=_pose(c), size=fg.Vector3(x=d, y=d, z=d), color=_CONTACT)
-        text = fg.TextPrimitive(pose=_pose(c + np.array([0.0, 0.0, 0.1])), billboard=True, font_size=14.0,
-                                scale_invariant=True, color=_CONTACT, text=f"{rec['a']} x {rec['b']}")  # fmt: skip
-        entity = fg.SceneEntity(timestamp=stamp(t), frame_id=WORLD_FRAME, id=f"collision/{self.collisions}",
-                                spheres=[mark], texts=[text])  # fmt: skip
+        text = fg.TextPrimitive(
+            pose=_pose(c + np.array([0.0, 0.0, 0.1])),
+            billboard=True,
+            font_size=14.0,
+            scale_invariant=True,
+            color=_CONTACT,
+            text=f"{rec['a']} x {rec['b']}",
+        )
+        entity = fg.SceneEntity(
+            timestamp=stamp(t), frame_id=WORLD_FRAME, id=f"collision/{self.collisions}", spheres=[mark], texts=[text]
+        )
         return [(SCENE_TOPIC, fg.SceneUpdate(entities=[entity]))]
 
     @staticmethod

@@ -97,9 +97,13 @@ class Keys:
 
 
 def session_config(
-    *, mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None,
-    gossip: bool = True, lowlatency: bool = False,
-) -> zenoh.Config:  # fmt: skip
+    *,
+    mode: str = "peer",
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+    gossip: bool = True,
+    lowlatency: bool = False,
+) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and explicit endpoints. Peers find each
     other through the endpoints they connect to (gossip), never by multicast; with
     ``gossip`` off they link only to the endpoints they connect to. ``lowlatency``: Zenoh's
@@ -171,9 +175,13 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
     identified = False
     if tls.enabled:
         files = tls.files(acc.secrets, acc.user)
-        for key, path in (("root_ca_certificate", files.root_ca), ("listen_certificate", files.certificate),
-                          ("listen_private_key", files.private_key), ("connect_certificate", files.certificate),
-                          ("connect_private_key", files.private_key)):  # fmt: skip
+        for key, path in (
+            ("root_ca_certificate", files.root_ca),
+            ("listen_certificate", files.certificate),
+            ("listen_private_key", files.private_key),
+            ("connect_certificate", files.certificate),
+            ("connect_private_key", files.private_key),
+        ):
             conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(path)))
         conf.insert_json5("transport/link/tls/enable_mtls", json.dumps(tls.mutual))
         conf.insert_json5("transport/link/tls/verify_name_on_connect", "true")
@@ -181,8 +189,9 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
     router = None
     if cfg.topology == "router":
         router = "router" if acc.user == access.ROUTER else "client"
-    rules = access.acl(acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified,
-                       router=router)  # fmt: skip
+    rules = access.acl(
+        acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified, router=router
+    )
     conf.insert_json5("access_control", json.dumps(rules))
 
 
@@ -226,8 +235,9 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
         # swarm run's own session, opened while the router it has just started comes up: Zenoh
         # retries the link for ROUTER_WAIT_S, then the open fails
         conf.insert_json5("connect/timeout_ms", json.dumps({"client": int(ROUTER_WAIT_S * 1000)}))
-        conf.insert_json5("connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 1000,
-                                                       "period_increase_factor": 2}))  # fmt: skip
+        conf.insert_json5(
+            "connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 1000, "period_increase_factor": 2})
+        )
         return conf
     if cfg.topology == "star":
         ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(HUBS))]

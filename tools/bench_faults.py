@@ -47,8 +47,19 @@ AGENTS = [
     {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
     {"id": "cf3", "start": [2.0, 2.0, 1.0], "goal": [2.0, -2.0, 1.0], "speed_mps": 0.5},
 ]
-ZERO = dict(level="attitude", u=np.zeros(4), intervention=0.0, status="ok", solve_us=0.0, row_ids=[],
-            h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
+ZERO = dict(
+    level="attitude",
+    u=np.zeros(4),
+    intervention=0.0,
+    status="ok",
+    solve_us=0.0,
+    row_ids=[],
+    h_rows=np.zeros(0),
+    min_h=0.0,
+    infeasible=0,
+    goal_reached=False,
+    dropped=0,
+)
 
 
 def _config(mode: str, **over: Any) -> ScenarioConfig:
@@ -66,18 +77,26 @@ def _log_time(path: Path, pattern: str, since: float, timeout_s: float = 10.0) -
     return None
 
 
-def _summary(case: str, cfg: ScenarioConfig, h: RunHandle, detected_s: float | None, outcome: str,
-             **extra: Any) -> dict[str, Any]:  # fmt: skip
+def _summary(
+    case: str, cfg: ScenarioConfig, h: RunHandle, detected_s: float | None, outcome: str, **extra: Any
+) -> dict[str, Any]:
     m = h.result
     return {
-        "case": case, "mode": cfg.time.mode.value,
-        "detected_ms": None if detected_s is None else round(detected_s * 1e3, 1), "outcome": outcome,
-        "stop_reason": m.get("stop_reason"), "complete": m.get("complete"), "collisions": m.get("collisions"),
-        "dead_agent_contacts": m.get("dead_agent_contacts"), "stalls": m.get("stalls"),
+        "case": case,
+        "mode": cfg.time.mode.value,
+        "detected_ms": None if detected_s is None else round(detected_s * 1e3, 1),
+        "outcome": outcome,
+        "stop_reason": m.get("stop_reason"),
+        "complete": m.get("complete"),
+        "collisions": m.get("collisions"),
+        "dead_agent_contacts": m.get("dead_agent_contacts"),
+        "stalls": m.get("stalls"),
         "lost_agents": m.get("lost_agents"),
-        "reached": sorted(a for a, v in m.get("agents", {}).items() if v["reached_goal"]), "sent": None,
-        "victim_unaffected": None, **extra,
-    }  # fmt: skip
+        "reached": sorted(a for a, v in m.get("agents", {}).items() if v["reached_goal"]),
+        "sent": None,
+        "victim_unaffected": None,
+        **extra,
+    }
 
 
 def _faulted(out: Path, mode: str, name: str, sig: signal.Signals) -> tuple[ScenarioConfig, RunHandle, float]:
@@ -167,8 +186,13 @@ def _attack(out: Path, mode: str, case: str, credentials_of: str | None) -> dict
     th.join(5.0)
     linked = len(list(session.info.peers_zid()))
     session.close()
-    res = _summary(case, cfg, h, None, f"zero-thrust commands for cf1's next tick; heard {heard} clocks; "
-                   f"linked to {linked} processes")  # fmt: skip
+    res = _summary(
+        case,
+        cfg,
+        h,
+        None,
+        f"zero-thrust commands for cf1's next tick; heard {heard} clocks; linked to {linked} processes",
+    )
     res["sent"] = sent
     victim = h.result["agents"]["cf1"]
     if mode == "lockstep":
@@ -197,14 +221,29 @@ def bad_config(out: Path, mode: str) -> dict[str, Any]:
     slowest, codes = 0.0, set()
     for _case, (path, _needle) in _write_bad_files(out).items():
         t0 = time.monotonic()
-        p = subprocess.run([sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out / "never")],
-                           capture_output=True, timeout=60, cwd=ROOT)  # fmt: skip
+        p = subprocess.run(
+            [sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out / "never")],
+            capture_output=True,
+            timeout=60,
+            cwd=ROOT,
+        )
         slowest = max(slowest, time.monotonic() - t0)
         codes.add(p.returncode)
-    return {"case": "bad_config", "mode": mode, "detected_ms": round(slowest * 1e3, 1),
-            "outcome": f"every one refused with exit {sorted(codes)}, nothing started", "stop_reason": None,
-            "complete": None, "collisions": None, "dead_agent_contacts": None, "stalls": None, "lost_agents": None,
-            "reached": None, "sent": None, "victim_unaffected": None}  # fmt: skip
+    return {
+        "case": "bad_config",
+        "mode": mode,
+        "detected_ms": round(slowest * 1e3, 1),
+        "outcome": f"every one refused with exit {sorted(codes)}, nothing started",
+        "stop_reason": None,
+        "complete": None,
+        "collisions": None,
+        "dead_agent_contacts": None,
+        "stalls": None,
+        "lost_agents": None,
+        "reached": None,
+        "sent": None,
+        "victim_unaffected": None,
+    }
 
 
 CASES: dict[str, Callable[[Path, str], dict[str, Any]]] = {
@@ -231,15 +270,24 @@ if __name__ == "__main__":
 
 def table(rows: list[dict[str, Any]]) -> str:
     """The markdown table of a run of this benchmark (docs/benchmarks.md quotes it)."""
-    out = ["| case | mode | detected [ms] | outcome | stop reason | complete | collisions | at their goal |",
-           "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    out = [
+        "| case | mode | detected [ms] | outcome | stop reason | complete | collisions | at their goal |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         reached = "-" if r["reached"] is None else (", ".join(r["reached"]) or "none")
         extra = ""
         if r.get("sent") is not None:
             extra = f"; {r['sent']} sent, victim unaffected: {'yes' if r['victim_unaffected'] else 'NO'}"
-        cells = [r["case"], r["mode"], "-" if r["detected_ms"] is None else f"{r['detected_ms']:.0f}",
-                 r["outcome"] + extra, r["stop_reason"] or "-", "-" if r["complete"] is None else str(r["complete"]),
-                 "-" if r["collisions"] is None else str(r["collisions"]), reached]  # fmt: skip
+        cells = [
+            r["case"],
+            r["mode"],
+            "-" if r["detected_ms"] is None else f"{r['detected_ms']:.0f}",
+            r["outcome"] + extra,
+            r["stop_reason"] or "-",
+            "-" if r["complete"] is None else str(r["complete"]),
+            "-" if r["collisions"] is None else str(r["collisions"]),
+            reached,
+        ]
         out.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
     return "\n".join(out)

@@ -31,16 +31,20 @@ def scenes(model: QuadModel, level: CommandLevel, rows: int, count: int, seed: i
     out = []
     for _ in range(count):
         s = QuadState(
-            np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]) + rng.normal(0, 0.2, 3),
-            euler_to_quat(*rng.normal(0, 0.1, 2), 0.0), rng.normal(0, 0.5, 3),
-        )  # fmt: skip
+            np.array([0.0, 0.0, 1.0]),
+            np.array([1.0, 0.0, 0.0]) + rng.normal(0, 0.2, 3),
+            euler_to_quat(*rng.normal(0, 0.1, 2), 0.0),
+            rng.normal(0, 0.5, 3),
+        )
         d = rng.uniform(0.6, 3.0, rows)
         direction = rng.normal(size=(rows, 3)) + np.array([1.5, 0, 0])
         direction /= np.linalg.norm(direction, axis=1, keepdims=True)
         obs = ObstacleArrays.build(
-            s.x_w + d[:, None] * direction, rng.uniform(0.05, 0.3, rows), rng.normal(0, 0.5, (rows, 3)),
+            s.x_w + d[:, None] * direction,
+            rng.uniform(0.05, 0.3, rows),
+            rng.normal(0, 0.5, (rows, 3)),
             axis_w=np.where(rng.random((rows, 1)) < 0.2, [0.0, 1.0, 0.0], 0.0),
-        )  # fmt: skip
+        )
         F = PathTracker([[0, 0, 1.0], [6, 0, 1.0]], 1.0).thrust_vector(model, s.x_w, s.v_w)
         u_ref = att.from_thrust_vector(s, F) if level is CommandLevel.ROTORS else F
         out.append((s, u_ref, obs))
@@ -65,10 +69,14 @@ def run(repeats: int, out) -> None:
                     qp_calls += bool(res.active.any())
                 us = np.array(times) * 1e6
                 line = {
-                    "rows": rows, "backend": backend, "level": level.value,
-                    "median_us": round(float(np.median(us)), 1), "p99_us": round(float(np.percentile(us, 99)), 1),
-                    "max_violation": worst, "active_fraction": round(qp_calls / repeats, 3),
-                }  # fmt: skip
+                    "rows": rows,
+                    "backend": backend,
+                    "level": level.value,
+                    "median_us": round(float(np.median(us)), 1),
+                    "p99_us": round(float(np.percentile(us, 99)), 1),
+                    "max_violation": worst,
+                    "active_fraction": round(qp_calls / repeats, 3),
+                }
                 print(json.dumps(line), file=out, flush=True)
 
 

@@ -60,31 +60,65 @@ def points(quick: bool, seeds: int) -> Iterator[Point]:
     few = (0,) if quick else tuple(range(seeds))
     for rho in (1.0, 0.5):
         for density, k in (("sparse", 5), ("medium", 10), ("dense", 20)):
-            yield Point("sphere_field", density, 1, rho, False,
-                        lambda s, k=k: sphere_field(k, SwapSettings(seed=s)), few)  # fmt: skip
+            yield Point(
+                "sphere_field", density, 1, rho, False, lambda s, k=k: sphere_field(k, SwapSettings(seed=s)), few
+            )
         for n in (2, 4, 8) if quick else (2, 4, 8, 16, 32):
-            yield Point("circle", f"circle_{n}", n, rho, True, lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0),
-                        (0,))  # fmt: skip
-            yield Point("circle", f"circle_{n}", n, rho, False,
-                        lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0,
-                                                   SwapSettings(perturb_m=PERTURB_M, seed=s)), few)  # fmt: skip
+            yield Point(
+                "circle", f"circle_{n}", n, rho, True, lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0), (0,)
+            )
+            yield Point(
+                "circle",
+                f"circle_{n}",
+                n,
+                rho,
+                False,
+                lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0, SwapSettings(perturb_m=PERTURB_M, seed=s)),
+                few,
+            )
         for n in (8,) if quick else (8, 12, 16, 32):
             for radius in (2.0, 1.5):
-                yield Point("sphere", f"sphere_{n}_r{radius:g}", n, rho, True,
-                            lambda s, n=n, radius=radius: sphere_swap(n, radius), (0,))  # fmt: skip
+                yield Point(
+                    "sphere",
+                    f"sphere_{n}_r{radius:g}",
+                    n,
+                    rho,
+                    True,
+                    lambda s, n=n, radius=radius: sphere_swap(n, radius),
+                    (0,),
+                )
         yield Point("formation", "formation_4", 4, rho, True, lambda s: formation(4), (0,))
         yield Point("pillar", "pillar_8", 8, rho, True, lambda s: pillar_swap(8), (0,))
-        yield Point("pillar", "pillar_8", 8, rho, False,
-                    lambda s: pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=s)), few)  # fmt: skip
+        yield Point(
+            "pillar",
+            "pillar_8",
+            8,
+            rho,
+            False,
+            lambda s: pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=s)),
+            few,
+        )
 
 
 def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
     agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
-                         physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m)  # fmt: skip
+    log = simulate_swarm(
+        QuadModel(),
+        agents,
+        obs,
+        cfg.duration_s,
+        control_hz=cfg.time.control_hz,
+        physics_hz=cfg.time.physics_hz,
+        goal_tolerance_m=cfg.goal_tolerance_m,
+    )
     o = outcome(cfg, log)
-    return {"success": o.success, "collisions": o.collisions, "deadlocks": o.deadlocked,
-            "infeasible": o.infeasible_ticks, "ratios": o.time_ratios}  # fmt: skip
+    return {
+        "success": o.success,
+        "collisions": o.collisions,
+        "deadlocks": o.deadlocked,
+        "infeasible": o.infeasible_ticks,
+        "ratios": o.time_ratios,
+    }
 
 
 def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
@@ -95,10 +129,18 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
             m = run_orca(cfg, Path(tmp))
         except ValueError:  # not planar
             return None
-    ratios = [a["time_to_goal_s"] / (a["straight_line_m"] / cfg.agents[i].speed_mps)
-              for i, a in enumerate(m["agents"].values()) if a["time_to_goal_s"] is not None]  # fmt: skip
-    return {"success": bool(m["all_reached_goal"]) and m["collisions"] == 0, "collisions": m["collisions"],
-            "deadlocks": len(m["deadlocked_agents"]), "infeasible": None, "ratios": ratios}  # fmt: skip
+    ratios = [
+        a["time_to_goal_s"] / (a["straight_line_m"] / cfg.agents[i].speed_mps)
+        for i, a in enumerate(m["agents"].values())
+        if a["time_to_goal_s"] is not None
+    ]
+    return {
+        "success": bool(m["all_reached_goal"]) and m["collisions"] == 0,
+        "collisions": m["collisions"],
+        "deadlocks": len(m["deadlocked_agents"]),
+        "infeasible": None,
+        "ratios": ratios,
+    }
 
 
 def _run(args: tuple[dict, bool]) -> tuple[dict[str, Any], dict[str, Any] | None]:

@@ -52,8 +52,9 @@ def local_hops(n: int, density: float, settings: SwapSettings, spacing_m: float 
 
 
 def bench_size(n: int, density: float, seconds: float, mode: str, interest: str, out: Path) -> dict:
-    settings = SwapSettings(control_hz=100.0, physics_hz=300.0, duration_s=seconds, mode=mode, neighbours="agents",
-                            seed=n)  # fmt: skip
+    settings = SwapSettings(
+        control_hz=100.0, physics_hz=300.0, duration_s=seconds, mode=mode, neighbours="agents", seed=n
+    )
     raw = local_hops(n, density, settings)
     raw["time"]["start_timeout_s"] = 60.0 + 3.0 * n  # every agent's warm-up, on two cores
     raw["limits"] = {"max_agents": max(n, 1)}

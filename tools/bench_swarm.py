@@ -45,19 +45,33 @@ def summaries(run_dir: Path) -> tuple[dict, list[dict]]:
 
 
 def bench_one(
-    n: int, mode: str, rate_hz: float, seconds: float, out: Path, source: str = "agents", topology: str = "auto",
-    access_control: bool = True, interest: str = "cells",
-) -> dict:  # fmt: skip
-    settings = SwapSettings(rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds,
-                            mode=mode, neighbours=source)  # fmt: skip
+    n: int,
+    mode: str,
+    rate_hz: float,
+    seconds: float,
+    out: Path,
+    source: str = "agents",
+    topology: str = "auto",
+    access_control: bool = True,
+    interest: str = "cells",
+) -> dict:
+    settings = SwapSettings(
+        rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds, mode=mode, neighbours=source
+    )
     raw = circle_swap(n, max(2.0, 0.35 * n), settings, name=f"bench_{n}_{mode}")
     return run_row(raw, n, mode, rate_hz, out / f"circle_{n}_{mode}_{source}", topology, access_control, interest)
 
 
 def run_row(
-    raw: dict, n: int, mode: str, rate_hz: float, out: Path, topology: str = "auto", access_control: bool = True,
+    raw: dict,
+    n: int,
+    mode: str,
+    rate_hz: float,
+    out: Path,
+    topology: str = "auto",
+    access_control: bool = True,
     interest: str = "cells",
-) -> dict:  # fmt: skip
+) -> dict:
     """Run the scenario ``raw`` to its end and return the benchmark's line."""
     raw["stop_when_all_reached"] = False
     raw["network"] = {"topology": topology, "access_control": access_control}
@@ -70,28 +84,37 @@ def run_row(
     metrics = json.loads((h.out / "metrics.json").read_text()) if (h.out / "metrics.json").exists() else {}
     wall = world["t_s"] / world["real_time_factor"] if world.get("real_time_factor") else float("nan")
     cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
-    per_tick = [((a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"], a.get("rx_bytes", 0) / a["ticks"])
-                for a in agents if a.get("ticks")]  # fmt: skip
+    per_tick = [
+        ((a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"], a.get("rx_bytes", 0) / a["ticks"])
+        for a in agents
+        if a.get("ticks")
+    ]
     us, rx = np.mean(per_tick, axis=0).tolist() if per_tick else (float("nan"), float("nan"))
     rec_path = h.out / "recorder.json"
     rec = json.loads(rec_path.read_text()) if rec_path.exists() else {}
     rec_us = ((rec["cpu_s"] - rec["startup_cpu_s"]) * 1e6 / rec["clocks"]) if rec.get("clocks") else float("nan")
     return {
-        "agents": n, "mode": mode, "rate_hz": rate_hz, "neighbour_source": source,
-        "topology": cfg.topology, "access_control": access_control,
+        "agents": n,
+        "mode": mode,
+        "rate_hz": rate_hz,
+        "neighbour_source": source,
+        "topology": cfg.topology,
+        "access_control": access_control,
         "interest": cfg.neighbours.interest if source == "agents" else None,
-        "cpu_us_per_agent_tick": round(us, 1), "rx_bytes_per_agent_tick": round(rx, 1),
+        "cpu_us_per_agent_tick": round(us, 1),
+        "rx_bytes_per_agent_tick": round(rx, 1),
         "missed_neighbours": sum(a.get("missed_neighbours", 0) for a in agents),
         "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
         "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
         "cpu_percent_per_agent": round(float(np.mean(cpu)), 1),
         "p99_tick_latency_ms": round(world["p99_tick_latency_ms"], 2) if world.get("p99_tick_latency_ms") else None,
-        "late_ticks": world.get("late"), "collisions": metrics.get("collisions"),
+        "late_ticks": world.get("late"),
+        "collisions": metrics.get("collisions"),
         "min_separation_m": metrics.get("min_separation_m"),
         "world_cpu_percent": round((world.get("cpu_s", 0) - world.get("startup_cpu_s", 0)) / wall * 100, 1),
         "recorder_cpu_us_per_tick": round(rec_us, 1),
         "stop_reason": reason,
-    }  # fmt: skip
+    }
 
 
 def main() -> None:
@@ -107,17 +130,34 @@ def main() -> None:
         choices=["cells", "all"],
         help="agents source: subscribe by cells or to every agent (NeighbourSettings.interest)",
     )
-    ap.add_argument("--topology", default="auto", choices=["auto", "mesh", "star", "router"],
-                    help="which processes link to which (see NetworkSettings.topology)")  # fmt: skip
-    ap.add_argument("--access-control", choices=["on", "off"], default="on",
-                    help="Zenoh authentication and access control (network.access_control)")  # fmt: skip
+    ap.add_argument(
+        "--topology",
+        default="auto",
+        choices=["auto", "mesh", "star", "router"],
+        help="which processes link to which (see NetworkSettings.topology)",
+    )
+    ap.add_argument(
+        "--access-control",
+        choices=["on", "off"],
+        default="on",
+        help="Zenoh authentication and access control (network.access_control)",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
     args = ap.parse_args()
     for n in (int(x) for x in args.agents.split(",")):
         for mode in args.modes.split(","):
             for source in args.sources.split(","):
-                row = bench_one(n, mode, args.rate, args.seconds, args.out, source, args.topology,
-                                args.access_control == "on", args.interest)  # fmt: skip
+                row = bench_one(
+                    n,
+                    mode,
+                    args.rate,
+                    args.seconds,
+                    args.out,
+                    source,
+                    args.topology,
+                    args.access_control == "on",
+                    args.interest,
+                )
                 print(json.dumps(row), flush=True)
 
 

@@ -54,10 +54,18 @@ def stamp(part: str, **settings: object) -> None:
     and the settings a part's data were made with."""
     git = ["git", "-C", str(ROOT)]
     commit = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
-    dirty = bool(subprocess.run([*git, "status", "--porcelain", "--", "swarm", "agents", "world", "tools"],
-                                capture_output=True, text=True).stdout.strip())  # fmt: skip
-    info = {"part": part, "commit": commit, "uncommitted_changes": dirty, "made": time.strftime("%Y-%m-%d %H:%M"),
-            **settings}  # fmt: skip
+    dirty = bool(
+        subprocess.run(
+            [*git, "status", "--porcelain", "--", "swarm", "agents", "world", "tools"], capture_output=True, text=True
+        ).stdout.strip()
+    )
+    info = {
+        "part": part,
+        "commit": commit,
+        "uncommitted_changes": dirty,
+        "made": time.strftime("%Y-%m-%d %H:%M"),
+        **settings,
+    }
     (DOCS / f"{part}.stamp.json").write_text(json.dumps(info, indent=2) + "\n")
 
 
@@ -121,12 +129,26 @@ def access_cost(out: Path, jobs: int) -> None:
     lines: list[str] = []
     for i, ac in enumerate(("on", "off", "off", "on")):
         args = ["--agents", "16", "--sources", "world", "--access-control", ac, "--out", str(out / f"access_{i}")]
-        p = subprocess.run([sys.executable, "-m", "tools.bench_swarm", *args], capture_output=True, text=True,
-                           cwd=ROOT, check=True)  # fmt: skip
+        p = subprocess.run(
+            [sys.executable, "-m", "tools.bench_swarm", *args], capture_output=True, text=True, cwd=ROOT, check=True
+        )
         lines += [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
     (DOCS / "bench_access.jsonl").write_text("".join(ln + "\n" for ln in lines))
-    stamp("access", command=["python", "-m", "tools.bench_swarm", "--agents", "16", "--sources", "world",
-                             "--access-control", "on|off"], order="on, off, off, on")  # fmt: skip
+    stamp(
+        "access",
+        command=[
+            "python",
+            "-m",
+            "tools.bench_swarm",
+            "--agents",
+            "16",
+            "--sources",
+            "world",
+            "--access-control",
+            "on|off",
+        ],
+        order="on, off, off, on",
+    )
 
 
 def paper(out: Path, jobs: int) -> None:
@@ -178,23 +200,33 @@ def _paper_table(path: Path) -> str:
     def num(v: object, fmt: str) -> str:
         return "-" if v is None else format(v, fmt)
 
-    head = ("| scenario | C3BF collisions | C3BF closest to an obstacle [m] | C3BF closest between agents [m] | "
-            "C3BF time to goal [s] | C3BF infeasible ticks | HO-CBF collisions | HO-CBF closest to an obstacle [m] | "
-            "HO-CBF closest between agents [m] | HO-CBF time to goal [s] | HO-CBF infeasible ticks |")  # fmt: skip
+    head = (
+        "| scenario | C3BF collisions | C3BF closest to an obstacle [m] | C3BF closest between agents [m] | "
+        "C3BF time to goal [s] | C3BF infeasible ticks | HO-CBF collisions | HO-CBF closest to an obstacle [m] | "
+        "HO-CBF closest between agents [m] | HO-CBF time to goal [s] | HO-CBF infeasible ticks |"
+    )
     out = [head, "|" + "---|" * 11]
     for name in sorted(data):
         cells = [name]
         for r in sorted(data[name], key=lambda r: r["filter"]):  # c3bf, hocbf
-            cells += [str(r["collisions"]), num(r["min_clearance_m"], ".3f"), num(r["min_separation_m"], ".3f"),
-                      num(r["max_time_to_goal_s"], ".2f"), num(r["infeasible_ticks"], "d")]  # fmt: skip
+            cells += [
+                str(r["collisions"]),
+                num(r["min_clearance_m"], ".3f"),
+                num(r["min_separation_m"], ".3f"),
+                num(r["max_time_to_goal_s"], ".2f"),
+                num(r["infeasible_ticks"], "d"),
+            ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 
 
 def _liveness_table(path: Path) -> str:
     """EXPERIMENTS.md section 4's table, one row per line of ``tools.bench_liveness``."""
-    out = ["| family | scene | rho | start | runs | success | collisions | deadlocks | infeasible ticks | "
-           "mean / worst time ratio | ORCA: success, deadlocks, mean ratio |", "|" + "---|" * 11]  # fmt: skip
+    out = [
+        "| family | scene | rho | start | runs | success | collisions | deadlocks | infeasible ticks | "
+        "mean / worst time ratio | ORCA: success, deadlocks, mean ratio |",
+        "|" + "---|" * 11,
+    ]
     for r in _jsonl(path):
         start = "random field" if r["family"] == "sphere_field" else ("exact" if r["exact"] else "perturbed")
         rho = f"{r['rho']:g}"
@@ -208,8 +240,19 @@ def _liveness_table(path: Path) -> str:
                 + ("-" if o["mean_time_ratio"] is None else f"{o['mean_time_ratio']:.2f}")
             )
         )
-        cells = [r["family"], r["scene"], rho, start, str(r["runs"]), f"{r['success_rate']:.2f}", str(r["collisions"]),
-                 str(r["deadlocks"]), str(r["infeasible_ticks"]), ratio, orca]  # fmt: skip
+        cells = [
+            r["family"],
+            r["scene"],
+            rho,
+            start,
+            str(r["runs"]),
+            f"{r['success_rate']:.2f}",
+            str(r["collisions"]),
+            str(r["deadlocks"]),
+            str(r["infeasible_ticks"]),
+            ratio,
+            orca,
+        ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 
@@ -225,14 +268,31 @@ def _sweep_table(path: Path) -> str:
     def num(v: str, fmt: str) -> str:
         return "-" if v in ("", "None") else format(float(v), fmt)
 
-    out = ["| " + " | ".join([*axes, "success", "collisions", "closest to the obstacle [m]", "time to goal [s]",
-                               "largest path deviation [m]", "infeasible ticks"]) + " |",
-           "|" + "---|" * (len(axes) + 6)]  # fmt: skip
+    out = [
+        "| "
+        + " | ".join(
+            [
+                *axes,
+                "success",
+                "collisions",
+                "closest to the obstacle [m]",
+                "time to goal [s]",
+                "largest path deviation [m]",
+                "infeasible ticks",
+            ]
+        )
+        + " |",
+        "|" + "---|" * (len(axes) + 6),
+    ]
     for r in rows:
         cells = [r[a] for a in axes] + [
-            "yes" if r["success"] == "1" else "no", r["collisions"], num(r["min_clearance_m"], ".3f"),
-            num(r["time_to_goal_s"], ".2f"), num(r["max_path_deviation_m"], ".2f"), r["infeasible_ticks"],
-        ]  # fmt: skip
+            "yes" if r["success"] == "1" else "no",
+            r["collisions"],
+            num(r["min_clearance_m"], ".3f"),
+            num(r["time_to_goal_s"], ".2f"),
+            num(r["max_path_deviation_m"], ".2f"),
+            r["infeasible_ticks"],
+        ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
 
@@ -242,13 +302,18 @@ def _filter_table(path: Path) -> str:
     lines = _jsonl(path)
     cols = [(b, lv) for b in ("daqp", "osqp") for lv in ("rotors", "attitude")]
     cell = {(r["rows"], r["backend"], r["level"]): r for r in lines}
-    out = ["| rows | " + " | ".join(f"{b} {lv}" for b, lv in cols) + " | largest violation of an OK command |",
-           "|" + "---|" * (len(cols) + 2)]  # fmt: skip
+    out = [
+        "| rows | " + " | ".join(f"{b} {lv}" for b, lv in cols) + " | largest violation of an OK command |",
+        "|" + "---|" * (len(cols) + 2),
+    ]
     for n in sorted({r["rows"] for r in lines}):
         got = [cell.get((n, b, lv)) for b, lv in cols]
         worst = max(r["max_violation"] for r in got if r)
-        out.append(f"| {n} | " + " | ".join("-" if r is None else f"{r['median_us']:.0f} / {r['p99_us']:.0f}"
-                                             for r in got) + f" | {worst:.1e} |")  # fmt: skip
+        out.append(
+            f"| {n} | "
+            + " | ".join("-" if r is None else f"{r['median_us']:.0f} / {r['p99_us']:.0f}" for r in got)
+            + f" | {worst:.1e} |"
+        )
     return "\n".join(out)
 
 
@@ -264,34 +329,83 @@ def _maybe(v: float | None, fmt: str) -> str:
 
 def _swarm_table(path: Path) -> str:
     """docs/benchmarks.md's swarm table, one row per line of ``tools.bench_swarm``."""
-    head = ["agents", "mode", "neighbours (topology)", "real-time factor", "on time", "CPU per agent (% of a core)",
-            "CPU per agent tick (us)", "received per agent tick (bytes)", "p99 tick latency (ms)",
-            "collisions"]  # fmt: skip
-    rows = [[str(r["agents"]), r["mode"], f"{r['neighbour_source']} ({r['topology']})", f"{r['real_time_factor']:.2f}",
-             _maybe(r["on_time_fraction"], ".4f"), f"{r['cpu_percent_per_agent']:.0f}",
-             _maybe(r.get("cpu_us_per_agent_tick"), ".0f"), _maybe(r.get("rx_bytes_per_agent_tick"), ".0f"),
-             _maybe(r["p99_tick_latency_ms"], ".1f"), str(r["collisions"])] for r in _jsonl(path)]  # fmt: skip
+    head = [
+        "agents",
+        "mode",
+        "neighbours (topology)",
+        "real-time factor",
+        "on time",
+        "CPU per agent (% of a core)",
+        "CPU per agent tick (us)",
+        "received per agent tick (bytes)",
+        "p99 tick latency (ms)",
+        "collisions",
+    ]
+    rows = [
+        [
+            str(r["agents"]),
+            r["mode"],
+            f"{r['neighbour_source']} ({r['topology']})",
+            f"{r['real_time_factor']:.2f}",
+            _maybe(r["on_time_fraction"], ".4f"),
+            f"{r['cpu_percent_per_agent']:.0f}",
+            _maybe(r.get("cpu_us_per_agent_tick"), ".0f"),
+            _maybe(r.get("rx_bytes_per_agent_tick"), ".0f"),
+            _maybe(r["p99_tick_latency_ms"], ".1f"),
+            str(r["collisions"]),
+        ]
+        for r in _jsonl(path)
+    ]
     return _table(head, rows)
 
 
 def _scaling_table(path: Path) -> str:
     """docs/benchmarks.md's scaling table: one row per swarm size and interest."""
-    head = ["agents", "interest", "CPU per agent tick (us)", "received per agent tick (bytes)", "real-time factor",
-            "missed neighbours", "collisions"]  # fmt: skip
-    rows = [[str(r["agents"]), r["interest"], f"{r['cpu_us_per_agent_tick']:.0f}",
-             f"{r['rx_bytes_per_agent_tick']:.0f}", f"{r['real_time_factor']:.3f}", str(r["missed_neighbours"]),
-             str(r["collisions"])]
-            for r in sorted(_jsonl(path), key=lambda r: (r["interest"], r["agents"]))]  # fmt: skip
+    head = [
+        "agents",
+        "interest",
+        "CPU per agent tick (us)",
+        "received per agent tick (bytes)",
+        "real-time factor",
+        "missed neighbours",
+        "collisions",
+    ]
+    rows = [
+        [
+            str(r["agents"]),
+            r["interest"],
+            f"{r['cpu_us_per_agent_tick']:.0f}",
+            f"{r['rx_bytes_per_agent_tick']:.0f}",
+            f"{r['real_time_factor']:.3f}",
+            str(r["missed_neighbours"]),
+            str(r["collisions"]),
+        ]
+        for r in sorted(_jsonl(path), key=lambda r: (r["interest"], r["agents"]))
+    ]
     return _table(head, rows)
 
 
 def _access_table(path: Path) -> str:
     """docs/benchmarks.md's access-control table: each run of the ABBA rounds, in order."""
-    head = ["access control", "mode", "real-time factor", "on time", "CPU per agent (% of a core)",
-            "p99 tick latency (ms)"]  # fmt: skip
-    rows = [["on" if r["access_control"] else "off", r["mode"], f"{r['real_time_factor']:.2f}",
-             _maybe(r["on_time_fraction"], ".4f"), f"{r['cpu_percent_per_agent']:.1f}",
-             f"{r['p99_tick_latency_ms']:.1f}"] for r in _jsonl(path)]  # fmt: skip
+    head = [
+        "access control",
+        "mode",
+        "real-time factor",
+        "on time",
+        "CPU per agent (% of a core)",
+        "p99 tick latency (ms)",
+    ]
+    rows = [
+        [
+            "on" if r["access_control"] else "off",
+            r["mode"],
+            f"{r['real_time_factor']:.2f}",
+            _maybe(r["on_time_fraction"], ".4f"),
+            f"{r['cpu_percent_per_agent']:.1f}",
+            f"{r['p99_tick_latency_ms']:.1f}",
+        ]
+        for r in _jsonl(path)
+    ]
     return _table(head, rows)
 
 
@@ -334,9 +448,16 @@ def documents(write: bool) -> list[str]:
 
 
 PARTS = {
-    "paper": paper, "sweeps": sweeps, "compare": compare_table, "liveness": liveness, "faults": faults,
-    "filter": filter_bench, "swarm": swarm_bench, "access": access_cost, "scaling": scaling,
-}  # fmt: skip
+    "paper": paper,
+    "sweeps": sweeps,
+    "compare": compare_table,
+    "liveness": liveness,
+    "faults": faults,
+    "filter": filter_bench,
+    "swarm": swarm_bench,
+    "access": access_cost,
+    "scaling": scaling,
+}
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -35,7 +35,13 @@ import numpy as np
 from swarm import transport as tp
 from swarm.cells import near_lists
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, onboard_rotor_thrusts
+from swarm.control import (
+    AttitudeController,
+    AttitudeSetpoint,
+    OnboardController,
+    OnboardGains,
+    onboard_rotor_thrusts,
+)
 from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
 from swarm.messages import encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
@@ -154,16 +160,28 @@ class World:
         self.firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
         for a in cfg.agents:
             model = QuadModel(a.quad_params())
-            self.sim.add_drone(a.id, model, np.asarray(a.start, float), a.yaw_rad, np.asarray(a.start_velocity, float),
-                               kinematic=a.id in self.real)  # fmt: skip
-            self.slots[a.id] = DroneSlot(model, a.command_level, OnboardController(model, a.yaw_rad),
-                                         AttitudeController(model), np.asarray(a.final_goal))  # fmt: skip
+            self.sim.add_drone(
+                a.id,
+                model,
+                np.asarray(a.start, float),
+                a.yaw_rad,
+                np.asarray(a.start_velocity, float),
+                kinematic=a.id in self.real,
+            )
+            self.slots[a.id] = DroneSlot(
+                model,
+                a.command_level,
+                OnboardController(model, a.yaw_rad),
+                AttitudeController(model),
+                np.asarray(a.final_goal),
+            )
         for o in cfg.obstacles:
             if o.shape == "sphere":
                 self.sim.add_sphere(o.id, np.asarray(o.center), o.radius_m, np.asarray(o.velocity))
             else:
-                self.sim.add_cylinder(o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m,
-                                      np.asarray(o.velocity))  # fmt: skip
+                self.sim.add_cylinder(
+                    o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m, np.asarray(o.velocity)
+                )
         self.names = list(self.slots)
         self.flown = [a for a in self.names if a not in self.real]  # simulated drones: PyBullet flies them
         self.index = {a: i for i, a in enumerate(self.names)}
@@ -179,7 +197,7 @@ class World:
         self.counter = tp.Counter()
         self.seq = 0
         self.others_alive: set[str] = set()
-        self.onboard_consts: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}  # drones -> stacked gains
+        self.onboard_gains: dict[tuple[str, ...], OnboardGains] = {}  # drones -> their stacked gains
         self.phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
         self.relay: MocapRelay | None = None
         self.running = threading.Event()  # the relay publishes only while the run is on
@@ -205,8 +223,15 @@ class World:
         if self.real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
             m = cfg.mocap
             bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in self.real}
-            self.relay = MocapRelay(connect(m.type, m.hostname, m.options), bodies, m.rate_hz, m.lost_after_s,
-                                    m.velocity_filter_s, self._on_frame, lambda aid: None).start()  # fmt: skip
+            self.relay = MocapRelay(
+                connect(m.type, m.hostname, m.options),
+                bodies,
+                m.rate_hz,
+                m.lost_after_s,
+                m.velocity_filter_s,
+                self._on_frame,
+                lambda aid: None,
+            ).start()
 
     def _on_frame(self, aid: str, est: BodyEstimate) -> None:
         """The relay's thread: a real drone's measurement, at the capture rate."""
@@ -214,8 +239,20 @@ class World:
             return
         t = time.monotonic() - self.wall0
         self._mocap_seq += 1
-        self.pubs[aid].put(encode("measurement", self.run_id, "world", self._mocap_seq, t, int(t / self.dt_ctrl),
-                                  x=est.x_w, v=est.v_w, q=est.q, w=est.Omega_b))  # fmt: skip
+        self.pubs[aid].put(
+            encode(
+                "measurement",
+                self.run_id,
+                "world",
+                self._mocap_seq,
+                t,
+                int(t / self.dt_ctrl),
+                x=est.x_w,
+                v=est.v_w,
+                q=est.q,
+                w=est.Omega_b,
+            )
+        )
 
     def _put(self, pub: Any, kind: str, t: float, k: int, **body: Any) -> None:
         self.seq += 1
@@ -229,8 +266,10 @@ class World:
                     slot.alive = True
                 elif slot.alive:
                     slot.alive, slot.dead = False, True
-                    print(f"world: agent {name} gone at wall {time.time():.4f}: {self.cfg.failure.on_agent_death}",
-                          file=sys.stderr)  # fmt: skip
+                    print(
+                        f"world: agent {name} gone at wall {time.time():.4f}: {self.cfg.failure.on_agent_death}",
+                        file=sys.stderr,
+                    )
             elif up:
                 self.others_alive.add(name)
             else:
@@ -353,22 +392,57 @@ class World:
                     slots[a].sent_at[k] = now
         if done or k % status_every == 0:
             wall = now - self.wall0
-            self._put(self.pub_status, "status", t, k, rtf=t / wall if wall > 0 else 0.0, min_sep=min(c.min_sep, 1e9),
-                      min_clear=min(c.min_clear, 1e9), collisions=c.collisions, late=c.late,
-                      dropped=self.counter.dropped, live=view.live, done=done,
-                      infeasible=sum(sl.infeasible for sl in slots.values()), stalls=c.stalls,
-                      dead=[a for a in names if slots[a].dead])  # fmt: skip
+            self._put(
+                self.pub_status,
+                "status",
+                t,
+                k,
+                rtf=t / wall if wall > 0 else 0.0,
+                min_sep=min(c.min_sep, 1e9),
+                min_clear=min(c.min_clear, 1e9),
+                collisions=c.collisions,
+                late=c.late,
+                dropped=self.counter.dropped,
+                live=view.live,
+                done=done,
+                infeasible=sum(sl.infeasible for sl in slots.values()),
+                stalls=c.stalls,
+                dead=[a for a in names if slots[a].dead],
+            )
         solo = [a for a in names if slots[a].solo or slots[a].dead or a in self.unfiltered]
-        self._put(self.pub_clock, "clock", t, k, live=view.live, done=done, ids=names, xvr=view.roster,
-                  meas_ids=view.measured, meas=view.meas, items=view.items, solo=solo)  # fmt: skip
+        self._put(
+            self.pub_clock,
+            "clock",
+            t,
+            k,
+            live=view.live,
+            done=done,
+            ids=names,
+            xvr=view.roster,
+            meas_ids=view.measured,
+            meas=view.meas,
+            items=view.items,
+            solo=solo,
+        )
         if self.cells:  # each agent's own tick: its measurement and the live agents near it
             expected = np.array([slots[a].alive and not slots[a].dead for a in names])
             near = near_lists(view.x_b, expected, self.near_m)
             ds = view.ds
             for aid in view.measured:
                 i = self.index[aid]
-                self._put(self.pub_tick[aid], "tick", t, k, x=ds.x_w[i], v=ds.v_w[i], q=ds.q[i], w=ds.Omega_b[i],
-                          near=[names[j] for j in near[i]], items=view.items, done=done)  # fmt: skip
+                self._put(
+                    self.pub_tick[aid],
+                    "tick",
+                    t,
+                    k,
+                    x=ds.x_w[i],
+                    v=ds.v_w[i],
+                    q=ds.q[i],
+                    w=ds.Omega_b[i],
+                    near=[names[j] for j in near[i]],
+                    items=view.items,
+                    done=done,
+                )
 
     def collect(self, k: int, t: float, live: list[str]) -> None:
         """Lockstep: wait until every live agent answered tick k, or the timeout passed
@@ -387,8 +461,9 @@ class World:
             now = time.monotonic()
             if not held and now - wait_from > stall_warn_s:
                 held = waiting
-                print(f"world: tick {k} (t = {t:.2f} s) has waited {now - wait_from:.2f} s for {waiting}",
-                      file=sys.stderr)  # fmt: skip
+                print(
+                    f"world: tick {k} (t = {t:.2f} s) has waited {now - wait_from:.2f} s for {waiting}", file=sys.stderr
+                )
             if now > wait_until:
                 c.late += len(waiting)
                 for a in waiting:
@@ -438,11 +513,13 @@ class World:
             return set()
         cfg, slots, t_s = self.cfg, self.slots, self.sim.t_s
         return {
-            a for a in self.names
-            if not slots[a].dead and slots[a].command is not None
+            a
+            for a in self.names
+            if not slots[a].dead
+            and slots[a].command is not None
             and (slots[a].level is CommandLevel.ROTORS or cfg.time.late_command == "brake")
             and t_s - slots[a].command_t_s > cfg.time.command_timeout_s
-        }  # fmt: skip
+        }
 
     def _rotor_thrusts(self, fs: Any, stale: set[str], first_substep: bool) -> np.ndarray:
         """Rotor thrusts [N] (len(flown), 4): the onboard controller for attitude commands
@@ -451,9 +528,12 @@ class World:
         slots, flown = self.slots, self.flown
         f_all = np.zeros((len(flown), 4))
         att = [
-            i for i, a in enumerate(flown) if (not slots[a].dead or self.firmware_death) and a not in stale
+            i
+            for i, a in enumerate(flown)
+            if (not slots[a].dead or self.firmware_death)
+            and a not in stale
             and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
-        ]  # fmt: skip
+        ]
         if att:
             f_all[att] = self._onboard_thrusts(fs, att)
         attitude = set(att)
@@ -478,17 +558,21 @@ class World:
         flying their setpoints as the firmware does (``_setpoint``), in one compiled call."""
         slots, dt_s = self.slots, self.sim.dt_s
         att_names = tuple(self.flown[i] for i in att)
-        consts = self.onboard_consts.get(att_names)
-        if consts is None:
-            consts = self.onboard_consts[att_names] = (
-                *(np.stack([slots[a].onboard.consts[c][0] for a in att_names]) for c in range(4)),
-                np.array([slots[a].onboard.consts[4][0] for a in att_names]),
-            )  # fmt: skip
+        gains = self.onboard_gains.get(att_names)
+        if gains is None:
+            gains = self.onboard_gains[att_names] = OnboardGains.stack([slots[a].onboard.gains for a in att_names])
         sp = np.array([_setpoint(slots[a], self.sim.t_s) for a in att_names])
         for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
             slots[a].yaw_sp_rad += yaw_rate * dt_s
-        return onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1],
-                                     np.array([slots[a].yaw_sp_rad for a in att_names]), sp[:, 3], *consts)  # fmt: skip
+        return onboard_rotor_thrusts(
+            fs.q[att],
+            fs.Omega_b[att],
+            sp[:, 0],
+            sp[:, 1],
+            np.array([slots[a].yaw_sp_rad for a in att_names]),
+            sp[:, 3],
+            *gains,
+        )
 
     def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
         """Count and publish the contacts that began in this substep."""
@@ -539,18 +623,25 @@ class World:
         lat = [x for s in slots for x in s.latencies_s]
         answered = sum(s.answered for s in slots)
         return {
-            "ticks": k, "t_s": k * self.dt_ctrl, "collisions": c.collisions, "dead_agent_contacts": c.dead_contacts,
-            "stalls": c.stalls, "late": c.late,
+            "ticks": k,
+            "t_s": k * self.dt_ctrl,
+            "collisions": c.collisions,
+            "dead_agent_contacts": c.dead_contacts,
+            "stalls": c.stalls,
+            "late": c.late,
             "on_time_fraction": sum(s.on_time for s in slots) / (answered + c.late) if answered + c.late else None,
             "p99_tick_latency_ms": float(np.percentile(lat, 99) * 1e3) if lat else None,
             "median_tick_latency_ms": float(np.median(lat) * 1e3) if lat else None,
-            "real_time_factor": k * self.dt_ctrl / (time.monotonic() - self.wall0), "cpu_s": time.process_time(),
+            "real_time_factor": k * self.dt_ctrl / (time.monotonic() - self.wall0),
+            "cpu_s": time.process_time(),
             "startup_cpu_s": startup_cpu_s,
-            "phase_wall_s": {n: round(v, 3) for n, v in self.phase.items()}, "dropped": self.counter.dropped,
+            "phase_wall_s": {n: round(v, 3) for n, v in self.phase.items()},
+            "dropped": self.counter.dropped,
             "braking_ticks": sum(s.braking_ticks for s in slots),
-            "mocap": None if relay is None else {"frames": relay.frames, "dropped_frames": relay.dropped_frames,
-                                                 "lost": sorted(relay.lost)},
-        }  # fmt: skip
+            "mocap": None
+            if relay is None
+            else {"frames": relay.frames, "dropped_frames": relay.dropped_frames, "lost": sorted(relay.lost)},
+        }
 
     def run(self, conf: Any, expect: tuple[str, ...] = ()) -> int:
         """Open, wait for everyone, fly every tick, land the real drones; 2 when the

@@ -102,13 +102,20 @@ class PhysicsWorld:
         capture every step (mass 0 to PyBullet: it pushes, is never pushed)."""
         p = model.params
         shape = pb.createCollisionShape(
-            pb.GEOM_CYLINDER, radius=p.body_radius_m, height=0.03, collisionFramePosition=[0, 0, p.l_m],
+            pb.GEOM_CYLINDER,
+            radius=p.body_radius_m,
+            height=0.03,
+            collisionFramePosition=[0, 0, p.l_m],
             physicsClientId=self.client,
-        )  # fmt: skip
+        )
         visual = pb.createVisualShape(
-            pb.GEOM_CYLINDER, radius=p.body_radius_m, length=0.03, visualFramePosition=[0, 0, p.l_m],
-            rgbaColor=[0.2, 0.4, 0.9, 1], physicsClientId=self.client,
-        )  # fmt: skip
+            pb.GEOM_CYLINDER,
+            radius=p.body_radius_m,
+            length=0.03,
+            visualFramePosition=[0, 0, p.l_m],
+            rgbaColor=[0.2, 0.4, 0.9, 1],
+            physicsClientId=self.client,
+        )
         q = pb.getQuaternionFromEuler([0, 0, yaw_rad])
         mass = 0.0 if kinematic else p.mass_kg
         uid = pb.createMultiBody(mass, shape, visual, list(start_w), q, physicsClientId=self.client)
@@ -116,9 +123,13 @@ class PhysicsWorld:
             self.kinematic.add(name)
         else:
             pb.changeDynamics(
-                uid, -1, localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2], linearDamping=0.0,
-                angularDamping=0.0, physicsClientId=self.client,
-            )  # fmt: skip
+                uid,
+                -1,
+                localInertiaDiagonal=[p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2],
+                linearDamping=0.0,
+                angularDamping=0.0,
+                physicsClientId=self.client,
+            )
         if velocity_w is not None and not kinematic:
             pb.resetBaseVelocity(uid, list(velocity_w), [0.0, 0.0, 0.0], physicsClientId=self.client)
         self._mixer[name] = model.B

@@ -97,9 +97,13 @@ class SitlDrone:
 
     @classmethod
     def start(
-        cls, name: str = "cf", port: int = 0, x_w: list[float] | None = None, yaw_deg: float = 0.0,
+        cls,
+        name: str = "cf",
+        port: int = 0,
+        x_w: list[float] | None = None,
+        yaw_deg: float = 0.0,
         firmware: str = "2026.04",
-    ) -> SitlDrone:  # fmt: skip
+    ) -> SitlDrone:
         """Bind 127.0.0.1:``port`` (0: a free one, see :attr:`uri`) and serve it."""
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.bind(("127.0.0.1", port))
@@ -230,9 +234,15 @@ class SitlDrone:
         """The supervisor's info bits (crtp_supervisor.c, cflib's Supervisor.STATES order)."""
         st = self.firmware.state.value
         tumbled = self.tilt_rad() > math.radians(60)
-        bits = {0: st == "ready" and not tumbled, 2: True,  # auto-armed, as the Crazyflie 2.x is
-                3: st in ("ready", "flying", "level_out", "landed"), 4: st in ("flying", "level_out"),
-                5: tumbled, 6: st == "locked", 7: st == "crashed"}  # fmt: skip
+        bits = {
+            0: st == "ready" and not tumbled,
+            2: True,  # auto-armed, as the Crazyflie 2.x is
+            3: st in ("ready", "flying", "level_out", "landed"),
+            4: st in ("flying", "level_out"),
+            5: tumbled,
+            6: st == "locked",
+            7: st == "crashed",
+        }
         return sum(1 << b for b, on in bits.items() if on)
 
     def handed_back(self, now: float) -> bool:
@@ -261,9 +271,13 @@ class SitlDrone:
                 math.sin(out.pitch_rad),
             )
             cy, sy = math.cos(self.yaw_sp_rad), math.sin(self.yaw_sp_rad)
-            R_des = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                              [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                              [-sp, cp * sr, cp * cr]])  # fmt: skip
+            R_des = np.array(
+                [
+                    [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                    [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                    [-sp, cp * sr, cp * cr],
+                ]
+            )
             f = self.att.rotor_thrusts(s, R_des, out.thrust_N)
         else:
             f = np.zeros(4)

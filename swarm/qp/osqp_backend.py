@@ -35,10 +35,18 @@ class OsqpBackend:
         A = sp.csc_matrix(A_pattern)
         self._solver = osqp.OSQP()
         self._solver.setup(
-            P, np.zeros(n), A, -np.full(n + max_rows, _INF), np.full(n + max_rows, _INF),
-            verbose=False, eps_abs=eps, eps_rel=eps, polishing=True, max_iter=max_iter,
+            P,
+            np.zeros(n),
+            A,
+            -np.full(n + max_rows, _INF),
+            np.full(n + max_rows, _INF),
+            verbose=False,
+            eps_abs=eps,
+            eps_rel=eps,
+            polishing=True,
+            max_iter=max_iter,
             polish_refine_iter=5,
-        )  # fmt: skip
+        )
         # CSC of A: column j holds the identity entry (row j), then rows n .. n+max_rows-1
         self._Ax = np.zeros((n, 1 + max_rows))
         self._Ax[:, 0] = 1.0

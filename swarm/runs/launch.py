@@ -119,9 +119,16 @@ class RunHandle:
 
     @classmethod
     def start(
-        cls, cfg: ScenarioConfig, out: Path, *, gui: bool = False, run_id: str | None = None,
-        cancelled: Callable[[], bool] = lambda: False, secrets: Path | None = None, live_port: int | None = None,
-    ) -> RunHandle:  # fmt: skip
+        cls,
+        cfg: ScenarioConfig,
+        out: Path,
+        *,
+        gui: bool = False,
+        run_id: str | None = None,
+        cancelled: Callable[[], bool] = lambda: False,
+        secrets: Path | None = None,
+        live_port: int | None = None,
+    ) -> RunHandle:
         """Start the recorder, the world and the first agent, wait for that agent's
         liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
         the other agents. An exception while starting stops what was started.
@@ -156,8 +163,11 @@ class RunHandle:
             h._start_sitl()
         live = ["--live", str(live_port)] if live_port is not None else []
         h._spawn("recorder", ["-m", "swarm.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
-        h._spawn("world", ["-m", "swarm.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
-                 cpus.get("world"))  # fmt: skip
+        h._spawn(
+            "world",
+            ["-m", "swarm.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
+            cpus.get("world"),
+        )
         try:
             for i, a in enumerate(cfg.agents):
                 if cancelled():  # stopped while the first agent came up: start no more
@@ -206,8 +216,9 @@ class RunHandle:
             host_port = a.crazyflie.uri.removeprefix("udp://")
             host, _, p = host_port.partition(":")
             if not a.crazyflie.uri.startswith("udp://") or host not in ("127.0.0.1", "localhost") or not p.isdigit():
-                raise ValueError(f"agent {a.id}: mocap sitl needs crazyflie.uri udp://127.0.0.1:PORT, "
-                                 f"got {a.crazyflie.uri}")  # fmt: skip
+                raise ValueError(
+                    f"agent {a.id}: mocap sitl needs crazyflie.uri udp://127.0.0.1:PORT, got {a.crazyflie.uri}"
+                )
             yaw = math.degrees(a.yaw_rad) + float(opts.get("yaw_offset_deg", "0"))
             args += ["--drone", f"{a.mocap_body},{p},{a.start[0]},{a.start[1]},0.0,{yaw}"]
             ports.append(int(p))
@@ -393,8 +404,12 @@ class RunHandle:
         try:
             return write_metrics(self.out, self.reason, exit_codes=codes)
         except Exception as exc:  # the config or the recorder's file unreadable: still say why the run stopped
-            m = {"complete": False, "stop_reason": self.reason, "exit_codes": codes,
-                 "error": f"could not compute metrics: {type(exc).__name__}: {exc}"}  # fmt: skip
+            m = {
+                "complete": False,
+                "stop_reason": self.reason,
+                "exit_codes": codes,
+                "error": f"could not compute metrics: {type(exc).__name__}: {exc}",
+            }
             print(m["error"], file=sys.stderr)
             (self.out / "metrics.json").write_text(json.dumps(m, indent=2))
             return m

@@ -71,9 +71,10 @@ class Sinks:
                 import foxglove
 
                 self._live[topic] = foxglove.Channel(
-                    topic, message_encoding=encoding, schema=foxglove.Schema(name=schema[0], encoding=schema[1],
-                                                                             data=schema[2])
-                )  # fmt: skip
+                    topic,
+                    message_encoding=encoding,
+                    schema=foxglove.Schema(name=schema[0], encoding=schema[1], data=schema[2]),
+                )
         return ch
 
     def write(self, ch: int, topic: str, data: bytes, log_ns: int, now_ns: int, seq: int = 0) -> None:
@@ -133,8 +134,9 @@ class Recorder:
         self.done = False  # the world's status said the run is over
         self.clocks = 0
         self.startup_cpu_s = 0.0  # CPU [s] spent before the first sample (imports, session)
-        self._fg = {t: (c.get_schema().name, c.get_schema().encoding, c.get_schema().data)
-                    for t, c in SCENE_SCHEMAS.items()}  # fmt: skip
+        self._fg = {
+            t: (c.get_schema().name, c.get_schema().encoding, c.get_schema().data) for t, c in SCENE_SCHEMAS.items()
+        }
         for topic, schema in self._fg.items():  # before any client connects: a live client that
             self.sinks.channel(topic, "protobuf", schema)  # subscribes at once to a channel
             # advertised while the server registers it is refused ("unknown channel")
@@ -152,13 +154,16 @@ class Recorder:
         known = self._by_key.get(key)
         if known is None:
             topic = "/" + key.removeprefix(self._prefix)  # /agent/cf1/command: the same in every run
-            known = self._by_key[key] = (self.sinks.channel(topic, "json", (f"c3swarm.{m.kind}", "jsonschema",
-                                                                            _schema_bytes(m.kind))), topic)  # fmt: skip
+            known = self._by_key[key] = (
+                self.sinks.channel(topic, "json", (f"c3swarm.{m.kind}", "jsonschema", _schema_bytes(m.kind))),
+                topic,
+            )
         ch, topic = known
         log_ns = int(m.t * 1e9)
         rec = record_of(m)
-        self.sinks.write(ch, topic, orjson.dumps(rec, option=orjson.OPT_SERIALIZE_NUMPY), log_ns, now_ns,
-                         m.seq & 0xFFFFFFFF)  # fmt: skip
+        self.sinks.write(
+            ch, topic, orjson.dumps(rec, option=orjson.OPT_SERIALIZE_NUMPY), log_ns, now_ns, m.seq & 0xFFFFFFFF
+        )
         self.count += 1
         self.sim_t = max(self.sim_t, m.t)
         if m.kind == "clock":

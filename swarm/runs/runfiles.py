@@ -112,7 +112,7 @@ def write_metrics(run_dir: Path, stop_reason: str | None = None, **extra: Any) -
             "bytes": rec.bytes_total,
             "bytes_unread": rec.bytes_unread,
             "recorded_until_s": rec.last_log_time_s,
-        }  # fmt: skip
+        }
     )
     metrics["stop_reason"] = stop_reason
     metrics.update(extra)

@@ -154,8 +154,17 @@ def generator_base(kind: str, **options: Any) -> Raw:
     [1/m^2] and ``seed`` as defaults for the knobs of the same names."""
     if kind not in GENERATORS:
         raise ConfigError(f"scenario kind {kind!r}: choose one of {', '.join(GENERATORS)}")
-    return {"_generate": {"kind": kind, "agents": 4, "radius": None, "perturb_m": 0.0, "density": 0.5, "seed": 0,
-                          **{k: v for k, v in options.items() if v is not None}}}  # fmt: skip
+    return {
+        "_generate": {
+            "kind": kind,
+            "agents": 4,
+            "radius": None,
+            "perturb_m": 0.0,
+            "density": 0.5,
+            "seed": 0,
+            **{k: v for k, v in options.items() if v is not None},
+        }
+    }
 
 
 def generate(gen: dict[str, Any]) -> Raw:

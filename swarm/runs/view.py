@@ -42,15 +42,29 @@ def _obstacles(items: list[dict]) -> None:
     spheres = [it for it in items if not any(it["a"])]
     cylinders = [it for it in items if any(it["a"])]
     if spheres:
-        rr.log("world/obstacles/spheres", rr.Ellipsoids3D(
-            centers=[it["c"] for it in spheres], half_sizes=[[it["r"]] * 3 for it in spheres],
-            colors=_OBSTACLE, fill_mode="solid", labels=[it["id"] for it in spheres]))  # fmt: skip
+        rr.log(
+            "world/obstacles/spheres",
+            rr.Ellipsoids3D(
+                centers=[it["c"] for it in spheres],
+                half_sizes=[[it["r"]] * 3 for it in spheres],
+                colors=_OBSTACLE,
+                fill_mode="solid",
+                labels=[it["id"] for it in spheres],
+            ),
+        )
     if cylinders:
-        rr.log("world/obstacles/cylinders", rr.Cylinders3D(
-            lengths=[CYLINDER_LENGTH_M] * len(cylinders), radii=[it["r"] for it in cylinders],
-            centers=[it["c"] for it in cylinders],
-            quaternions=[rr.Quaternion(xyzw=quat_z_to(it["a"])) for it in cylinders],
-            colors=_OBSTACLE, fill_mode="solid", labels=[it["id"] for it in cylinders]))  # fmt: skip
+        rr.log(
+            "world/obstacles/cylinders",
+            rr.Cylinders3D(
+                lengths=[CYLINDER_LENGTH_M] * len(cylinders),
+                radii=[it["r"] for it in cylinders],
+                centers=[it["c"] for it in cylinders],
+                quaternions=[rr.Quaternion(xyzw=quat_z_to(it["a"])) for it in cylinders],
+                colors=_OBSTACLE,
+                fill_mode="solid",
+                labels=[it["id"] for it in cylinders],
+            ),
+        )
 
 
 def write_rrd(run_dir: Path, out: Path | None = None) -> Path:
@@ -89,8 +103,7 @@ def write_rrd(run_dir: Path, out: Path | None = None) -> Path:
             last_t = t
             rr.set_time("sim_time", duration=t)
             rr.log("world/drones", rr.Points3D(xvr[:, :3], radii=xvr[:, 6], colors=_DRONE, labels=ids))
-            rr.log("world/trails", rr.LineStrips3D([[x for _, x in trails[n]] for n in ids], colors=_TRAIL,
-                                                   radii=0.01))  # fmt: skip
+            rr.log("world/trails", rr.LineStrips3D([[x for _, x in trails[n]] for n in ids], colors=_TRAIL, radii=0.01))
             items = r["items"]
             now_moving = any(any(it["cd"]) for it in items)
             if moving is None or now_moving:  # static obstacles once, moving ones at every frame
@@ -111,8 +124,21 @@ def main(run_dir: Path, port: int = 9090, browser: bool = True) -> int:
     data on ``port + 1``, both on 127.0.0.1) until interrupted."""
     rrd = write_rrd(run_dir)
     grpc_port = port + 1
-    cmd = [sys.executable, "-m", "rerun", str(rrd), "--web-viewer", "--bind", "127.0.0.1",
-           "--web-viewer-port", str(port), "--port", str(grpc_port), "--renderer", "webgl"]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "rerun",
+        str(rrd),
+        "--web-viewer",
+        "--bind",
+        "127.0.0.1",
+        "--web-viewer-port",
+        str(port),
+        "--port",
+        str(grpc_port),
+        "--renderer",
+        "webgl",
+    ]
     print(f"serving {rrd}: open {viewer_url(port, grpc_port)} (Ctrl-C stops)", flush=True)
     env = dict(os.environ)
     if not browser:

@@ -35,12 +35,22 @@ ROOT = Path(__file__).resolve().parents[2]
 def real_config(uri: str, port: int, **cf: object) -> ScenarioConfig:
     # timeouts generous enough that a busy 2-core CI machine never trips them by accident
     raw = {
-        "version": 1, "name": "cf_standin", "duration_s": 60.0,
+        "version": 1,
+        "name": "cf_standin",
+        "duration_s": 60.0,
         "time": {"mode": "realtime", "physics_hz": 200, "control_hz": 100},
-        "network": {"port": port, "topology": "mesh"}, "mocap": {"type": "mock"},  # the test plays the world
-        "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0],
-                    "crazyflie": {"uri": uri, "mocap_timeout_s": 0.5, "link_timeout_s": 1.0, **cf}}],
-    }  # fmt: skip
+        "network": {"port": port, "topology": "mesh"},
+        "mocap": {"type": "mock"},  # the test plays the world
+        "agents": [
+            {
+                "id": "cf1",
+                "backend": "crazyflie",
+                "start": [0.0, 0.0, 1.0],
+                "goal": [1.0, 0.0, 1.0],
+                "crazyflie": {"uri": uri, "mocap_timeout_s": 0.5, "link_timeout_s": 1.0, **cf},
+            }
+        ],
+    }
     return resolve(raw)
 
 
@@ -66,12 +76,39 @@ class FakeWorld:
         while not self._stop.is_set():
             t = k * 0.01
             seq += 2
-            self.pub_clock.put(encode("clock", self.run, "world", seq, t, k, live=["cf1"], done=False, ids=["cf1"],
-                                      xvr=[0, 0, 1.014, 0, 0, 0, 0.07], meas_ids=[], meas=[], items=[],
-                                      solo=[]))  # fmt: skip
+            self.pub_clock.put(
+                encode(
+                    "clock",
+                    self.run,
+                    "world",
+                    seq,
+                    t,
+                    k,
+                    live=["cf1"],
+                    done=False,
+                    ids=["cf1"],
+                    xvr=[0, 0, 1.014, 0, 0, 0, 0.07],
+                    meas_ids=[],
+                    meas=[],
+                    items=[],
+                    solo=[],
+                )
+            )
             if self.measuring.is_set():
-                self.pub_meas.put(encode("measurement", self.run, "world", seq + 1, t, k, x=[0.0, 0.0, 1.0],
-                                         v=[0.0, 0.0, 0.0], q=[0.0, 0.0, 0.0, 1.0], w=[0.0, 0.0, 0.0]))  # fmt: skip
+                self.pub_meas.put(
+                    encode(
+                        "measurement",
+                        self.run,
+                        "world",
+                        seq + 1,
+                        t,
+                        k,
+                        x=[0.0, 0.0, 1.0],
+                        v=[0.0, 0.0, 0.0],
+                        q=[0.0, 0.0, 0.0, 1.0],
+                        w=[0.0, 0.0, 0.0],
+                    )
+                )
             k += 1
             time.sleep(max(0.0, t0 + k * 0.01 - time.monotonic()))  # the 100 Hz capture clock
 
@@ -105,10 +142,26 @@ def rig(tmp_path):
         world = FakeWorld(cfg, run, secrets)
         log = open(tmp_path / f"agent{len(made)}.log", "wb")
         agent = subprocess.Popen(
-            [sys.executable, "-m", "swarm.cli", "agent", str(path), "--id", "cf1", "--run", run,
-             "--port", str(cfg.network.port), "--secrets", str(secrets)],
-            cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "swarm.cli",
+                "agent",
+                str(path),
+                "--id",
+                "cf1",
+                "--run",
+                run,
+                "--port",
+                str(cfg.network.port),
+                "--secrets",
+                str(secrets),
+            ],
+            cwd=ROOT,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         made.append((standin, world, agent, log))
         assert standin.wait_for("setpoints", 20, timeout_s=60.0), (tmp_path / f"agent{len(made) - 1}.log").read_text()
         return standin, world, agent, cfg
@@ -178,9 +231,10 @@ def test_mixed_swarm_with_mock_motion_capture(tmp_path):
         cfg = load(ROOT / "configs" / "mixed_mock.yaml", {"time": {"late_command": "brake"}})
         agents = [
             a.model_copy(update={"crazyflie": a.crazyflie.model_copy(update={"uri": stand[a.id].uri})})
-            if a.id in stand else a
+            if a.id in stand
+            else a
             for a in cfg.agents
-        ]  # fmt: skip
+        ]
         h = RunHandle.start(cfg.model_copy(update={"agents": agents}), tmp_path / "mixed")
         reason = h.wait()
         m = __import__("json").loads((h.out / "metrics.json").read_text())

@@ -65,8 +65,9 @@ def test_killed_recorder_leaves_incomplete_metrics_that_match_the_whole_run_so_f
     # a file cut in the middle of a record: swarm metrics recovers what is whole and says so
     data = (whole.out / "run.mcap").read_bytes()
     (whole.out / "run.mcap").write_bytes(data[: len(data) // 2 + 7])
-    p = subprocess.run([sys.executable, "-m", "swarm.cli", "metrics", str(whole.out)], capture_output=True, text=True,
-                       timeout=60)  # fmt: skip
+    p = subprocess.run(
+        [sys.executable, "-m", "swarm.cli", "metrics", str(whole.out)], capture_output=True, text=True, timeout=60
+    )
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     assert out["complete"] is False and out["recording"]["bytes_unread"] > 0, out["recording"]
@@ -88,8 +89,13 @@ def test_killed_world_ends_the_run_with_one_clear_line_and_metrics(start_run):
 
 
 def test_a_stopped_agent_in_lockstep_is_a_loud_stall_and_the_run_goes_on(start_run):
-    cfg = scenario("swap_2.yaml", name="stall", duration_s=6.0, agents=THREE,
-                   time={"lockstep_timeout_s": 5.0, "stall_warn_fraction": 0.1})  # fmt: skip
+    cfg = scenario(
+        "swap_2.yaml",
+        name="stall",
+        duration_s=6.0,
+        agents=THREE,
+        time={"lockstep_timeout_s": 5.0, "stall_warn_fraction": 0.1},
+    )
     h = start_run(cfg)
     h.wait_sim_time(1.0)
     h.kill("agent-cf3", signal.SIGSTOP)
@@ -154,11 +160,15 @@ def _kill_the_hoverer(start_run, name: str, on_lost: str) -> dict:
     firmware keeps its drone there until 2.5 s after (its watchdog: the last setpoint,
     then levelled out, motors off at 2 s)."""
     cfg = scenario(
-        "swap_2.yaml", name=name, duration_s=8.0,
-        agents=[{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
-                {"id": "hover", "start": [2.0, 0.0, 1.0], "goal": [2.0, 0.0, 1.0]}],
+        "swap_2.yaml",
+        name=name,
+        duration_s=8.0,
+        agents=[
+            {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+            {"id": "hover", "start": [2.0, 0.0, 1.0], "goal": [2.0, 0.0, 1.0]},
+        ],
         failure={"on_agent_death": "firmware", "on_lost": on_lost},
-    )  # fmt: skip
+    )
     h = start_run(cfg, name)
     h.wait_sim_time(1.0)
     h.kill("agent-hover", signal.SIGKILL)

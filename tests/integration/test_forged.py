@@ -30,8 +30,19 @@ from swarm.runs.launch import RunHandle
 
 from .conftest import scenario, wait_linked
 
-ZERO_THRUST = dict(level="attitude", u=np.array([0.0, 0.0, 0.0, 0.0]), intervention=0.0, status="ok", solve_us=0.0,
-                   row_ids=[], h_rows=np.zeros(0), min_h=0.0, infeasible=0, goal_reached=False, dropped=0)  # fmt: skip
+ZERO_THRUST = dict(
+    level="attitude",
+    u=np.array([0.0, 0.0, 0.0, 0.0]),
+    intervention=0.0,
+    status="ok",
+    solve_us=0.0,
+    row_ids=[],
+    h_rows=np.zeros(0),
+    min_h=0.0,
+    infeasible=0,
+    goal_reached=False,
+    dropped=0,
+)
 
 
 def test_forged_commands_are_dropped_and_the_victim_flies_on(start_run):
@@ -110,9 +121,10 @@ def test_another_agents_credentials_cannot_command_a_drone(start_run):
     # another path)
     m, attacker = _attacked(start_run, "open", False, None)
     assert attacker.sent > 50
-    assert not m["agents"]["cf1"]["reached_goal"] or m["agents"]["cf1"]["path_length_m"] != ref["agents"]["cf1"][
-        "path_length_m"
-    ]  # fmt: skip
+    assert (
+        not m["agents"]["cf1"]["reached_goal"]
+        or m["agents"]["cf1"]["path_length_m"] != ref["agents"]["cf1"]["path_length_m"]
+    )
 
 
 def _outsider(cfg, acc) -> zenoh.Session:
@@ -163,8 +175,12 @@ def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_
 def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_path):
     from swarm import access
 
-    cfg = scenario("swap_2.yaml", name="tls", network={"tls": {"enabled": True}},
-                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    cfg = scenario(
+        "swap_2.yaml",
+        name="tls",
+        network={"tls": {"enabled": True}},
+        time={"mode": "realtime", "late_command": "brake"},
+    )
     h = start_run(cfg, "tls")
     h.wait_sim_time(0.5)
     assert h.secrets is not None and (h.secrets / "ca.pem").exists()
@@ -199,8 +215,14 @@ def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]
     """A session with agent cf2's credentials publishes cf1's state and the world's clock
     (marked), and a probe under its own keys; an observer of the run counts the real cf1
     states, the forgeries and the probes it hears."""
-    cfg = scenario("swap_2.yaml", name=name, network={"tls": {"enabled": tls}}, duration_s=8.0,
-                   stop_when_all_reached=False, time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    cfg = scenario(
+        "swap_2.yaml",
+        name=name,
+        network={"tls": {"enabled": tls}},
+        duration_s=8.0,
+        stop_when_all_reached=False,
+        time={"mode": "realtime", "late_command": "brake"},
+    )
     h = start_run(cfg, name)
     h.wait_sim_time(0.3)
     forger = tp.open_session(tp.process_config(h.cfg, tp.Role.AGENT, h.access(tp.Role.AGENT, "cf2")))

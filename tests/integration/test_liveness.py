@@ -22,7 +22,10 @@ def sphere_field(seed: int = 3) -> dict:
     c = np.column_stack([rng.uniform(1, 6, 8), rng.uniform(-1, 1, 8), 1 + rng.uniform(-0.5, 0.5, 8)])
     r = rng.uniform(0.15, 0.3, 8)
     return {
-        "version": 1, "name": "sphere_field", "duration_s": 16.0, "goal_tolerance_m": 0.15,
+        "version": 1,
+        "name": "sphere_field",
+        "duration_s": 16.0,
+        "goal_tolerance_m": 0.15,
         "time": {"mode": "lockstep", "physics_hz": 300, "control_hz": 100},
         "defaults": {"speed_mps": 1.0, "command_level": "attitude"},
         "agents": [{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [7.0, 0.0, 1.0]}],
@@ -30,7 +33,7 @@ def sphere_field(seed: int = 3) -> dict:
             {"id": f"s{i}", "shape": "sphere", "center": [round(float(v), 4) for v in c[i]], "radius_m": float(r[i])}
             for i in range(8)
         ],
-    }  # fmt: skip
+    }
 
 
 SCENES = {

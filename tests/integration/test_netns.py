@@ -69,8 +69,20 @@ def lan() -> Iterator[dict[str, str]]:
         _ip("-n", ns["hub"], "addr", "add", f"{ROUTER_HOST}/24", "dev", "br0")
         _ip("-n", ns["hub"], "link", "set", "br0", "up")
         for i, host in enumerate(("a", "b"), start=2):
-            _ip("link", "add", f"c3{host}{tag}h", "netns", ns["hub"], "type", "veth", "peer", "name", "eth0",
-                "netns", ns[host])  # fmt: skip
+            _ip(
+                "link",
+                "add",
+                f"c3{host}{tag}h",
+                "netns",
+                ns["hub"],
+                "type",
+                "veth",
+                "peer",
+                "name",
+                "eth0",
+                "netns",
+                ns[host],
+            )
             _ip("-n", ns["hub"], "link", "set", f"c3{host}{tag}h", "master", "br0", "up")
             _ip("-n", ns[host], "addr", "add", f"{SUBNET}.{i}/24", "dev", "eth0")
             _ip("-n", ns[host], "link", "set", "eth0", "up")
@@ -96,9 +108,13 @@ class Hosts:
     def start(self, name: str, netns: str, *args: str) -> subprocess.Popen[bytes]:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         command = " ".join(["exec", sys.executable, "-m", "swarm.cli", *map(shlex.quote, args)])
-        p = subprocess.Popen(["ip", "netns", "exec", netns, "sh", "-c", f"readlink /proc/self/ns/net; {command}"],
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
-                             env=env)  # fmt: skip
+        p = subprocess.Popen(
+            ["ip", "netns", "exec", netns, "sh", "-c", f"readlink /proc/self/ns/net; {command}"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env=env,
+        )
         self.procs[name], self.lines[name] = p, []
         threading.Thread(target=self._read, args=(name, p), daemon=True).start()
         return p
@@ -155,14 +171,16 @@ class Hosts:
 
 
 def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_path):
-    cfg = scenario("swap_2.yaml", name="lan", network={"host": ROUTER_HOST, "port": PORT},
-                   time={"start_timeout_s": 120.0})  # fmt: skip
+    cfg = scenario(
+        "swap_2.yaml", name="lan", network={"host": ROUTER_HOST, "port": PORT}, time={"start_timeout_s": 120.0}
+    )
     assert cfg.topology == "router" and cfg.uses_cells and cfg.network.access_control
     path = tmp_path / "lan.yaml"
     path.write_text(dump(cfg))
     out, keys = tmp_path / "run", tmp_path / "secrets"
-    made = subprocess.run([sys.executable, "-m", "swarm.cli", "secrets", str(path), "--out", str(keys)],
-                          capture_output=True, text=True)  # fmt: skip
+    made = subprocess.run(
+        [sys.executable, "-m", "swarm.cli", "secrets", str(path), "--out", str(keys)], capture_output=True, text=True
+    )
     assert made.returncode == 0, made.stderr
     common = [str(path), "--run", "lan", "--secrets", str(keys)]
     hosts = Hosts(tmp_path / "logs")
@@ -204,11 +222,17 @@ def test_the_agents_really_are_on_other_hosts(lan, tmp_path):
     try:
         hosts.start("router", lan["hub"], "router", str(path), "--run", "lan")
         hosts.wait_line("router", "router: listening", 60.0)
-        probe = ("import socket, sys; s = socket.socket(); s.settimeout(2); "
-                 "print(s.connect_ex((sys.argv[1], int(sys.argv[2]))))")  # fmt: skip
+        probe = (
+            "import socket, sys; s = socket.socket(); s.settimeout(2); "
+            "print(s.connect_ex((sys.argv[1], int(sys.argv[2]))))"
+        )
         for host, want in ((ROUTER_HOST, "0"), ("127.0.0.1", "111")):  # connected; refused (nothing listens there)
-            got = subprocess.run(["ip", "netns", "exec", lan["a"], sys.executable, "-c", probe, host, str(PORT)],
-                                 capture_output=True, text=True, timeout=30)  # fmt: skip
+            got = subprocess.run(
+                ["ip", "netns", "exec", lan["a"], sys.executable, "-c", probe, host, str(PORT)],
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
             assert got.stdout.strip() == want, (host, got.stdout, got.stderr)
     finally:
         hosts.stop()

@@ -44,9 +44,14 @@ def _crossing(**over):
         y = -1.5 + i
         agents.append({"id": f"e{i}", "start": [0.0, y, 1.0], "goal": [9.0, y + 0.3, 1.0]})
         agents.append({"id": f"w{i}", "start": [9.0, y + 0.3, 1.2], "goal": [0.0, y, 1.2]})
-    return scenario("swap_2.yaml", name="crossing", duration_s=14.0, agents=agents,
-                    defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
-                    neighbours={"source": "agents", "cell_m": 1.0, **over})  # fmt: skip
+    return scenario(
+        "swap_2.yaml",
+        name="crossing",
+        duration_s=14.0,
+        agents=agents,
+        defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
+        neighbours={"source": "agents", "cell_m": 1.0, **over},
+    )
 
 
 def test_crossing_cell_borders_at_full_speed_misses_no_neighbour_and_flies_as_hearing_everyone(start_run):
@@ -92,8 +97,7 @@ def test_lockstep_circle_8_through_the_router_repeats_bit_for_bit(start_run):
 
 
 def test_realtime_circle_8_through_the_router_flies_without_collision(start_run):
-    cfg = scenario("circle_8.yaml", neighbours={"source": "agents"},
-                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    cfg = scenario("circle_8.yaml", neighbours={"source": "agents"}, time={"mode": "realtime", "late_command": "brake"})
     assert cfg.topology == "router"
     h, m, agents = _run(start_run, cfg, "realtime")
     assert m["collisions"] == 0 and m["all_reached_goal"], m
@@ -107,8 +111,13 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
     """A session with cf2's credentials publishes cf1's state in cf1's cell, a command for
     cf1, and the world's clock (all marked), and a probe under its own keys; another client
     counts what the router forwards."""
-    cfg = scenario("swap_2.yaml", name="routed", duration_s=8.0, stop_when_all_reached=False,
-                   time={"mode": "realtime", "late_command": "brake"})  # fmt: skip
+    cfg = scenario(
+        "swap_2.yaml",
+        name="routed",
+        duration_s=8.0,
+        stop_when_all_reached=False,
+        time={"mode": "realtime", "late_command": "brake"},
+    )
     assert cfg.topology == "router"
     h = start_run(cfg, "routed")
     h.wait_sim_time(0.3)
@@ -118,8 +127,12 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
     heard = tp.open_channel(observer, f"{keys.root}/**", 1 << 16)
     cell = cell_of([0.0, 0.0, 1.0], h.cfg.cell_m)
     fake = encode("state", h.run, "cf1", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
-    forgeries = {keys.cell_state(cell, "cf1"): fake, keys.command("cf1"): b"forged command",
-                 keys.clock: b"forged clock", keys.tick("cf1"): b"forged tick"}  # fmt: skip
+    forgeries = {
+        keys.cell_state(cell, "cf1"): fake,
+        keys.command("cf1"): b"forged command",
+        keys.clock: b"forged clock",
+        keys.tick("cf1"): b"forged tick",
+    }
     probe = keys.cell_state(cell, "cf2")
     wait_linked(h, forger, heard, probe, "the router")  # (its probes under its own keys arrive)
     for _ in range(20):

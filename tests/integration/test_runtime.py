@@ -153,10 +153,22 @@ def test_garbage_on_every_topic_is_dropped_and_counted(start_run, source):
         msgpack.packb([1, 2, 3]),
         encode("state", "another-run", "cf9", 1, 0.0, 0, x=[0, 0, 0], v=[0, 0, 0], r=0.1),
         msgpack.packb({"ver": 99, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 0}),
-        msgpack.packb({"ver": VERSION, "kind": "command", "run": h.run, "src": "cf1", "seq": 1, "t": 0.0, "k": 5,
-                       "level": "attitude", "u": np.array([0.0, np.nan, 0.0, 0.3]).tobytes(), "intervention": 0.0,
-                       "status": "ok"}),
-    ]  # fmt: skip
+        msgpack.packb(
+            {
+                "ver": VERSION,
+                "kind": "command",
+                "run": h.run,
+                "src": "cf1",
+                "seq": 1,
+                "t": 0.0,
+                "k": 5,
+                "level": "attitude",
+                "u": np.array([0.0, np.nan, 0.0, 0.3]).tobytes(),
+                "intervention": 0.0,
+                "status": "ok",
+            }
+        ),
+    ]
     pubs = [h.session.declare_publisher(k) for k in keys]
     sent = 0
     h.wait_sim_time(0.0)  # the world is ticking and its messages reach us
@@ -185,8 +197,10 @@ def test_a_malformed_config_fails_before_anything_starts(tmp_path):
     t0 = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-m", "swarm.cli", "run", str(bad), "--out", str(out), "--no-progress"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2
     assert str(bad) in proc.stderr and "agents.1.start" in proc.stderr
     assert not out.exists()  # nothing was started or written
@@ -215,14 +229,29 @@ def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig
     cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
     secrets = ensure_secrets(cfg, tmp_path / "secrets")  # the run's credentials, so that this test may listen
-    session = tp.open_session(tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER,
-                                                                                   secrets)))  # fmt: skip
+    session = tp.open_session(
+        tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
+    )
     status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
-         "--no-progress", "--run-id", run_id, "--secrets", str(secrets)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "swarm.cli",
+            "run",
+            str(tmp_path / "circle_8.yaml"),
+            "--out",
+            str(out),
+            "--no-progress",
+            "--run-id",
+            run_id,
+            "--secrets",
+            str(secrets),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking
         assert first is not None
@@ -321,8 +350,21 @@ def test_paper_scenarios_show_their_behaviour_without_collision(start_run, name)
 
 def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
     out = tmp_path / "sweep"
-    cmd = [sys.executable, "-m", "swarm.cli", "sweep", str(CONFIGS / "sweeps/head_on.yaml"),
-           "--axis", "filter=c3bf,hocbf", "--axis", "obstacle_speed=1", "--jobs", "2", "--out", str(out)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "swarm.cli",
+        "sweep",
+        str(CONFIGS / "sweeps/head_on.yaml"),
+        "--axis",
+        "filter=c3bf,hocbf",
+        "--axis",
+        "obstacle_speed=1",
+        "--jobs",
+        "2",
+        "--out",
+        str(out),
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     with (out / "results.csv").open() as f:

@@ -22,8 +22,10 @@ REAL = ("real1", "real2")
 
 def _track(run_dir, agent: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t [s], x (T, 3) [m], yaw (T,) [rad]) of an agent's measurements, in time order."""
-    recs = sorted((r for r in read_records(run_dir / "run.mcap") if r["kind"] == "measurement"
-                   and measurement_agent(r) == agent), key=lambda r: r["t"])  # fmt: skip
+    recs = sorted(
+        (r for r in read_records(run_dir / "run.mcap") if r["kind"] == "measurement" and measurement_agent(r) == agent),
+        key=lambda r: r["t"],
+    )
     yaw = [R_to_euler(quat_to_R(np.asarray(r["q"])))[2] for r in recs]
     return np.array([r["t"] for r in recs]), np.array([r["x"] for r in recs]), np.array(yaw)
 
@@ -65,8 +67,13 @@ def test_sitl_drones_take_off_hold_height_and_yaw_let_the_others_pass_and_land(s
 
 
 def test_an_agent_killed_mid_flight_meets_the_firmware_watchdog(start_run):
-    cfg = scenario("mixed_sitl.yaml", duration_s=12.0, stop_when_all_reached=False, time={"late_command": "brake"},
-                   agent_types={"real": {"crazyflie": {"on_agent_loss": "watchdog"}}})  # fmt: skip
+    cfg = scenario(
+        "mixed_sitl.yaml",
+        duration_s=12.0,
+        stop_when_all_reached=False,
+        time={"late_command": "brake"},
+        agent_types={"real": {"crazyflie": {"on_agent_loss": "watchdog"}}},
+    )
     h = start_run(cfg, "kill")
     h.wait_sim_time(5.0)  # the real drones are up and holding
     killed = time.monotonic()
@@ -99,13 +106,16 @@ def test_a_simulated_drone_whose_agent_dies_meets_the_firmware_watchdog(start_ru
     would with no setpoints: the last setpoint, level from 500 ms with its thrust, motors off
     from 2 s (supervisor.c); then it falls."""
     cfg = scenario(
-        "swap_2.yaml", name="fw_death", duration_s=8.0, stop_when_all_reached=False,
+        "swap_2.yaml",
+        name="fw_death",
+        duration_s=8.0,
+        stop_when_all_reached=False,
         failure={"on_agent_death": "firmware"},
         agents=[
             {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
             {"id": "cf3", "start": [2.0, 3.0, 1.5], "goal": [2.0, 2.0, 1.5], "speed_mps": 0.3},
         ],
-    )  # fmt: skip
+    )
     h = start_run(cfg, "fw")
     h.wait_sim_time(1.0)
     h.kill("agent-cf3", signal.SIGKILL)

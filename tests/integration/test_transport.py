@@ -119,7 +119,7 @@ def test_a_star_of_three_hubs_and_sixteen_agents_links_completely(tmp_path):
             stdout=subprocess.PIPE,
             text=True,
             start_new_session=True,
-        )  # fmt: skip
+        )
         for name, role, need in peers
     ]
     try:

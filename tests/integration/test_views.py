@@ -134,10 +134,25 @@ async def _receive(ws, want: set[str], got: dict[str, list[bytes]], schemas: dic
 def test_the_live_server_serves_the_scene_while_the_run_goes(tmp_path: Path) -> None:
     port = free_port("127.0.0.1")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(CONFIGS / "swap_2.yaml"), "--out", str(tmp_path / "live"),
-         "--no-progress", "--live", str(port), "--mode", "realtime"],  # realtime: seconds of flight to watch
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "swarm.cli",
+            "run",
+            str(CONFIGS / "swap_2.yaml"),
+            "--out",
+            str(tmp_path / "live"),
+            "--no-progress",
+            "--live",
+            str(port),
+            "--mode",
+            "realtime",
+        ],  # realtime: seconds of flight to watch
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         got = asyncio.run(_live_messages(port, proc, {"/scene", "/tf"}))
     finally:
@@ -149,14 +164,16 @@ def test_the_live_server_serves_the_scene_while_the_run_goes(tmp_path: Path) -> 
     assert proc.returncode == 0, out[-2000:]
     name, data, encoding = got["_schemas"]["/scene"]
     assert name == "foxglove.SceneUpdate" and encoding == "protobuf"
-    decoder = DecoderFactory().decoder_for("protobuf", Schema(id=1, name=name, encoding=encoding,
-                                                              data=base64.b64decode(data)))  # fmt: skip
+    decoder = DecoderFactory().decoder_for(
+        "protobuf", Schema(id=1, name=name, encoding=encoding, data=base64.b64decode(data))
+    )
     ids = {e.id for payload in got["/scene"] for e in decoder(payload).entities}
     assert {"drone/cf1", "drone/cf2"} <= ids
     tf_name, tf_data, _ = got["_schemas"]["/tf"]
     assert tf_name == "foxglove.FrameTransforms"
-    tf = DecoderFactory().decoder_for("protobuf", Schema(id=2, name=tf_name, encoding="protobuf",
-                                                         data=base64.b64decode(tf_data)))  # fmt: skip
+    tf = DecoderFactory().decoder_for(
+        "protobuf", Schema(id=2, name=tf_name, encoding="protobuf", data=base64.b64decode(tf_data))
+    )
     assert {t.child_frame_id for t in tf(got["/tf"][0]).transforms} == {"cf1", "cf2"}
 
 
@@ -210,9 +227,14 @@ def test_swarm_view_shows_the_run_in_headless_chromium(crash_run: Path, tmp_path
             pytest.fail("chromium is missing: .ci/run should have installed it")
         pytest.skip("needs Debian's chromium (apt-get install chromium; .ci/run installs it)")
     port, debug_port = free_port("127.0.0.1"), free_port("127.0.0.1")
-    view = subprocess.Popen([sys.executable, "-m", "swarm.cli", "view", str(crash_run), "--port", str(port),
-                             "--no-browser"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)  # fmt: skip
+    view = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "view", str(crash_run), "--port", str(port), "--no-browser"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     browser = None
     try:
         first = view.stdout.readline()  # "serving ...: open URL (Ctrl-C stops)", once the recording is written
@@ -228,10 +250,21 @@ def test_swarm_view_shows_the_run_in_headless_chromium(crash_run: Path, tmp_path
             raise AssertionError(f"the web viewer never started: {''.join(seen)[-2000:]}")
         profile = tempfile.mkdtemp(dir=tmp_path)
         browser = subprocess.Popen(
-            [CHROMIUM, "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-             "--window-size=1280,800", f"--remote-debugging-port={debug_port}", f"--user-data-dir={profile}", url],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-        )  # fmt: skip
+            [
+                CHROMIUM,
+                "--headless=new",
+                "--no-sandbox",
+                "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader",
+                "--window-size=1280,800",
+                f"--remote-debugging-port={debug_port}",
+                f"--user-data-dir={profile}",
+                url,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
         png = asyncio.run(_screenshot_when_drawn(debug_port, tmp_path / "view.png", browser))
     finally:
         for p in (browser, view):
@@ -239,6 +272,10 @@ def test_swarm_view_shows_the_run_in_headless_chromium(crash_run: Path, tmp_path
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    colours = Counter(map(tuple, np.asarray(__import__("PIL.Image").Image.open(io.BytesIO(png)).convert("RGB"))
-                          .reshape(-1, 3).tolist()))  # fmt: skip
+    colours = Counter(
+        map(
+            tuple,
+            np.asarray(__import__("PIL.Image").Image.open(io.BytesIO(png)).convert("RGB")).reshape(-1, 3).tolist(),
+        )
+    )
     assert len(colours) > 50  # not a blank or an error page

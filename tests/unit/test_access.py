@@ -43,8 +43,11 @@ def _may_publish(rules: dict, user: str, key: str, identified: bool) -> bool:
                 continue
             for rid in pol["rules"]:
                 r = by_id[rid]
-                if "ingress" in r["flows"] and "put" in r["messages"] and any(fnmatch(key, k.replace("**", "*"))
-                                                                               for k in r["key_exprs"]):  # fmt: skip
+                if (
+                    "ingress" in r["flows"]
+                    and "put" in r["messages"]
+                    and any(fnmatch(key, k.replace("**", "*")) for k in r["key_exprs"])
+                ):
                     return True
     return False
 

@@ -116,8 +116,15 @@ def test_hocbf_h_is_its_formula_with_its_gain(p, w, r, a, gamma_ho):
 
 
 @settings(max_examples=300, deadline=None)
-@given(p=vec, w=vec, r=st.floats(0.2, 1.0), a=unit_or_zero, kind=st.sampled_from(list(BarrierKind)),
-       depth=st.floats(0.1, 0.9), v_esc=st.floats(0.1, 1.0))  # fmt: skip
+@given(
+    p=vec,
+    w=vec,
+    r=st.floats(0.2, 1.0),
+    a=unit_or_zero,
+    kind=st.sampled_from(list(BarrierKind)),
+    depth=st.floats(0.1, 0.9),
+    v_esc=st.floats(0.1, 1.0),
+)
 def test_escape_row_inside_the_radius_is_its_formula_and_its_gradients(p, w, r, a, kind, depth, v_esc):
     """Inside the safety radius every barrier kind holds the escape barrier
     h = <Pp, Pw>/|Pp| - v_esc (separate at v_esc), with gradients by finite differences."""

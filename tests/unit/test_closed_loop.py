@@ -21,9 +21,14 @@ def fly(level, obstacles, duration=10.0, start=(0, 0, 1.0), goal=(5, 0, 1.0), fi
     s0 = QuadState.hover(start)
     s0.v_w = np.array([1.0, 0, 0])  # already cruising at 1 m/s toward the goal
     return simulate(
-        MODEL, FilterConfig(level=level, **cfg), PathTracker([start, goal], 1.0), obstacles, s0, duration,
+        MODEL,
+        FilterConfig(level=level, **cfg),
+        PathTracker([start, goal], 1.0),
+        obstacles,
+        s0,
+        duration,
         filter_on=filter_on,
-    )  # fmt: skip
+    )
 
 
 @pytest.mark.parametrize("level", list(CommandLevel))

@@ -20,13 +20,19 @@ def test_shipped_configs_validate_and_round_trip(name, tmp_path):
 
 
 def test_layers_defaults_then_type_then_agent():
-    cfg = resolve({
-        "version": 1, "name": "t", "duration_s": 1.0,
-        "defaults": {"speed_mps": 0.5, "filter": {"gamma": 2.0, "rho": 0.5}},
-        "agent_types": {"fast": {"speed_mps": 2.0, "filter": {"gamma": 3.0}}},
-        "agents": [{"id": "a", "start": [0, 0, 1], "type": "fast", "filter": {"rho": 1.0}},
-                   {"id": "b", "start": [1, 0, 1]}],
-    })  # fmt: skip
+    cfg = resolve(
+        {
+            "version": 1,
+            "name": "t",
+            "duration_s": 1.0,
+            "defaults": {"speed_mps": 0.5, "filter": {"gamma": 2.0, "rho": 0.5}},
+            "agent_types": {"fast": {"speed_mps": 2.0, "filter": {"gamma": 3.0}}},
+            "agents": [
+                {"id": "a", "start": [0, 0, 1], "type": "fast", "filter": {"rho": 1.0}},
+                {"id": "b", "start": [1, 0, 1]},
+            ],
+        }
+    )
     a, b = cfg.agents
     assert (a.speed_mps, a.filter.gamma, a.filter.rho) == (2.0, 3.0, 1.0)
     assert (b.speed_mps, b.filter.gamma, b.filter.rho) == (0.5, 2.0, 0.5)

@@ -98,8 +98,15 @@ def test_impossible_config_is_a_config_error_naming_the_field(case: str) -> None
 
 def _write_bad_files(folder: Path) -> dict[str, tuple[Path, str]]:
     files = {}
-    for case in ("start_inside_obstacle", "same_start", "duration_true", "duration_huge", "too_many_agents",
-                 "start_underground", "goal_inside_obstacle"):  # fmt: skip
+    for case in (
+        "start_inside_obstacle",
+        "same_start",
+        "duration_true",
+        "duration_huge",
+        "too_many_agents",
+        "start_underground",
+        "goal_inside_obstacle",
+    ):
         p = folder / f"{case}.yaml"
         p.write_text(yaml.safe_dump(_patched(CASES[case][0])))
         files[case] = (p, CASES[case][1])
@@ -120,8 +127,13 @@ def test_swarm_run_refuses_each_bad_file_with_exit_2_fast_and_starts_nothing(tmp
     for case, (path, needle) in _write_bad_files(tmp_path).items():
         out = tmp_path / f"run-{case}"
         t0 = time.monotonic()
-        p = subprocess.run([sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out)],
-                           capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+        p = subprocess.run(
+            [sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
         took = time.monotonic() - t0
         slowest = max(slowest, took)
         assert p.returncode == 2, (case, p.returncode, p.stderr[-2000:])

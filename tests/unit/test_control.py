@@ -20,9 +20,16 @@ def test_hover_recovers_from_a_disturbed_start(level, rate_hz):
     s0.q = euler_to_quat(0.3, -0.2, 0.5)
     s0.Omega_b = np.array([2.0, -1.0, 0.5])
     log = simulate(
-        MODEL, FilterConfig(level=level), PathTracker([[0, 0, 1.0]], 1.0), ObstacleArrays.empty(), s0, 6.0,
-        control_hz=rate_hz, physics_hz=1000.0, filter_on=False,
-    )  # fmt: skip
+        MODEL,
+        FilterConfig(level=level),
+        PathTracker([[0, 0, 1.0]], 1.0),
+        ObstacleArrays.empty(),
+        s0,
+        6.0,
+        control_hz=rate_hz,
+        physics_hz=1000.0,
+        filter_on=False,
+    )
     x = log.array("x_w")
     assert np.linalg.norm(x[-1] - [0, 0, 1.0]) < 0.01
     assert np.abs(log.array("v_w")[-50:]).max() < 0.02
@@ -33,9 +40,16 @@ def test_hover_recovers_from_a_disturbed_start(level, rate_hz):
 def test_tracks_a_path_at_the_target_speed(level, rate_hz):
     waypoints = [[0, 0, 1.0], [3, 0, 1.0], [3, 3, 1.5]]
     log = simulate(
-        MODEL, FilterConfig(level=level), PathTracker(waypoints, 1.0), ObstacleArrays.empty(),
-        QuadState.hover(waypoints[0]), 10.0, control_hz=rate_hz, physics_hz=1000.0, filter_on=False,
-    )  # fmt: skip
+        MODEL,
+        FilterConfig(level=level),
+        PathTracker(waypoints, 1.0),
+        ObstacleArrays.empty(),
+        QuadState.hover(waypoints[0]),
+        10.0,
+        control_hz=rate_hz,
+        physics_hz=1000.0,
+        filter_on=False,
+    )
     x, v = log.array("x_w"), log.array("v_w")
     speed = np.linalg.norm(v, axis=1)
     t = np.array(log.t_s)

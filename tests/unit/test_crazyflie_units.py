@@ -24,12 +24,14 @@ def _quat_axis(axis: FloatArray, angle: float) -> FloatArray:
 def _qmul(a: FloatArray, b: FloatArray) -> FloatArray:  # scalar-last Hamilton product
     ax, ay, az, aw = a
     bx, by, bz, bw = b
-    return np.array([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ])  # fmt: skip
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
 
 
 def test_thrust_calibration_and_setpoint_units():
@@ -43,10 +45,21 @@ def test_thrust_calibration_and_setpoint_units():
 
 def _raw(**cf):
     return {
-        "version": 1, "name": "real", "duration_s": 5, "time": {"mode": "realtime"}, "mocap": {"type": "mock"},
-        "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0, 0, 1.0], "goal": [1.0, 0, 1.0],
-                    "crazyflie": {"uri": "udp://127.0.0.1:19850", **cf}}],
-    }  # fmt: skip
+        "version": 1,
+        "name": "real",
+        "duration_s": 5,
+        "time": {"mode": "realtime"},
+        "mocap": {"type": "mock"},
+        "agents": [
+            {
+                "id": "cf1",
+                "backend": "crazyflie",
+                "start": [0, 0, 1.0],
+                "goal": [1.0, 0, 1.0],
+                "crazyflie": {"uri": "udp://127.0.0.1:19850", **cf},
+            }
+        ],
+    }
 
 
 def _real_agent(**cf):
@@ -133,8 +146,16 @@ def test_relay_counts_dropped_frames_and_reports_a_lost_body():
         return bodies
 
     frames, lost = [], []
-    relay = MocapRelay(_ScriptedSource(script), {"cf_a": "a", "cf_b": "b"}, 100.0, 0.1, 0.0,
-                       lambda aid, est: frames.append((aid, est)), lost.append, clock=lambda: clock["t"])  # fmt: skip
+    relay = MocapRelay(
+        _ScriptedSource(script),
+        {"cf_a": "a", "cf_b": "b"},
+        100.0,
+        0.1,
+        0.0,
+        lambda aid, est: frames.append((aid, est)),
+        lost.append,
+        clock=lambda: clock["t"],
+    )
     for _ in range(60):
         relay.step()
     assert relay.dropped_frames == 2

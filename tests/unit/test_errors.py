@@ -14,8 +14,12 @@ from swarm.model import QuadState
 
 
 def test_each_error_is_a_swarm_error_and_its_builtin() -> None:
-    for cls, builtin in ((InputError, ValueError), (ConfigError, ValueError), (DecodeError, ValueError),
-                         (SecretsError, RuntimeError)):  # fmt: skip
+    for cls, builtin in (
+        (InputError, ValueError),
+        (ConfigError, ValueError),
+        (DecodeError, ValueError),
+        (SecretsError, RuntimeError),
+    ):
         assert issubclass(cls, SwarmError) and issubclass(cls, builtin)
 
 

@@ -29,10 +29,12 @@ def scene(seed: int, n: int, level: CommandLevel):
     state = random_state(rng, rates=1.0)
     c = state.x_w + rng.uniform(-2.0, 2.0, (n, 3))
     obs = ObstacleArrays.build(
-        c, rng.uniform(0.05, 0.4, n), rng.uniform(-1.5, 1.5, (n, 3)),
+        c,
+        rng.uniform(0.05, 0.4, n),
+        rng.uniform(-1.5, 1.5, (n, 3)),
         axis_w=np.where(rng.random((n, 1)) < 0.3, rng.normal(size=(n, 3)), 0.0),
         is_neighbour=rng.random(n) < 0.4,
-    )  # fmt: skip
+    )
     if level is CommandLevel.ROTORS:
         u_ref = rng.uniform(0.0, MODEL.params.f_max_N, 4)
     else:
@@ -97,9 +99,10 @@ def test_infeasible_rows_give_a_flagged_least_violation_command():
     filt = SafetyFilter(MODEL, FilterConfig(level=CommandLevel.ATTITUDE))
     state = QuadState.hover()
     obs = ObstacleArrays.build(
-        [[0.6, 0, 1.0], [-0.6, 0, 1.0], [0, 0.6, 1], [0, -0.6, 1]], [0.2] * 4,
+        [[0.6, 0, 1.0], [-0.6, 0, 1.0], [0, 0.6, 1], [0, -0.6, 1]],
+        [0.2] * 4,
         [[-4.0, 0, 0], [4.0, 0, 0], [0, -4, 0], [0, 4, 0]],
-    )  # fmt: skip
+    )
     res = filt.filter(state, np.array([0, 0, MODEL.params.weight_N]), obs)
     assert res.status is FilterStatus.INFEASIBLE
     assert np.isfinite(res.u).all() and res.slack.max() > 0
@@ -143,8 +146,12 @@ def _select_by_definition(c, is_nb, x, radius, max_rows):
 
 @settings(max_examples=300, deadline=None)
 @given(
-    st.integers(0, 12), st.integers(1, 6), st.floats(0.5, 3.0), st.integers(0, 2**32 - 1), st.booleans(),
-)  # fmt: skip
+    st.integers(0, 12),
+    st.integers(1, 6),
+    st.floats(0.5, 3.0),
+    st.integers(0, 2**32 - 1),
+    st.booleans(),
+)
 def test_row_selection_matches_its_definition(n, max_rows, radius, seed, ties):
     rng = np.random.default_rng(seed)
     c = rng.uniform(-3, 3, (n, 3))
@@ -238,8 +245,12 @@ def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, flo
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**31), n=st.integers(0, 12), level=st.sampled_from(list(CommandLevel)),
-       kind=st.sampled_from(list(BarrierKind)))  # fmt: skip
+@given(
+    seed=st.integers(0, 2**31),
+    n=st.integers(0, 12),
+    level=st.sampled_from(list(CommandLevel)),
+    kind=st.sampled_from(list(BarrierKind)),
+)
 def test_the_command_is_the_optimum_by_the_kkt_conditions(seed, n, level, kind):
     """Optimality, not only feasibility: at an OK command the cost's gradient is a
     non-negative combination of the active constraints' normals (KKT), with the cost

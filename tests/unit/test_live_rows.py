@@ -40,9 +40,15 @@ def exact_h(p, w, r, a):
 
 def live(p, w, r, a, a_ref, nb=False):
     return evaluate_pw(
-        BarrierKind.C3BF, p[None], w[None], np.array([r]), a[None], live=True,
-        a_ref=None if a_ref is None else a_ref[None], is_neighbour=np.array([nb]),
-    )  # fmt: skip
+        BarrierKind.C3BF,
+        p[None],
+        w[None],
+        np.array([r]),
+        a[None],
+        live=True,
+        a_ref=None if a_ref is None else a_ref[None],
+        is_neighbour=np.array([nb]),
+    )
 
 
 def outside(p, r, a):
@@ -63,8 +69,14 @@ def satisfying(n_w, c, acc):
 @given(p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec, acc=vec, nb=st.booleans())
 # a reference 4e-10 rad off the cone's axis, across a cylinder: the generator's side was
 # the reference's rounding error magnified 1e9 times, and left the plane across the axis
-@example(p=np.zeros(3), r=1.0, a=np.array([1.0, 3.0, 0.0]) / math.sqrt(10.0), a_ref=np.array([0.0, 1.0, 4e-10]),
-         acc=np.array([-1.0, 1.0, 1.0]), nb=False)  # fmt: skip
+@example(
+    p=np.zeros(3),
+    r=1.0,
+    a=np.array([1.0, 3.0, 0.0]) / math.sqrt(10.0),
+    a_ref=np.array([0.0, 1.0, 4e-10]),
+    acc=np.array([-1.0, 1.0, 1.0]),
+    nb=False,
+)
 def test_at_rest_every_admitted_acceleration_keeps_the_exact_cone(p, r, a, a_ref, acc, nb):
     p = outside(p, r, a)
     assume(p is not None)
@@ -99,9 +111,15 @@ def test_at_rest_a_static_row_admits_the_reference_where_the_cone_does(p, r, a, 
 
 @settings(max_examples=600, deadline=None)
 @given(
-    p=vec, w_dir=vec, w_size=small, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec),
-    acc=vec, nb=st.booleans(),
-)  # fmt: skip
+    p=vec,
+    w_dir=vec,
+    w_size=small,
+    r=st.floats(0.05, 1.0),
+    a=axis_or_none,
+    a_ref=st.one_of(st.none(), vec),
+    acc=vec,
+    nb=st.booleans(),
+)
 def test_any_speed_the_row_keeps_the_exact_h_non_negative_along_the_motion(p, w_dir, w_size, r, a, a_ref, acc, nb):
     p = outside(p, r, a)
     assume(p is not None and np.linalg.norm(w_dir) > 1e-3)
@@ -139,16 +157,24 @@ def test_above_the_blend_speed_the_row_is_the_exact_c3bf_condition(p, w, r, a, a
     Lf = rows.dh_dp[0] @ w + GAMMA * rows.h[0]
     acc = satisfying(rows.dh_dw[0], Lf, acc)
     d = 1e-6
-    fd = (exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, a) - exact_h(p - d * w + 0.5 * d * d * acc,
-                                                                              w - d * acc, r, a)) / (2 * d)  # fmt: skip
+    fd = (
+        exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, a)
+        - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, a)
+    ) / (2 * d)
     assert fd + GAMMA * exact_h(p, w, r, a) >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + np.linalg.norm(p))
 
 
 @settings(max_examples=400, deadline=None)
 @given(
-    p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), frac=st.floats(0.0, 0.99),
-    speed=st.floats(1.01 * LIVE_W_HI_MPS, 3.0), t_dir=vec, axial=st.floats(-2, 2),  # clear of the blend's edge
-)  # fmt: skip
+    p=vec,
+    r=st.floats(0.05, 1.0),
+    a=axis_or_none,
+    a_ref=st.one_of(st.none(), vec),
+    frac=st.floats(0.0, 0.99),
+    speed=st.floats(1.01 * LIVE_W_HI_MPS, 3.0),
+    t_dir=vec,
+    axial=st.floats(-2, 2),  # clear of the blend's edge
+)
 def test_inside_the_cone_at_speed_the_row_is_h_with_the_same_cone(p, r, a, a_ref, frac, speed, t_dir, axial):
     p = outside(p, r, a)
     assume(p is not None)
@@ -252,8 +278,15 @@ def _fly(raw, **over):
     for a in agents:
         for k, v in over.items():
             setattr(a, k, v)
-    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
-                         physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m)  # fmt: skip
+    log = simulate_swarm(
+        QuadModel(),
+        agents,
+        obs,
+        cfg.duration_s,
+        control_hz=cfg.time.control_hz,
+        physics_hz=cfg.time.physics_hz,
+        goal_tolerance_m=cfg.goal_tolerance_m,
+    )
     return outcome(cfg, log), log
 
 
@@ -326,7 +359,6 @@ def reference_far_gain(p, w, r):
 def _row_pair(p, w, r, rho):
     """The live row of one relative state as a neighbour's and as an obstacle's, the
     agent a point mass at the attitude level (A = -I / m, a0_own = g e3), at rest."""
-    from swarm.barriers import live_settings
     from swarm.rows import OwnAffine, assemble
 
     mass = 0.03
@@ -334,7 +366,7 @@ def _row_pair(p, w, r, rho):
     both = ObstacleArrays(
         np.vstack([p, p]), np.vstack([w, w]), np.zeros((2, 3)), np.zeros(2), np.zeros((2, 3)), np.array([True, False])
     )
-    return own, assemble(BarrierKind.C3BF, own, both, r, gamma=GAMMA, rho=rho, live=live_settings(True))
+    return own, assemble(BarrierKind.C3BF, own, both, r, gamma=GAMMA, rho=rho, live=True)
 
 
 @settings(max_examples=400, deadline=None)
@@ -365,8 +397,10 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
         lower = -(b_nb - own_term)  # dh_dw . w' >= lower with w' = -(own acceleration) = a0_own + A u
         acc = satisfying(rows.barrier.dh_dw[0], -lower, acc)
         d = 1e-6
-        fd = (exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, np.zeros(3))
-              - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, np.zeros(3))) / (2 * d)  # fmt: skip
+        fd = (
+            exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, np.zeros(3))
+            - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, np.zeros(3))
+        ) / (2 * d)
         assert fd + GAMMA * k * h >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + dist)
 
 

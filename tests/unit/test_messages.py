@@ -10,14 +10,26 @@ from swarm.messages import VERSION, DecodeError, clock_measurement, decode, enco
 
 
 def test_messages_round_trip():
-    m = decode(encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, solo=False), "r",
-               ("state",))  # fmt: skip
+    m = decode(
+        encode("state", "r", "cf1", 7, 1.5, 3, x=np.array([1.0, 2, 3]), v=[0, 0, 0.5], r=0.07, solo=False),
+        "r",
+        ("state",),
+    )
     assert (m.kind, m.src, m.seq, m.t, m.k) == ("state", "cf1", 7, 1.5, 3)
     np.testing.assert_array_equal(m["x"], [1, 2, 3])
     body = dict(
-        level="rotors", u=[0.1, 0.1, 0.1, 0.1], intervention=0.2, goal_reached=True, min_h=-0.1, status="ok",
-        infeasible=2, solve_us=40.0, dropped=0, row_ids=["ball"], h_rows=[0.5],
-    )  # fmt: skip
+        level="rotors",
+        u=[0.1, 0.1, 0.1, 0.1],
+        intervention=0.2,
+        goal_reached=True,
+        min_h=-0.1,
+        status="ok",
+        infeasible=2,
+        solve_us=40.0,
+        dropped=0,
+        row_ids=["ball"],
+        h_rows=[0.5],
+    )
     m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
     assert m["goal_reached"] is True and m["infeasible"] == 2 and m["u"].tolist() == [0.1] * 4
     assert m["row_ids"] == ["ball"] and m["h_rows"].tolist() == [0.5]
@@ -27,8 +39,19 @@ def test_a_partial_decode_checks_the_fields_it_keeps_and_only_those():
     """The world decodes a command's level, input and status only: a malformed report is
     the recorder's to drop, a malformed input is still the world's."""
     fields = ("level", "u", "status")
-    body = dict(level="rotors", u=[0.1] * 4, intervention=0.2, goal_reached=False, min_h=0.0, status="ok",
-                infeasible=0, solve_us=40.0, dropped=0, row_ids=["ball", 3], h_rows=[0.5, float("nan")])  # fmt: skip
+    body = dict(
+        level="rotors",
+        u=[0.1] * 4,
+        intervention=0.2,
+        goal_reached=False,
+        min_h=0.0,
+        status="ok",
+        infeasible=0,
+        solve_us=40.0,
+        dropped=0,
+        row_ids=["ball", 3],
+        h_rows=[0.5, float("nan")],
+    )
     with pytest.raises(DecodeError):
         decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
     m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",), fields)
@@ -37,14 +60,25 @@ def test_a_partial_decode_checks_the_fields_it_keeps_and_only_those():
         with pytest.raises(DecodeError):
             decode(encode("command", "r", "cf1", 8, 1.5, 3, **{**body, **bad}), "r", ("command",), fields)
     with pytest.raises(DecodeError, match="missing field"):
-        decode(encode("command", "r", "cf1", 8, 1.5, 3, **{k: v for k, v in body.items() if k != "u"}), "r",
-               ("command",), fields)  # fmt: skip
+        decode(
+            encode("command", "r", "cf1", 8, 1.5, 3, **{k: v for k, v in body.items() if k != "u"}),
+            "r",
+            ("command",),
+            fields,
+        )
 
 
 def _clock(**over):
-    body = dict(live=["a", "b"], done=False, ids=["a", "b"], xvr=np.arange(14.0), meas_ids=["b"],
-                meas=np.arange(13.0), items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0],
-                                              "r": 0.5, "a": [0, 0, 0]}], solo=[])  # fmt: skip
+    body = dict(
+        live=["a", "b"],
+        done=False,
+        ids=["a", "b"],
+        xvr=np.arange(14.0),
+        meas_ids=["b"],
+        meas=np.arange(13.0),
+        items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}],
+        solo=[],
+    )
     return encode("clock", "r", "world", 4, 0.5, 50, **{**body, **over})
 
 
@@ -98,8 +132,9 @@ def test_arbitrary_bytes_never_raise_anything_but_decode_error(data):
     ],
 )
 def test_bad_messages_are_rejected(mutate):
-    m = msgpack.unpackb(encode("measurement", "r", "world", 1, 0.0, 0, x=[0, 0, 1.0], v=[0, 0, 0], q=[0, 0, 0, 1.0],
-                               w=[0, 0, 0]))  # fmt: skip
+    m = msgpack.unpackb(
+        encode("measurement", "r", "world", 1, 0.0, 0, x=[0, 0, 1.0], v=[0, 0, 0], q=[0, 0, 0, 1.0], w=[0, 0, 0])
+    )
     mutate(m)
     with pytest.raises(DecodeError):
         decode(msgpack.packb(m), "r")

@@ -8,12 +8,19 @@ from swarm.metrics import compute
 
 
 def test_metrics_from_synthetic_records():
-    cfg = resolve({
-        "version": 1, "name": "m", "duration_s": 1.0, "goal_tolerance_m": 0.1,
-        "agents": [{"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1], "airframe": {"l_m": 0.0}},
-                   {"id": "b", "start": [3, 0, 1], "goal": [5, 0, 1], "airframe": {"l_m": 0.0}}],
-        "obstacles": [{"id": "s", "shape": "sphere", "center": [0.5, 1.0, 1.0], "radius_m": 0.5}],
-    })  # fmt: skip
+    cfg = resolve(
+        {
+            "version": 1,
+            "name": "m",
+            "duration_s": 1.0,
+            "goal_tolerance_m": 0.1,
+            "agents": [
+                {"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1], "airframe": {"l_m": 0.0}},
+                {"id": "b", "start": [3, 0, 1], "goal": [5, 0, 1], "airframe": {"l_m": 0.0}},
+            ],
+            "obstacles": [{"id": "s", "shape": "sphere", "center": [0.5, 1.0, 1.0], "radius_m": 0.5}],
+        }
+    )
     recs = []
     for k in range(11):
         for aid, x in (("a", [0.1 * k, 0, 1]), ("b", [3.0 - 0.1 * k, 0, 1])):
@@ -24,8 +31,21 @@ def test_metrics_from_synthetic_records():
         sphere = {"id": "s", "shape": "sphere", "c": [0.5, 1.0, 1.0], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}
         recs.append({"kind": "obstacles", "k": k, "t": 0.1 * k, "items": [sphere]})
     recs.append({"kind": "collision", "a": "a", "b": "s", "k": 3, "t": 0.3})
-    recs.append({"kind": "status", "t": 1.0, "k": 10, "rtf": 2.0, "late": 1, "dropped": 3, "live": ["a", "b"],
-                 "min_sep": 1.0, "min_clear": 0.5, "collisions": 1, "done": True})  # fmt: skip
+    recs.append(
+        {
+            "kind": "status",
+            "t": 1.0,
+            "k": 10,
+            "rtf": 2.0,
+            "late": 1,
+            "dropped": 3,
+            "live": ["a", "b"],
+            "min_sep": 1.0,
+            "min_clear": 0.5,
+            "collisions": 1,
+            "done": True,
+        }
+    )
     m = compute(cfg, recs, recorder_dropped=2)
     assert m["collisions"] == 1 and m["late_ticks"] == 1 and m["dropped_messages"] == 5
     assert m["min_separation_m"] == pytest.approx(1.0)  # at k = 10: 1.0 vs 2.0

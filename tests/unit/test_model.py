@@ -25,8 +25,15 @@ from .helpers import random_state
 def test_crazyflie_defaults_match_the_paper_table():
     p = QuadParams()
     assert (p.mass_kg, p.g_mps2, p.Ixx_kgm2, p.Izz_kgm2, p.kf, p.km, p.l_m, p.rotor_to_rotor_m) == (
-        0.027, 9.81, 2.39e-5, 3.23e-5, 3.16e-10, 7.94e-12, 0.014, 0.130,
-    )  # fmt: skip
+        0.027,
+        9.81,
+        2.39e-5,
+        3.23e-5,
+        3.16e-10,
+        7.94e-12,
+        0.014,
+        0.130,
+    )
     assert p.f_max_N == pytest.approx(0.149, abs=5e-4)
 
 
@@ -37,8 +44,10 @@ def test_mixer_hover_and_single_rotor_torques(layout):
     hover = B @ np.full(4, p.weight_N / 4)
     np.testing.assert_allclose(hover, [p.weight_N, 0, 0, 0], atol=1e-15)
     # each rotor's torque is r x (f e3) plus its spin reaction
-    pos = {Layout.X: np.array([[1, -1], [-1, -1], [-1, 1], [1, 1]]) * p.arm_m / math.sqrt(2),
-           Layout.PLUS: np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]) * p.arm_m}[layout]  # fmt: skip
+    pos = {
+        Layout.X: np.array([[1, -1], [-1, -1], [-1, 1], [1, 1]]) * p.arm_m / math.sqrt(2),
+        Layout.PLUS: np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]) * p.arm_m,
+    }[layout]
     for i in range(4):
         f = np.zeros(4)
         f[i] = 0.1

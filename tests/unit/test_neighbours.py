@@ -36,7 +36,7 @@ def test_neighbour_state_at_a_given_tick():
 def test_roster_rows_are_the_chosen_drones_centres_velocities_and_radii():
     xvr = np.arange(4 * 7, dtype=float)  # 4 drones: x (3), v (3), r
     rows = np.array([0, 2, 3], dtype=np.intp)
-    arr = roster_arrays(xvr, rows, np.zeros((3, 3)), np.ones(3, dtype=bool))
+    arr = roster_arrays(xvr, rows, np.ones(3, dtype=bool))
     want = xvr.reshape(4, 7)[rows]
     np.testing.assert_array_equal(arr.c_w, want[:, 0:3])
     np.testing.assert_array_equal(arr.c_dot_w, want[:, 3:6])

@@ -27,10 +27,22 @@ def decode(msg):
 def clock(t, xs, items=(), q=None):
     ids = [f"d{i}" for i in range(len(xs))]
     xvr = np.hstack([np.asarray(xs, float), np.zeros((len(xs), 3)), np.full((len(xs), 1), 0.07)]).ravel()
-    meas = [] if q is None else np.hstack([np.asarray(xs, float), np.zeros((len(xs), 3)), np.tile(q, (len(xs), 1)),
-                                          np.zeros((len(xs), 3))]).ravel()  # fmt: skip
-    return {"kind": "clock", "t": t, "ids": ids, "xvr": xvr, "meas_ids": ids if q is not None else [], "meas": meas,
-            "items": list(items)}  # fmt: skip
+    meas = (
+        []
+        if q is None
+        else np.hstack(
+            [np.asarray(xs, float), np.zeros((len(xs), 3)), np.tile(q, (len(xs), 1)), np.zeros((len(xs), 3))]
+        ).ravel()
+    )
+    return {
+        "kind": "clock",
+        "t": t,
+        "ids": ids,
+        "xvr": xvr,
+        "meas_ids": ids if q is not None else [],
+        "meas": meas,
+        "items": list(items),
+    }
 
 
 SPHERE = {"id": "ball", "shape": "sphere", "c": [2.5, 0.0, 1.0], "cd": [0.0, 0.0, 0.0], "r": 0.3, "a": [0, 0, 0]}
@@ -111,6 +123,11 @@ def test_the_shipped_layout_is_the_layout_of_the_default_swap() -> None:
     shipped = (ROOT / "docs" / "foxglove_layout.json").read_text()
     assert json.loads(shipped) == json.loads(run_layout_json(["cf1", "cf2"]))
     text = json.dumps(json.loads(shipped))
-    for needle in ('"panelType": "ThreeDee"', "/agent/cf2/command.min_h", "/agent/cf1/command.intervention",
-                   '"panelType": "StateTransitions"', '"topicToRender": "/log"'):  # fmt: skip
+    for needle in (
+        '"panelType": "ThreeDee"',
+        "/agent/cf2/command.min_h",
+        "/agent/cf1/command.intervention",
+        '"panelType": "StateTransitions"',
+        '"topicToRender": "/log"',
+    ):
         assert needle in text, needle

@@ -15,8 +15,25 @@ from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 @pytest.mark.parametrize("kind", ["circle", "sphere", "random"])
 def test_generated_config_validates_and_round_trips(tmp_path, kind):
     out = tmp_path / f"{kind}.yaml"
-    cmd = [sys.executable, "-m", "swarm.cli", "scenario", kind, "--agents", "6", "--perturb", "0.05", "--seed", "3",
-           "--rho", "0.5", "--tiebreak", "right_hand", "-o", str(out)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "-m",
+        "swarm.cli",
+        "scenario",
+        kind,
+        "--agents",
+        "6",
+        "--perturb",
+        "0.05",
+        "--seed",
+        "3",
+        "--rho",
+        "0.5",
+        "--tiebreak",
+        "right_hand",
+        "-o",
+        str(out),
+    ]
     subprocess.run(cmd, check=True, capture_output=True, timeout=120)
     cfg = load(out)
     assert len(cfg.agents) == 6 and cfg.seed == 3

@@ -65,8 +65,9 @@ def test_plots_run_against_the_axis_that_varies():
 
     rows = [
         {"filter": f, "obstacle_speed": "1", "gamma": g, "success": 1, "time_to_goal_s": 8.0 + float(g)}
-        for f in ("c3bf", "hocbf") for g in ("0.5", "1", "2")
-    ]  # fmt: skip
+        for f in ("c3bf", "hocbf")
+        for g in ("0.5", "1", "2")
+    ]
     x_axis, table = aggregate(rows, ["filter", "obstacle_speed", "gamma"])
     assert x_axis == "gamma"  # not obstacle_speed, which has one value
     assert sorted(table) == [

@@ -39,6 +39,18 @@ class TrackingGains:
                 raise InputError(f"TrackingGains.{name}: must be a finite number > 0, got {v!r}")
 
 
+TRACKING = np.dtype(
+    [
+        ("kp", "f8"),  # 1/s: position gain (cross-track, and the taper near the end)
+        ("kd", "f8"),  # 1/s: velocity gain
+        ("a_h", "f8"),  # m/s^2: largest horizontal acceleration
+        ("a_v", "f8"),  # m/s^2: largest vertical acceleration
+    ],
+    align=True,
+)
+""":class:`TrackingGains` as the tracker's compiled kernels take them, a (1,) structured array."""
+
+
 class PathTracker:
     """PD tracking of a polyline at a constant target speed.
 
@@ -63,8 +75,8 @@ class PathTracker:
         self._seg_len = seg_len  # (k-1,) m
         self._tail = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]])  # (k-1,) m of path after each
         g = self.gains
-        # (kp [1/s], kd [1/s], max horizontal, max vertical acceleration [m/s^2]) for the compiled kernels
-        self._gains = np.array([g.kp_per_s, g.kd_per_s, g.max_horizontal_accel_mps2, g.max_vertical_accel_mps2])
+        self._gains = np.zeros(1, dtype=TRACKING)  # the gains as the compiled kernels read them
+        self._gains[0] = (g.kp_per_s, g.kd_per_s, g.max_horizontal_accel_mps2, g.max_vertical_accel_mps2)
         self.segment = 0
 
     @property
@@ -147,9 +159,10 @@ def _path_point(W, seg_len, tail, segment, x):
 @njit(cache=True)
 def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):
     """(segment, v_des (3,) [m/s, world]): the target speed along the path (tapering as
-    ``kp * remaining`` near the end) plus ``kp`` times the cross-track error."""
+    ``kp * remaining`` near the end) plus ``kp`` times the cross-track error; ``gains`` a
+    (1,) :data:`TRACKING` array."""
     segment, c, tangent, remaining = _path_point(W, seg_len, tail, segment, x)
-    kp = gains[0]
+    kp = gains[0].kp
     s = min(speed, kp * remaining)
     v_des = np.empty(3)
     for j in range(3):
@@ -160,8 +173,9 @@ def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):
 @njit(cache=True)
 def _desired_accel(v_des, v, gains):
     """``kd (v_des - v)`` [m/s^2, world], horizontal part clipped to its norm limit and
-    vertical part to its limit (``gains`` = kp, kd, max horizontal, max vertical)."""
-    kd, a_h, a_v = gains[1], gains[2], gains[3]
+    vertical part to its limit (``gains`` a (1,) :data:`TRACKING` array)."""
+    g = gains[0]
+    kd, a_h, a_v = g.kd, g.a_h, g.a_v
     a = np.empty(3)
     for j in range(3):
         a[j] = kd * (v_des[j] - v[j])

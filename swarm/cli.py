@@ -192,20 +192,10 @@ def run(
         secrets=secrets,
         live_port=live_port,
     )
+    from swarm.metrics import SUMMARY_KEYS
+
     if metrics.get("agents"):
-        keys = (
-            "collisions",
-            "min_separation_m",
-            "min_obstacle_clearance_m",
-            "all_reached_goal",
-            "duration_s",
-            "real_time_factor",
-            "late_ticks",
-            "dropped_messages",
-            "lost_agents",
-            "stop_reason",
-        )
-        for k in keys:
+        for k in SUMMARY_KEYS:
             click.echo(f"{k:>26}: {metrics.get(k)}")
         for aid, a in metrics["agents"].items():
             click.echo(

@@ -37,7 +37,7 @@ from swarm.model import (
 from swarm.obstacles import ObstacleArrays
 from swarm.qp import QPProblem, QPStatus, make_backend
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.rows import OwnDynamics, Rows, assemble, own_affine, rows_kernel
+from swarm.rows import OwnDynamics, Rows, assemble_with, own_affine, rows_kernel
 
 DEFAULT_BACKEND = "daqp"
 """Chosen by ``tools/bench_filter.py``: daqp is exact and several times faster here."""
@@ -374,24 +374,8 @@ class SafetyFilter:
     ) -> Rows:
         """The barrier rows for ``obstacles`` (all of them, or those ``sel`` indexes); with
         ``u_ref`` also their residuals at it (against ``input_set``, default the filter's)."""
-        cfg = self.config
-        return assemble(
-            cfg.kind,
-            self._own(state),
-            obstacles,
-            self.r_own_m,
-            gamma=cfg.gamma,
-            rho=cfg.rho,
-            eps=cfg.eps_w_mps,
-            gamma_ho=cfg.gamma_ho,
-            escape_speed=cfg.escape_speed_mps,
-            u_ref=u_ref,
-            input_set=input_set or self.input_set,
-            sel=sel,
-            live=cfg.live,
-            live_lo_mps=cfg.live_lo_mps,
-            live_hi_mps=cfg.live_hi_mps,
-        )
+        own = self._own(state)
+        return assemble_with(own, obstacles, self._params, u_ref=u_ref, input_set=input_set or self.input_set, sel=sel)
 
     def filter(
         self, state: QuadState, u_ref: FloatArray, obstacles: ObstacleArrays, *, validate: bool = True

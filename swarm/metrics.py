@@ -16,6 +16,20 @@ from swarm.messages import measurement_agent
 from swarm.rotation import quat_to_R
 from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
 
+SUMMARY_KEYS = (
+    "collisions",
+    "min_separation_m",
+    "min_obstacle_clearance_m",
+    "all_reached_goal",
+    "duration_s",
+    "real_time_factor",
+    "late_ticks",
+    "dropped_messages",
+    "lost_agents",
+    "stop_reason",
+)
+"""The run-level metrics a summary shows (``swarm run``'s printout, ``swarm report``'s table)."""
+
 
 def path_deviation(points_w: np.ndarray, path_w: np.ndarray) -> float:
     """Largest distance [m] of any point from the polyline ``path_w`` (k, 3)."""

@@ -416,12 +416,6 @@ def assemble(
     ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``).
     ``live`` makes the C3BF rows live rows aimed at ``u_ref`` (:mod:`swarm.barriers`;
     default the paper's rows)."""
-    m = own.Aa.shape[1] - 1
-    if input_set is None:  # no bounds: residuals of the barrier rows only
-        lb, ub = np.full(m, -np.inf), np.full(m, np.inf)
-        C, d = np.zeros((0, m)), _NO_REF
-    else:
-        lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
     params = row_params(
         kind,
         gamma=gamma,
@@ -434,6 +428,25 @@ def assemble(
         w_lo_mps=live_lo_mps,
         w_hi_mps=live_hi_mps,
     )
+    return assemble_with(own, obstacles, params, u_ref=u_ref, input_set=input_set, sel=sel)
+
+
+def assemble_with(
+    own: OwnAffine,
+    obstacles: ObstacleArrays,
+    params: np.ndarray,
+    *,
+    u_ref: FloatArray | None = None,
+    input_set: LinearInputSet | None = None,
+    sel: IntArray | None = None,
+) -> Rows:
+    """:func:`assemble` with the row settings given as a (1,) :data:`swarm.barriers.ROW_PARAMS` array."""
+    m = own.Aa.shape[1] - 1
+    if input_set is None:  # no bounds: residuals of the barrier rows only
+        lb, ub = np.full(m, -np.inf), np.full(m, np.inf)
+        C, d = np.zeros((0, m)), _NO_REF
+    else:
+        lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
         obstacles.rec,
         np.arange(len(obstacles)) if sel is None else sel,
@@ -458,6 +471,7 @@ __all__ = [
     "OwnDynamics",
     "Rows",
     "assemble",
+    "assemble_with",
     "own_affine",
     "rows_kernel",
 ]

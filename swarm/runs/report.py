@@ -23,6 +23,7 @@ from matplotlib.patches import Circle, Polygon
 
 from swarm.config import ScenarioConfig
 from swarm.messages import measurement_agent
+from swarm.metrics import SUMMARY_KEYS
 from swarm.rotation import quat_to_R
 from swarm.runs.runfiles import read_config, read_records, write_metrics
 from swarm.scenario import items_to_arrays, surface_clearance
@@ -283,18 +284,7 @@ class Report:
         """summary.md: the metrics, one row per agent, and the figures."""
         cfg, out, metrics, run_dir = self.cfg, self.out, self.metrics, self.run_dir
         lines = [f"# Run report: {cfg.name}", "", f"Run folder: `{run_dir}`", "", "| metric | value |", "|---|---|"]
-        for k in (
-            "collisions",
-            "min_separation_m",
-            "min_obstacle_clearance_m",
-            "all_reached_goal",
-            "duration_s",
-            "real_time_factor",
-            "late_ticks",
-            "dropped_messages",
-            "lost_agents",
-            "stop_reason",
-        ):
+        for k in SUMMARY_KEYS:
             lines.append(f"| {k} | {metrics.get(k)} |")
         lines += [
             "",

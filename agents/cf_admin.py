@@ -92,11 +92,20 @@ def status(uri: str, timeout_s: float = 3.0) -> list[str]:
 
 
 def recover(uri: str, timeout_s: float = 3.0) -> list[str]:
-    """Ask a crashed drone to recover (``CMD_RECOVER_SYSTEM``); returns its states after."""
+    """Ask a crashed drone to recover (``CMD_RECOVER_SYSTEM``); returns its states after.
+
+    The stop setpoint goes first. The firmware keeps the last setpoint whatever its age
+    (commander.c ``commanderGetSetpoint``) and passes it through once ready to fly again
+    (supervisor.c ``supervisorOverrideSetpoint``: ready to fly does nothing): without the
+    stop, a crash's last flight setpoint would spin the motors up after the recovery, and
+    the commander watchdog would then lock the drone (supervisor_state_machine.c:
+    flying, commander watchdog timeout -> exception free fall -> locked)."""
+    from cflib.crazyflie.commander import Commander
     from cflib.crazyflie.supervisor import Supervisor
 
     link = _Link(uri)
     try:
+        Commander(link).send_stop_setpoint()
         Supervisor(link).send_crash_recovery_request()
     finally:
         link.close()

@@ -45,14 +45,12 @@ class ObstacleArrays:
         is_neighbour: BoolArray,
     ) -> None:
         rec = np.empty(len(radius_m), dtype=OBSTACLE)
-        rec["c"], rec["cd"], rec["cdd"], rec["r"], rec["axis"], rec["is_nb"] = (
-            c_w,
-            c_dot_w,
-            c_ddot_w,
-            radius_m,
-            axis_w,
-            is_neighbour,
-        )
+        rec["c"] = c_w
+        rec["cd"] = c_dot_w
+        rec["cdd"] = c_ddot_w
+        rec["r"] = radius_m
+        rec["axis"] = axis_w
+        rec["is_nb"] = is_neighbour
         self.rec = rec
 
     @staticmethod

@@ -18,6 +18,8 @@ from swarm.crazyflie_fw import (
 )
 from swarm.model import QuadParams
 
+from .helpers import real_drone_raw
+
 HOVER = 36_000  # a thrust command near hover for the 2.1 (0.265 N at 0.48 N full scale: 36187)
 
 
@@ -116,24 +118,7 @@ def test_an_emergency_stop_locks_and_a_tumble_crashes_until_recovered_upright():
 
 
 def _real(**thrust):
-    return resolve(
-        {
-            "version": 1,
-            "name": "real",
-            "duration_s": 5,
-            "time": {"mode": "realtime"},
-            "mocap": {"type": "mock"},
-            "agents": [
-                {
-                    "id": "cf1",
-                    "backend": "crazyflie",
-                    "start": [0, 0, 1.0],
-                    "goal": [1.0, 0, 1.0],
-                    "crazyflie": {"uri": "udp://127.0.0.1:19850", "thrust": thrust},
-                }
-            ],
-        }
-    ).agents[0]
+    return resolve(real_drone_raw(thrust=thrust)).agents[0]
 
 
 def test_the_filter_plans_with_no_more_thrust_than_the_setpoint_can_ask():

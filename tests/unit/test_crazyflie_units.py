@@ -11,6 +11,8 @@ from swarm.config import ConfigError, ThrustCalibration, resolve
 from swarm.rotation import FloatArray
 from swarm.world.mocap import MocapRelay, PoseDifferentiator
 
+from .helpers import real_drone_raw
+
 
 def _quat_z(yaw: float) -> FloatArray:
     return np.array([0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)])
@@ -43,27 +45,8 @@ def test_thrust_calibration_and_setpoint_units():
     assert (r, p, y, t) == pytest.approx((5.0, -3.0, -30.0, 31_000))  # the firmware inverts the yaw rate
 
 
-def _raw(**cf):
-    return {
-        "version": 1,
-        "name": "real",
-        "duration_s": 5,
-        "time": {"mode": "realtime"},
-        "mocap": {"type": "mock"},
-        "agents": [
-            {
-                "id": "cf1",
-                "backend": "crazyflie",
-                "start": [0, 0, 1.0],
-                "goal": [1.0, 0, 1.0],
-                "crazyflie": {"uri": "udp://127.0.0.1:19850", **cf},
-            }
-        ],
-    }
-
-
 def _real_agent(**cf):
-    return resolve(_raw(**cf)).agents[0]
+    return resolve(real_drone_raw(**cf)).agents[0]
 
 
 def test_flight_phases_take_off_fly_and_land():
@@ -88,7 +71,7 @@ def test_flight_phases_take_off_fly_and_land():
     ],
 )
 def test_real_drone_configs_are_checked(change, needle):
-    raw = _raw()
+    raw = real_drone_raw()
     raw.update(change)
     with pytest.raises(ConfigError, match=needle):
         resolve(raw)

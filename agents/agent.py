@@ -204,11 +204,7 @@ class Agent:
             if not ks:
                 return ObstacleArrays.empty()
             t_r, arr = self.roster[max(ks)]
-        if t == t_r:
-            return arr
-        return ObstacleArrays(
-            arr.c_w + arr.c_dot_w * (t - t_r), arr.c_dot_w, arr.c_ddot_w, arr.radius_m, arr.axis_w, arr.is_neighbour
-        )
+        return arr.at(t - t_r)  # the roster's drones at constant velocity (it gives no acceleration)
 
     def missing(self, k: int) -> int:
         """Lockstep: how many messages tick k still waits for: its clock, then (agents

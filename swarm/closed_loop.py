@@ -28,16 +28,7 @@ from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, s
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
     """Obstacles at time ``t_s`` [s] moving with their constant acceleration."""
-    if not (obs0.c_dot_w.any() or obs0.c_ddot_w.any()):
-        return obs0
-    return ObstacleArrays(
-        obs0.c_w + obs0.c_dot_w * t_s + 0.5 * obs0.c_ddot_w * t_s**2,
-        obs0.c_dot_w + obs0.c_ddot_w * t_s,
-        obs0.c_ddot_w,
-        obs0.radius_m,
-        obs0.axis_w,
-        obs0.is_neighbour,
-    )
+    return obs0.at(t_s)
 
 
 @dataclass

@@ -93,6 +93,17 @@ class ObstacleArrays:
     def __len__(self) -> int:
         return len(self.rec)
 
+    def at(self, dt_s: float) -> ObstacleArrays:
+        """These obstacles ``dt_s`` [s] later, each moving with its constant acceleration
+        (these, when none moves or ``dt_s`` is 0)."""
+        cd, cdd = self.c_dot_w, self.c_ddot_w
+        if dt_s == 0.0 or not (cd.any() or cdd.any()):
+            return self
+        rec = self.rec.copy()
+        rec["c"] = self.c_w + cd * dt_s + 0.5 * cdd * dt_s**2
+        rec["cd"] = cd + cdd * dt_s
+        return ObstacleArrays.of_records(rec)
+
     @staticmethod
     def empty() -> ObstacleArrays:
         return _EMPTY

@@ -127,8 +127,7 @@ class OwnDynamics:
     computed once."""
 
     def __init__(self, level: CommandLevel, model: QuadModel) -> None:
-        self.level = level
-        self.air = airframe(level, model)
+        self.air = airframe(level, model)  # (its ``rotor`` field says the level)
 
     def __call__(self, state: QuadState) -> OwnAffine:
         return OwnAffine(*own_affine(self.air, state.x_w, state.v_w, state.q, state.Omega_b))

@@ -14,6 +14,7 @@ with scalar coefficients per row (``d`` is the live row's direction, below):
 | C3BF (paper, smoothed) | <p,w> + n(w) s | n/s | 1 | 1 | s/sqrt(\\|w\\|^2+eps^2) | 0 |
 | C3BF (live) | <p,w> + s <d,w> | <d,w>/s | 1 | 1 | 0 | s |
 | HO-CBF | <p,w> + gamma_ho s | gamma_ho/s | 1 | 1 | 0 | 0 |
+| + horizon allowance | + (\\|p\\|^2 - r^2) / (2 tau) | + 1/tau | | | | |
 | escape (inside r) | <p,w>/\\|p\\| - v_esc | -<p,w>/\\|p\\|^3 | 1/\\|p\\| | 1/\\|p\\| | 0 | 0 |
 
 with ``s = sqrt(|p|^2 - r^2)`` and the smoothed norm ``n = sqrt(|w|^2+eps^2) - eps``
@@ -73,6 +74,23 @@ the row is unchanged (``h' >= 0``): the set ``h >= 0`` stays forward invariant. 
 gives up is the rate ``h' + gamma h >= 0`` for far, slowly closing pairs; a pair closing
 at ``FAR_GAIN_CLOSING_MPS`` or faster, or within ``FAR_GAIN_RADII`` safety radii, keeps
 the paper's gain.
+
+**Horizon allowance** (live rows, opt-in: ``filter.horizon_s = tau``). The cone forbids a
+collision course however far away the contact is; ORCA truncates its velocity obstacles
+at a time horizon. Every live row may instead use
+
+    h_tau = h + (|p|^2 - r^2) / (2 tau) = <p, w> + |w| s + s^2 / (2 tau)      (2)
+
+(and its lower bounds ``h_d``, ``H`` plus the same term, which stay lower bounds of
+``h_tau``). ``h_tau >= h``, so its safe set holds the cone's; far away it admits a course
+into the cone (head on, up to a closing speed of about ``|p| s^2 / (tau r^2)``), and the
+allowance shrinks to 0 at contact. It is still collision-free: with ``S = |p|^2 - r^2``,
+``h_tau >= 0`` gives ``S' = 2 <p, w> >= -2 |w| sqrt(S) - S / tau``, so S, like the cone's,
+can at most reach 0, where ``h_tau = <p, w> >= 0`` (no approach): the same boundary as
+the cone's grazing contact. Its w-gradient is the cone's, so a row still asks to turn
+off the collision course rather than to brake. Measured (EXPERIMENTS.md, section 4): at
+``tau = 2 s`` crowded swaps reach their goals far sooner, but with several times more
+infeasible ticks; it is not the default.
 """
 
 from __future__ import annotations
@@ -135,6 +153,7 @@ ROW_PARAMS = np.dtype(
         ("live", "?"),  # C3BF rows are live rows (module docstring)
         ("w_lo", "f8"),  # live rows: below this relative speed [m/s] the target alone
         ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
+        ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
     ],
     align=True,
 )
@@ -154,9 +173,10 @@ def row_params(
     live: bool = False,
     w_lo_mps: float = LIVE_W_LO_MPS,
     w_hi_mps: float = LIVE_W_HI_MPS,
+    horizon_s: float | None = None,
 ) -> np.ndarray:
     """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
-    C3BF rows only."""
+    C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live rows."""
     kind = BarrierKind(kind)
     out = np.zeros(1, dtype=ROW_PARAMS)
     out[0] = (
@@ -170,6 +190,7 @@ def row_params(
         live and kind is BarrierKind.C3BF,
         w_lo_mps,
         w_hi_mps,
+        0.0 if horizon_s is None else 1.0 / horizon_s,
     )
     return out
 
@@ -363,6 +384,11 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
             else:
                 dw = live_direction(P, W, A, s, pp, a, has_ref, nb, par.w_lo, par.w_hi, Y_out[2])
                 h, a_p, b_p, a_w, b_w, c_d = pw + s * dw, dw / s, 1.0, 1.0, 0.0, s
+            if par.inv_tau > 0.0:  # the horizon allowance (module docstring): h + (|p|^2 - r^2) / (2 tau)
+                h += 0.5 * s2 * par.inv_tau
+                a_p += par.inv_tau
+                if h >= 0.0:  # (the recovery gain is for rows that are violated)
+                    rate = 0.0
             inside = False
         elif kind == 0:
             root = math.sqrt(ww + par.eps * par.eps)
@@ -461,17 +487,19 @@ def evaluate(
     live: bool = False,
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
+    horizon_s: float | None = None,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3). ``axis_w`` (n, 3) holds unit
     cylinder axes (zero rows for spheres); ``None`` means all spheres. With ``live`` the
     C3BF rows are live rows for the reference relative accelerations ``a_ref`` (n, 3)
-    [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,)."""
+    [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,),
+    with the horizon allowance of ``horizon_s`` [s] (None: none)."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
-    params = row_params(kind, eps=eps, gamma_ho=gamma_ho, escape_speed=escape_speed, live=live)
+    params = row_params(kind, eps=eps, gamma_ho=gamma_ho, escape_speed=escape_speed, live=live, horizon_s=horizon_s)
     Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
     return BarrierRows(Y_used, coef, inside)
 

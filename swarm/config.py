@@ -77,6 +77,8 @@ class FilterSettings(_Strict):
     )  # m, world: the centre of mass stays above (HO-CBF row); null: no floor
     # C3BF: live rows at low relative speed (swarm.barriers); false: the paper's rows, which freeze at rest
     live: bool = True
+    # s: live rows' horizon allowance (swarm.barriers, EXPERIMENTS.md section 4); null: the cone alone
+    horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
@@ -90,6 +92,7 @@ class FilterSettings(_Strict):
             backend=self.backend,
             floor_z_m=self.floor_z_m,
             live=self.live,
+            horizon_s=self.horizon_s,
         )
 
 

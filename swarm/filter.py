@@ -255,6 +255,10 @@ class FilterConfig:
     """Relative speed [m/s] below which a live row aims at the reference alone."""
     live_hi_mps: float = LIVE_W_HI_MPS
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
+    horizon_s: float | None = None
+    """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
+    ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon
+    allowance"), or None: the cone alone (the default)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
@@ -269,6 +273,9 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
+        h_s = self.horizon_s
+        if h_s is not None and not (isinstance(h_s, (int, float)) and math.isfinite(h_s) and h_s > 0):
+            raise InputError(f"FilterConfig.horizon_s: must be a finite number > 0 or None, got {h_s!r}")
         if not (0.0 < self.rho <= 1.0):
             raise InputError(f"FilterConfig.rho: must be in (0, 1], got {self.rho!r}")
         if not (0.0 <= self.live_lo_mps < self.live_hi_mps and math.isfinite(self.live_hi_mps)):
@@ -345,6 +352,7 @@ class SafetyFilter:
             live=cfg.live,
             w_lo_mps=cfg.live_lo_mps,
             w_hi_mps=cfg.live_hi_mps,
+            horizon_s=cfg.horizon_s,
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
         self._fparams[0] = (

@@ -13,8 +13,10 @@ the same scene where it is planar, with its figures under ``orca``; ``null`` oth
     python -m tools.bench_liveness --quick         # one seed, smaller swarms
     python -m tools.bench_liveness --family circle --jobs 2
 
+    python -m tools.bench_liveness --horizon-s 2   # with the live rows' horizon allowance
+
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
-infeasible_ticks, mean_time_ratio, worst_time_ratio, orca.
+infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s.
 """
 
 from __future__ import annotations
@@ -51,8 +53,11 @@ class Point:
     seeds: tuple[int, ...]
 
 
-def _with_rho(raw: dict, rho: float) -> dict:
-    raw["defaults"].setdefault("filter", {})["rho"] = rho
+def _with_rho(raw: dict, rho: float, horizon_s: float | None = None) -> dict:
+    filt = raw["defaults"].setdefault("filter", {})
+    filt["rho"] = rho
+    if horizon_s is not None:
+        filt["horizon_s"] = horizon_s
     return raw
 
 
@@ -163,16 +168,24 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def main(quick: bool = False, seeds: int = 3, family: str | None = None, jobs: int = 2, orca: bool = True) -> None:
+def main(
+    quick: bool = False,
+    seeds: int = 3,
+    family: str | None = None,
+    jobs: int = 2,
+    orca: bool = True,
+    horizon_s: float | None = None,
+) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
-            raws = [_with_rho(p.make(s), p.rho) for s in p.seeds]
+            raws = [_with_rho(p.make(s), p.rho, horizon_s) for s in p.seeds]
             results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _ in results])
             orca_runs = [o for _, o in results if o is not None]
             line["orca"] = _summary(orca_runs) if orca_runs else None
+            line["horizon_s"] = horizon_s
             print(json.dumps(line), flush=True)
 
 
@@ -183,5 +196,6 @@ if __name__ == "__main__":
     ap.add_argument("--family", choices=["sphere_field", "circle", "sphere", "formation", "pillar"])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-orca", action="store_true")
+    ap.add_argument("--horizon-s", type=float, help="filter.horizon_s of every agent (default: none)")
     a = ap.parse_args()
-    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca)
+    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca, a.horizon_s)

@@ -12,7 +12,8 @@ Knobs (the config's names; units in brackets):
 * ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
   or ``orca``: the ORCA baseline (``swarm/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
-  ``sensing_radius_m`` [m] (neighbours farther away get no row).
+  ``sensing_radius_m`` [m] (neighbours farther away get no row), ``horizon_s`` [s] (the live
+  rows' horizon allowance, ``swarm.barriers``; ``none``: the cone alone).
 * ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
 * ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
   re-aimed so that it passes its configured centre when the first agent, flying its
@@ -55,6 +56,10 @@ def _float(name: str, value: str) -> float:
     if not math.isfinite(x):
         raise ConfigError(f"--axis {name}: {value!r} is not finite")
     return x
+
+
+def _float_or_none(name: str, value: str) -> float | None:
+    return None if value == "none" else _float(name, value)
 
 
 def _each_filter(field: str, convert: Callable[[str, str], Any]) -> Knob:
@@ -134,6 +139,7 @@ KNOBS: dict[str, Knob] = {
     "gamma_ho": _each_filter("gamma_ho", _float),
     "rho": _each_filter("rho", _float),
     "sensing_radius_m": _each_filter("sensing_radius_m", _float),
+    "horizon_s": _each_filter("horizon_s", _float_or_none),
     "obstacle_speed": _aim("speed_mps"),
     "approach_angle_deg": _aim("angle_deg"),
     "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
@@ -335,7 +341,14 @@ PLOTTED = {
 }
 
 
-UNITS = {"obstacle_speed": "m/s", "approach_angle_deg": "deg", "gamma": "1/s", "gamma_ho": "m/s", "radius": "m"}
+UNITS = {
+    "obstacle_speed": "m/s",
+    "approach_angle_deg": "deg",
+    "gamma": "1/s",
+    "gamma_ho": "m/s",
+    "radius": "m",
+    "horizon_s": "s",
+}
 
 
 def _numeric(values: list[str]) -> bool:

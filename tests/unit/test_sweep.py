@@ -53,6 +53,10 @@ def test_filter_and_gains_reach_every_agent():
     cfg, _ = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
     assert all(a.filter.kind.value == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
     assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"})[0].agents)
+    assert all(a.filter.horizon_s == 2.0 for a in build(BASE, {"horizon_s": "2"})[0].agents)
+    assert all(a.filter.horizon_s is None for a in build(BASE, {"horizon_s": "none"})[0].agents)
+    with pytest.raises(ConfigError, match="horizon_s"):
+        build(BASE, {"horizon_s": "0"})
 
 
 def test_an_obstacle_that_would_start_on_the_agent_is_refused():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarm.barriers import BarrierKind, BarrierRows, evaluate_pw
 from swarm.model import QuadState
 from swarm.rotation import euler_to_quat
 
@@ -37,3 +38,47 @@ def real_drone_raw(**crazyflie: object) -> dict:
             }
         ],
     }
+
+
+def proj(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v without its part along the unit axis a (zeros: v itself)."""
+    return v - a * (a @ v)
+
+
+def outside(p: np.ndarray, r: float, a: np.ndarray) -> np.ndarray | None:
+    """p moved so that its projection is clear of the safety radius (or None)."""
+    if np.linalg.norm(proj(a, p)) >= r + 0.05:
+        return p
+    p = p + (r + 0.2) * (np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0]))
+    return p if np.linalg.norm(proj(a, p)) >= r + 0.05 else None
+
+
+def satisfying(n_w: np.ndarray, c: float, acc: np.ndarray) -> np.ndarray:
+    """``acc`` moved onto the half-space ``<n_w, a> + c >= 0`` if it is outside."""
+    gap = n_w @ acc + c
+    return acc if gap >= 0 else acc - gap * n_w / (n_w @ n_w)
+
+
+def live_rows(
+    p: np.ndarray,
+    w: np.ndarray,
+    r: float,
+    a: np.ndarray,
+    a_ref: np.ndarray | None,
+    nb: bool = False,
+    horizon_s: float | None = None,
+) -> BarrierRows:
+    """One live C3BF row (``swarm.barriers.evaluate_pw``) for relative ``p`` [m], ``w`` [m/s],
+    safety radius ``r`` [m], cylinder axis ``a`` (zeros: a sphere), the reference's relative
+    acceleration ``a_ref`` [m/s^2] (or None), a neighbour or not, with ``horizon_s`` [s]."""
+    return evaluate_pw(
+        BarrierKind.C3BF,
+        p[None],
+        w[None],
+        np.array([r]),
+        a[None],
+        live=True,
+        a_ref=None if a_ref is None else a_ref[None],
+        is_neighbour=np.array([nb]),
+        horizon_s=horizon_s,
+    )

@@ -143,7 +143,7 @@ def test_swarm_run_refuses_each_bad_file_with_exit_2_fast_and_starts_nothing(tmp
         assert "Traceback" not in p.stderr
         assert not out.exists(), f"{case}: a run folder was made"
     # under 2 s each, interpreter start-up included (a loaded CI machine gets 2x)
-    assert slowest < (4.0 if os.environ.get("CI") else 2.0), slowest
+    assert slowest < (4.0 if os.environ.get("CI") or os.environ.get("C3SWARM_CI") else 2.0), slowest
 
 
 def test_the_agent_limit_can_be_raised_knowingly() -> None:

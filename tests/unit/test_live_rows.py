@@ -21,6 +21,9 @@ from hypothesis.extra.numpy import arrays
 from swarm.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
 from swarm.obstacles import ObstacleArrays
 
+from .helpers import live_rows as live
+from .helpers import outside, proj, satisfying
+
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 small = st.floats(-1.0, 1.0).map(lambda e: 10.0 ** (-9 * abs(e)) * math.copysign(1.0, e))  # 1e-9 .. 1
@@ -29,40 +32,9 @@ axis_or_none = st.one_of(
 )
 
 
-def proj(a, v):
-    return v - a * (a @ v)
-
-
 def exact_h(p, w, r, a):
     P, W = proj(a, p), proj(a, w)
     return P @ W + np.linalg.norm(W) * math.sqrt(P @ P - r * r)
-
-
-def live(p, w, r, a, a_ref, nb=False):
-    return evaluate_pw(
-        BarrierKind.C3BF,
-        p[None],
-        w[None],
-        np.array([r]),
-        a[None],
-        live=True,
-        a_ref=None if a_ref is None else a_ref[None],
-        is_neighbour=np.array([nb]),
-    )
-
-
-def outside(p, r, a):
-    """p moved so that its projection is clear of the safety radius (or None)."""
-    if np.linalg.norm(proj(a, p)) >= r + 0.05:
-        return p
-    p = p + (r + 0.2) * (np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0]))
-    return p if np.linalg.norm(proj(a, p)) >= r + 0.05 else None
-
-
-def satisfying(n_w, c, acc):
-    """``acc`` moved onto the half-space ``<n_w, a> + c >= 0`` if it is outside."""
-    gap = n_w @ acc + c
-    return acc if gap >= 0 else acc - gap * n_w / (n_w @ n_w)
 
 
 @settings(max_examples=400, deadline=None)

@@ -53,7 +53,8 @@ class Point:
     seeds: tuple[int, ...]
 
 
-def _with_rho(raw: dict, rho: float, horizon_s: float | None = None) -> dict:
+def _with_filter(raw: dict, rho: float, horizon_s: float | None = None) -> dict:
+    """``raw`` with every agent's responsibility share ``rho`` and horizon ``horizon_s`` [s] (None: unset)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
     if horizon_s is not None:
@@ -179,7 +180,7 @@ def main(
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
-            raws = [_with_rho(p.make(s), p.rho, horizon_s) for s in p.seeds]
+            raws = [_with_filter(p.make(s), p.rho, horizon_s) for s in p.seeds]
             results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _ in results])

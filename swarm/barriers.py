@@ -154,6 +154,7 @@ ROW_PARAMS = np.dtype(
         ("w_lo", "f8"),  # live rows: below this relative speed [m/s] the target alone
         ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
         ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
+        ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
     ],
     align=True,
 )
@@ -174,6 +175,7 @@ def row_params(
     w_lo_mps: float = LIVE_W_LO_MPS,
     w_hi_mps: float = LIVE_W_HI_MPS,
     horizon_s: float | None = None,
+    buffer_mps: float = 0.0,
 ) -> np.ndarray:
     """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
     C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live rows."""
@@ -191,6 +193,7 @@ def row_params(
         w_lo_mps,
         w_hi_mps,
         0.0 if horizon_s is None else 1.0 / horizon_s,
+        buffer_mps if live and kind is BarrierKind.C3BF else 0.0,
     )
     return out
 

@@ -79,6 +79,8 @@ class FilterSettings(_Strict):
     live: bool = True
     # s: live rows' horizon allowance (swarm.barriers, EXPERIMENTS.md section 4); null: the cone alone
     horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
+    # m/s: live rows' velocity buffer (swarm.rows, EXPERIMENTS.md section 4); 0: the rows alone
+    buffer_mps: float = Field(0.05, ge=0, allow_inf_nan=False)
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
@@ -93,6 +95,7 @@ class FilterSettings(_Strict):
             floor_z_m=self.floor_z_m,
             live=self.live,
             horizon_s=self.horizon_s,
+            buffer_mps=self.buffer_mps,
         )
 
 

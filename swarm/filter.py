@@ -35,7 +35,7 @@ from swarm.model import (
     thrust_vector_input_set,
 )
 from swarm.obstacles import ObstacleArrays
-from swarm.qp import QPProblem, QPStatus, make_backend
+from swarm.qp import QPProblem, QPSolution, QPStatus, make_backend
 from swarm.rotation import BoolArray, FloatArray, IntArray
 from swarm.rows import OwnDynamics, Rows, assemble_with, own_affine, rows_kernel
 
@@ -185,16 +185,17 @@ def _prepare(check, x, v, q, Om, u_ref, obs, air, params, fparams, lb, ub, C, d)
                 z1,
                 False,
                 False,
+                z1,
             )
     idx, fixed = _select(obs, x, fp.r2, fp.max_rows)
     if fp.floor:
         j = C.shape[0] - 1
         _floor_row(air[0], fp, C[j], d, j, x[2], v[2], qn, ub)
     xv_b, Aa = own_affine(air, x, v, qn, Om)
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
-    return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside
+    return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight
 
 
 def _is_vector(a: object) -> bool:
@@ -208,7 +209,8 @@ ACTIVE_TOL = 1e-8
 
 class FilterStatus(StrEnum):
     OK = "ok"
-    """Every row and bound holds (``u == u_ref`` when no row was active)."""
+    """Every row and bound holds (``u == u_ref`` when no row was active); ``buffered`` says
+    whether the buffered rows hold too."""
     INFEASIBLE = "infeasible"
     """The rows could not all hold: least-violation command, ``slack`` says by how much."""
     COLLISION = "collision"
@@ -255,6 +257,12 @@ class FilterConfig:
     """Relative speed [m/s] below which a live row aims at the reference alone."""
     live_hi_mps: float = LIVE_W_HI_MPS
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
+    buffer_mps: float = 0.05
+    """Live rows: the velocity buffer [m/s] (``swarm.rows``, "Velocity buffer"): the QP is
+    first solved with every live row asking ``h' + gamma k (h - b |dh/dw|) >= 0``, ``b`` this
+    buffer (a tenth of the relative speed below ten times it), which keeps a relative
+    velocity about ``b`` outside its cone; only if those rows cannot all hold, with the rows
+    themselves. 0: the rows alone."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon
@@ -269,7 +277,7 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number > 0, got {v!r}")
-        for name in ("margin_m", "escape_speed_mps"):
+        for name in ("margin_m", "escape_speed_mps", "buffer_mps"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
@@ -297,11 +305,13 @@ class FilterResult:
     row_index: IntArray  # (n,): index into the obstacle arrays of each row
     h: FloatArray  # (n,) barrier value of each row
     constraint: FloatArray  # (n,) Lg_h u - lower = h' + kappa(h) (rho-weighted); >= 0 holds
-    active: BoolArray  # (n,): the row holds with equality (binding)
+    active: BoolArray  # (n,): the row binds: constraint == buffer if buffered, else constraint == 0
     inside: BoolArray  # (n,): already inside the safety radius
     slack: FloatArray  # (n,) violation allowed by the fallback QP (zeros when OK)
     solve_time_s: float  # whole call: rows and QP
     max_violation: float  # largest violation of a row or bound by u (0 when all hold)
+    buffer: FloatArray  # (n,) what each row's buffered form asks of ``constraint`` (FilterConfig.buffer_mps)
+    buffered: bool  # u holds the buffered rows (constraint >= buffer); False: the rows alone, or not even those
 
     @property
     def min_h(self) -> float:
@@ -353,6 +363,7 @@ class SafetyFilter:
             w_lo_mps=cfg.live_lo_mps,
             w_hi_mps=cfg.live_hi_mps,
             horizon_s=cfg.horizon_s,
+            buffer_mps=cfg.buffer_mps,
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
         self._fparams[0] = (
@@ -402,7 +413,7 @@ class SafetyFilter:
             state = state.validated()  # not float64 vectors: checked and converted, or the field named
             u_ref = check_finite("u_ref", u_ref, (m,))
         ins = self.input_set if cfg.floor_z_m is None else self._floor_set
-        bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = _prepare(
+        bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = _prepare(
             validate,
             state.x_w,
             state.v_w,
@@ -423,22 +434,28 @@ class SafetyFilter:
             check_finite("u_ref", u_ref, (m,))
         if fixed > cfg.max_rows:
             raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
-        rows = Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), ins.d.size, bool(any_inside))
+        rows = Rows(
+            BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), ins.d.size, bool(any_inside), tight
+        )
         G, b = rows.G, rows.b  # barrier rows as G u <= b
         n = b.shape[0]
+        zeros = np.zeros(n)
 
-        # Fast path: the reference already satisfies everything.
+        # Fast path: the reference already satisfies everything (the buffered rows included).
         if rows.ref_ok:
-            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, np.zeros(n), t0, G, b, (rows.c_ref, 0.0), ins)
+            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, zeros, t0, G, b, (rows.c_ref, 0.0), ins, True)
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
-        problem = QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb)  # rows from the kernel
-        sol = self._qp.solve(problem)
-        if sol.status is QPStatus.FAILED and self._fallback is not None:
-            sol = self._fallback.solve(problem)
         status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
+        if tight.any():  # the buffered rows first; the rows themselves only if those cannot all hold
+            bt = bb.copy()
+            bt[ins.d.size :] -= tight
+            sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bt))
+            if sol.status is QPStatus.OPTIMAL:
+                return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=True)
+        sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb))  # rows from the kernel
         if sol.status is QPStatus.OPTIMAL:
-            return self._result(sol.x, u_ref, status, idx, rows, np.zeros(n), t0, G, b, ins=ins)
+            return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=not tight.any())
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
         m = self.m
@@ -454,6 +471,13 @@ class SafetyFilter:
             return self._result(u, u_ref, st, idx, rows, slack, t0, G, b, ins=ins)
         u = np.clip(u_ref, ins.lb, ins.ub)
         return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b, ins=ins)
+
+    def _solve(self, problem: QPProblem) -> QPSolution:
+        """The QP by the configured backend, retried once by daqp if it failed numerically."""
+        sol = self._qp.solve(problem)
+        if sol.status is QPStatus.FAILED and self._fallback is not None:
+            sol = self._fallback.solve(problem)
+        return sol
 
     def _slack_arrays(self, n: int, ins: LinearInputSet) -> tuple[FloatArray, ...]:
         """The least-violation QP's arrays for ``n`` rows under ``ins``: H, q, lb, ub and
@@ -491,13 +515,14 @@ class SafetyFilter:
         b: FloatArray,
         residuals: tuple[FloatArray, float] | None = None,
         ins: LinearInputSet | None = None,
+        buffered: bool = False,
     ) -> FilterResult:
         ins = ins or self.input_set
         if residuals is not None:  # the reference, already checked: c over [input rows; barrier rows]
             c, viol = residuals[0][ins.d.size :], residuals[1]
-            active = c <= ACTIVE_TOL
         else:
-            c, active, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d, ACTIVE_TOL)  # c = Lg_h u - lower
+            c, _, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d, ACTIVE_TOL)  # c = Lg_h u - lower
+        active = c - rows.buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
         return FilterResult(
             u=u,
             u_ref=u_ref,
@@ -510,4 +535,6 @@ class SafetyFilter:
             slack=slack,
             solve_time_s=time.perf_counter() - t0,
             max_violation=viol,
+            buffer=rows.buffer,
+            buffered=buffered,
         )

@@ -42,6 +42,7 @@ from swarm.barriers import (
     LIVE_W_LO_MPS,
     N_COEF,
     RATE,
+    WW,
     BarrierKind,
     BarrierRows,
     H,
@@ -147,6 +148,10 @@ def own_affine(air, x, v, q, Om):
     body_point_into(R, x, v, 0.0, 0.0, af.l, xv_b)  # (this level has no rotation state)
     return xv_b, af.Aa_att.copy()
 
+
+BUFFER_PER_SPEED = 0.1
+"""Below ``buffer / BUFFER_PER_SPEED`` of relative speed a row's velocity buffer is this
+fraction of the relative speed [unit-free]: none at rest."""
 
 RING = 16
 """Candidate directions per static cone in :func:`free_target` (around its boundary)."""
@@ -283,6 +288,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
     Lf = np.empty(n)
+    tight = np.zeros(n)
     A = np.empty((k_in + n, m))
     b = np.empty(k_in + n)
     A[:k_in] = C
@@ -334,18 +340,21 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         if ob.is_nb and live and co[H] > 0.0:
             gain *= far_gain(p, w, ob.r + r_own)
         b[row] = own + share * (rel + gain * co[H])
+        if par.buffer > 0.0 and not inside[i]:
+            v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
+            tight[i] = share * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]
             for j in range(m):
                 acc -= A[row, j] * u_ref[j]
             c_ref[row] = acc
-            if acc < 0.0:
+            if acc < (tight[row - k_in] if row >= k_in else 0.0):
                 ref_ok = False
         for j in range(m):
             if not lb[j] <= u_ref[j] <= ub[j]:
                 ref_ok = False
-    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside
+    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside, tight
 
 
 @dataclass(slots=True)
@@ -361,6 +370,7 @@ class Rows:
     ref_ok: bool  # that reference satisfies every row and input bound
     k_in: int  # number of input rows on top
     any_inside: bool  # some row is already inside its safety radius
+    buffer: FloatArray  # (n,) what each row's buffered form asks beyond it: b - buffer is the buffered rows' b
 
     @property
     def G(self) -> FloatArray:
@@ -446,7 +456,7 @@ def assemble_with(
         C, d = np.zeros((0, m)), _NO_REF
     else:
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
         obstacles.rec,
         np.arange(len(obstacles)) if sel is None else sel,
         params,
@@ -458,7 +468,7 @@ def assemble_with(
         C,
         d,
     )
-    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside))
+    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight)
 
 
 __all__ = [

@@ -140,6 +140,7 @@ KNOBS: dict[str, Knob] = {
     "rho": _each_filter("rho", _float),
     "sensing_radius_m": _each_filter("sensing_radius_m", _float),
     "horizon_s": _each_filter("horizon_s", _float_or_none),
+    "buffer_mps": _each_filter("buffer_mps", _float),
     "obstacle_speed": _aim("speed_mps"),
     "approach_angle_deg": _aim("angle_deg"),
     "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
@@ -348,6 +349,7 @@ UNITS = {
     "gamma_ho": "m/s",
     "radius": "m",
     "horizon_s": "s",
+    "buffer_mps": "m/s",
 }
 
 

@@ -225,8 +225,9 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
 
 def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, float]:
     """(stationarity residual, scale) of the filter's QP at ``res.u`` from the QP's own
-    definition, min |u - u_ref|^2 s.t. the barrier rows and the input set, independently
-    of either solver: multipliers of the active constraints by non-negative least squares."""
+    definition, min |u - u_ref|^2 s.t. the barrier rows (their buffered form where the
+    command holds it) and the input set, independently of either solver: multipliers of
+    the active constraints by non-negative least squares."""
     from scipy.optimize import nnls
 
     rows = filt.rows(state, obs.subset(res.row_index))
@@ -234,7 +235,8 @@ def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, flo
     u, m = res.u, filt.m
     # every constraint as  a_i . u <= c_i
     a_all = np.vstack([-rows.Lg_h.reshape(-1, m), ins.C.reshape(-1, m), np.eye(m), -np.eye(m)])
-    c_all = np.concatenate([-rows.lower, ins.d, ins.ub, -ins.lb])
+    lower = rows.lower + (res.buffer if res.buffered else 0.0)  # the buffered rows ask Lg_h u >= lower + buffer
+    c_all = np.concatenate([-lower, ins.d, ins.ub, -ins.lb])
     scale = 1.0 + np.abs(a_all).sum(axis=1) * (1.0 + np.abs(u).max())
     active = a_all @ u - c_all >= -1e-7 * scale
     grad = 2.0 * (u - u_ref)  # of |u - u_ref|^2: the identity cost the filter is defined with

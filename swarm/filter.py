@@ -4,8 +4,10 @@
                                        u in the input set of the command level
 
 Inputs ``u``: rotor thrusts ``f`` (4,) [N] at the rotor level; thrust vector ``F`` (3,)
-[N, world] at the attitude level. When the rows cannot all hold, the least-violation QP
-with one slack per row (quadratic penalty) is solved instead and the tick is flagged.
+[N, world] at the attitude level. The live rows' buffered form (``swarm.rows``, "Velocity
+buffer") is tried first and the rows themselves only if it cannot all hold; when the rows
+cannot all hold either, the least-violation QP with one slack per row (quadratic penalty)
+is solved instead and the tick is flagged.
 """
 
 from __future__ import annotations
@@ -258,11 +260,11 @@ class FilterConfig:
     live_hi_mps: float = LIVE_W_HI_MPS
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
     buffer_mps: float = 0.05
-    """Live rows: the velocity buffer [m/s] (``swarm.rows``, "Velocity buffer"): the QP is
-    first solved with every live row asking ``h' + gamma k (h - b |dh/dw|) >= 0``, ``b`` this
-    buffer (a tenth of the relative speed below ten times it), which keeps a relative
-    velocity about ``b`` outside its cone; only if those rows cannot all hold, with the rows
-    themselves. 0: the rows alone."""
+    """Live rows: the velocity buffer ``b`` [m/s] (``swarm.rows``, "Velocity buffer"): the
+    QP is first solved with every live row asking ``h' + g (h - v |dh/dw|) >= 0`` (``g`` its
+    class-K gain, ``v = min(b, 0.1 |w|)``), which keeps the relative velocity about ``v``
+    outside its cone, and with the rows themselves only if those cannot all hold. 0: the
+    rows alone."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon

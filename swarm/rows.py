@@ -22,6 +22,27 @@ Attitude level (thrust-vector point mass): ``A = -I / m``, ``a0_own = g e3``, ab
 body centre ``x + l R e3`` moving with the centre of mass (this level has no rotation
 state), the point the roster reports for every other drone: a pair's two rows then see
 mirrored ``p`` and ``w``.
+
+**Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.05 m/s). A row with
+class-K gain ``g`` (``max(gamma, rate)``, times the far-neighbour factor) asks
+``h' + g h >= 0``; its buffered form asks
+
+    h' + g (h - v |dh/dw|) >= 0,     v = min(buffer, BUFFER_PER_SPEED |w|)            (B)
+
+i.e. ``b - buffer`` in place of ``b`` with ``buffer = share g v |dh/dw|`` (``Rows.buffer``).
+h is homogeneous of degree 1 in w, so ``h / |dh/dw|`` is, to first order, how far [m/s] the
+relative velocity lies outside the cone; (B) makes it settle about ``v`` outside rather than
+on the cone's boundary. The filter solves the QP with the buffered rows first and with the
+rows themselves only if the buffered ones cannot all hold, so every command still satisfies
+every row whenever the rows can hold: the buffer changes no guarantee, it only chooses among
+the commands the rows admit. Why: the attitude level treats the commanded thrust vector as
+the acceleration, while the firmware's attitude loop reaches it some 0.1 s later; a swarm
+that rides its cones' boundaries then slips just inside some of them (h about -0.01 m^2/s
+at 2 m), and an agent on several cones at once whose outward normals surround it has no
+command that leaves them all: a least-violation tick, though it is far from contact. With
+the buffer such slips stay outside the cones (measured: EXPERIMENTS.md section 4). ``v``
+fades with the relative speed, so a swarm at rest, or flying side by side, keeps none and
+settles where it is.
 """
 
 from __future__ import annotations
@@ -151,7 +172,7 @@ def own_affine(air, x, v, q, Om):
 
 BUFFER_PER_SPEED = 0.1
 """Below ``buffer / BUFFER_PER_SPEED`` of relative speed a row's velocity buffer is this
-fraction of the relative speed [unit-free]: none at rest."""
+fraction of the relative speed [unit-free]: none at rest (module docstring, (B))."""
 
 RING = 16
 """Candidate directions per static cone in :func:`free_target` (around its boundary)."""
@@ -274,11 +295,15 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
 
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
     the cone, twice the inverse time to contact), times :func:`swarm.barriers.far_gain`
-    for a live neighbour row with ``h > 0``.
+    for a live neighbour row with ``h > 0``. With ``params.buffer`` each live row outside
+    its safety radius also gets its velocity buffer (module docstring, (B)): the buffered
+    rows are ``b - buffer``, and ``u_ref`` counts as satisfying the rows only if it holds
+    them.
 
     Returns (Y_used (n,3,3), coef (n,9), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
-    c_ref (k+n,), ref_ok, any_inside) where ``ref_ok`` says ``u_ref`` satisfies every row and
-    bound and ``any_inside`` that some row is already inside its safety radius."""
+    c_ref (k+n,), ref_ok, any_inside, buffer (n,)) where ``ref_ok`` says ``u_ref`` satisfies
+    every buffered row and bound and ``any_inside`` that some row is already inside its
+    safety radius."""
     par = params[0]
     kind, r_own, live = par.kind, par.r_own, par.live
     n = sel.shape[0]

@@ -57,6 +57,12 @@ def test_filter_and_gains_reach_every_agent():
     assert all(a.filter.horizon_s is None for a in build(BASE, {"horizon_s": "none"})[0].agents)
     with pytest.raises(ConfigError, match="horizon_s"):
         build(BASE, {"horizon_s": "0"})
+    assert all(a.filter.buffer_mps == 0.0 for a in build(BASE, {"buffer_mps": "0"})[0].agents)
+    assert all(
+        a.filter.filter_config(a.command_level).buffer_mps == 0.1 for a in build(BASE, {"buffer_mps": "0.1"})[0].agents
+    )
+    with pytest.raises(ConfigError, match="buffer_mps"):
+        build(BASE, {"buffer_mps": "-1"})
 
 
 def test_an_obstacle_that_would_start_on_the_agent_is_refused():

@@ -362,12 +362,12 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         Lf[i] = rel + own
         share = par.rho if ob.is_nb else 1.0
         gain = max(par.gamma, co[RATE])
-        if ob.is_nb and live and co[H] > 0.0:
-            gain *= far_gain(p, w, ob.r + r_own)
-        b[row] = own + share * (rel + gain * co[H])
         if par.buffer > 0.0 and not inside[i]:
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
+        if ob.is_nb and live and co[H] > 0.0:
+            gain *= far_gain(p, w, ob.r + r_own)
+        b[row] = own + share * (rel + gain * co[H])
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]

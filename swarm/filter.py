@@ -261,7 +261,7 @@ class FilterConfig:
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
     buffer_mps: float = 0.05
     """Live rows: the velocity buffer ``b`` [m/s] (``swarm.rows``, "Velocity buffer"): the
-    QP is first solved with every live row asking ``h' + g (h - v |dh/dw|) >= 0`` (``g`` its
+    QP is first solved with every live row asking ``h' + g k h >= g v |dh/dw|`` (``g k`` its
     class-K gain, ``v = min(b, 0.1 |w|)``), which keeps the relative velocity about ``v``
     outside its cone, and with the rows themselves only if those cannot all hold. 0: the
     rows alone."""

@@ -24,16 +24,18 @@ state), the point the roster reports for every other drone: a pair's two rows th
 mirrored ``p`` and ``w``.
 
 **Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.05 m/s). A row with
-class-K gain ``g`` (``max(gamma, rate)``, times the far-neighbour factor) asks
-``h' + g h >= 0``; its buffered form asks
+class-K gain ``g k`` (``g = max(gamma, rate)``, ``k`` the far-neighbour factor, 1 for other
+rows) asks ``h' + g k h >= 0``; its buffered form asks
 
-    h' + g (h - v |dh/dw|) >= 0,     v = min(buffer, BUFFER_PER_SPEED |w|)            (B)
+    h' + g k h >= g v |dh/dw|,     v = min(buffer, BUFFER_PER_SPEED |w|)               (B)
 
 i.e. ``b - buffer`` in place of ``b`` with ``buffer = share g v |dh/dw|`` (``Rows.buffer``).
 h is homogeneous of degree 1 in w, so ``h / |dh/dw|`` is, to first order, how far [m/s] the
-relative velocity lies outside the cone; (B) makes it settle about ``v`` outside rather than
-on the cone's boundary. The filter solves the QP with the buffered rows first and with the
-rows themselves only if the buffered ones cannot all hold, so every command still satisfies
+relative velocity lies outside the cone; (B) makes it settle about ``v / k`` outside rather
+than on the cone's boundary (a far neighbour drifting slowly needs little buffer, and
+multiplying it by ``k`` pushed agents off their goals in dense crowds with ``rho < 1``).
+The filter solves the QP with the buffered rows first and with the rows themselves only
+if the buffered ones cannot all hold, so every command still satisfies
 every row whenever the rows can hold: the buffer changes no guarantee, it only chooses among
 the commands the rows admit. Why: the attitude level treats the commanded thrust vector as
 the acceleration, while the firmware's attitude loop reaches it some 0.1 s later; a swarm

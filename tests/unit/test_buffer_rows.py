@@ -1,7 +1,7 @@
 """The live rows' velocity buffer (swarm.rows, "Velocity buffer") by its definition.
 
-A row's buffered form asks ``h' + g (h - v |dh/dw|) >= 0`` (``g`` the row's class-K gain,
-``v = min(buffer, BUFFER_PER_SPEED |w|)``), so:
+A row's buffered form asks ``h' + g k h >= g v |dh/dw|`` (``g k`` the row's class-K gain,
+``k`` the far-neighbour factor, ``v = min(buffer, BUFFER_PER_SPEED |w|)``), so:
 
 * the buffer is that term, times the row's share, and nothing inside a safety radius or
   at zero relative velocity; a command that holds the buffered rows holds the rows;
@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import RATE, H, far_gain
+from swarm.barriers import RATE
 from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
 from swarm.config import resolve
 from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
@@ -76,15 +76,12 @@ def test_the_buffer_is_its_definition_and_only_tightens(seed, n, buffer, rho, ga
     rows = filt.rows(state, obs, u_ref)
     bar = rows.barrier
     W = bar.Y[:, 1]
-    r_full = obs.radius_m + filt.r_own_m
     for i in range(n):
         if bar.inside[i] or buffer == 0.0:
             assert rows.buffer[i] == 0.0
             continue
         share = rho if nb[i] else 1.0
-        gain = max(gamma, bar.coef[i, RATE])
-        if nb[i] and bar.coef[i, H] > 0.0:
-            gain *= far_gain(bar.Y[i, 0], W[i], r_full[i])
+        gain = max(gamma, bar.coef[i, RATE])  # the row's base gain: not the far-neighbour factor
         v_buf = min(buffer, BUFFER_PER_SPEED * np.linalg.norm(W[i]))
         expected = share * gain * v_buf * np.linalg.norm(bar.dh_dw[i])
         assert rows.buffer[i] == pytest.approx(expected, rel=1e-9, abs=1e-15)

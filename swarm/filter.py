@@ -449,7 +449,8 @@ class SafetyFilter:
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
         status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
-        if tight.any():  # the buffered rows first; the rows themselves only if those cannot all hold
+        has_buffer = bool(tight.any())
+        if has_buffer:  # the buffered rows first; the rows themselves only if those cannot all hold
             bt = bb.copy()
             bt[ins.d.size :] -= tight
             sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bt))
@@ -457,7 +458,7 @@ class SafetyFilter:
                 return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=True)
         sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb))  # rows from the kernel
         if sol.status is QPStatus.OPTIMAL:
-            return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=not tight.any())
+            return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=not has_buffer)
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
         m = self.m

@@ -45,14 +45,9 @@ def attitude_filter(**kw: object) -> SafetyFilter:
     return SafetyFilter(MODEL, FilterConfig(level=CommandLevel.ATTITUDE, floor_z_m=None, **kw))
 
 
-def one_obstacle(c, cd, r, nb=False, axis=None) -> ObstacleArrays:
-    return ObstacleArrays.build(
-        np.array([c]),
-        np.array([r]),
-        np.array([cd]),
-        axis_w=None if axis is None else np.array([axis]),
-        is_neighbour=np.array([nb]),
-    )
+def one_obstacle(c, cd, r, nb=False) -> ObstacleArrays:
+    """One sphere of radius ``r`` [m] at ``c`` [m] moving at ``cd`` [m/s]; ``nb``: another agent."""
+    return ObstacleArrays.build(np.array([c]), np.array([r]), np.array([cd]), is_neighbour=np.array([nb]))
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])

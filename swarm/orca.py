@@ -1,14 +1,23 @@
-"""The ORCA baseline (RVO2 through its ``pyrvo`` bindings) on a scenario config.
+"""The ORCA baseline (RVO2 and RVO2-3D, the reference implementations) on a scenario config.
 
 ORCA is the reference algorithm of reciprocal avoidance: every agent is a holonomic disc
-in the plane that picks, each step, the velocity closest to its preferred one among the
+(or ball) that picks, each step, the velocity closest to its preferred one among the
 velocities that avoid every neighbour for ``time_horizon_s`` if the neighbour does its
-half. Here each agent of the config becomes such a disc at its start (x, y), with the
+half. Here each agent of the config becomes such a disc at its start, with the
 Crazyflie's maximum speed (its target speed) and radius (its airframe radius plus half the
 filter margin, so a pair keeps the same distance as C3BF's neighbour rows), and a
 preferred velocity towards its goal at target speed (slowing within ``kp`` of it, as the
-quadrotor's tracker does). Altitude is kept at the start's; a 3-D (sphere) scenario, or any obstacle but a static
-vertical cylinder (an RVO2 polygon), is refused, since RVO2 is planar.
+quadrotor's tracker does).
+
+Two backends, picked by the scenario:
+
+* planar (RVO2 through ``pyrvo``): every agent keeps its start's altitude; obstacles must
+  be static vertical cylinders (RVO2 polygons);
+* spatial (RVO2-3D through ``jt-pyrvo23d``): some agent changes altitude (a sphere swap);
+  RVO2-3D has no obstacles, so a spatial scenario with obstacles is refused.
+
+A planar scenario stays planar (the disc model ORCA's papers and the 2-D benchmarks use),
+although RVO2-3D could also fly it with altitude changes.
 
 The run writes the same records a real run would (measurements, agent states with the
 per-agent solve time, collisions, a final status), so ``swarm.metrics.compute`` gives
@@ -25,8 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from swarm.config import ScenarioConfig, dump
+from swarm.config import AgentConfig, ScenarioConfig, dump
 from swarm.metrics import compute
+from swarm.rotation import FloatArray
 
 
 def _polygon(centre: list[float], radius_m: float, sides: int = 24) -> list[tuple[float, float]]:
@@ -46,6 +56,94 @@ NOT_MEASURED = {
 }
 
 
+class _Planar:
+    """RVO2 (``pyrvo``): discs at their starts' altitudes."""
+
+    def __init__(self, cfg: ScenarioConfig, dt: float, horizon_s: float, neighbour_dist_m: float, max_nb: int) -> None:
+        import pyrvo
+
+        self.z = np.array([a.start[2] for a in cfg.agents], dtype=float)  # m: the altitudes kept
+        self.sim = sim = pyrvo.RVOSimulator()
+        sim.set_time_step(dt)
+        for o in cfg.obstacles:
+            if o.shape != "cylinder" or o.axis is None or math.hypot(o.axis[0], o.axis[1]) > 1e-9 or any(o.velocity):
+                raise ValueError(f"ORCA is planar with obstacles: obstacle {o.id} is not a static vertical cylinder")
+            sim.add_obstacle(_polygon(o.center[:2], o.radius_m))
+        if cfg.obstacles:
+            sim.process_obstacles()
+        for a in cfg.agents:
+            i = sim.add_agent(
+                (float(a.start[0]), float(a.start[1])),
+                neighbour_dist_m,
+                max_nb,
+                horizon_s,
+                horizon_s,
+                _radius(a),
+                float(a.speed_mps),
+            )
+            sim.set_agent_velocity(i, (float(a.start_velocity[0]), float(a.start_velocity[1])))
+
+    def state(self) -> tuple[FloatArray, FloatArray]:
+        """Positions [m] and velocities [m/s] (n, 3), world."""
+        n = len(self.z)
+        P = np.array([self.sim.get_agent_position(i).to_tuple() for i in range(n)])
+        V = np.array([self.sim.get_agent_velocity(i).to_tuple() for i in range(n)])
+        return np.column_stack([P, self.z]), np.column_stack([V, np.zeros(n)])
+
+    def step(self, pref_w: FloatArray) -> None:
+        """One step with preferred velocities ``pref_w`` (n, 3) [m/s, world]; z is dropped."""
+        for i, v in enumerate(pref_w):
+            self.sim.set_agent_pref_velocity(i, (float(v[0]), float(v[1])))
+        self.sim.do_step()
+
+
+class _Spatial:
+    """RVO2-3D (``jt-pyrvo23d``'s ``rvo23d``): balls in space; no obstacles."""
+
+    def __init__(self, cfg: ScenarioConfig, dt: float, horizon_s: float, neighbour_dist_m: float, max_nb: int) -> None:
+        import rvo23d
+
+        if cfg.obstacles:
+            raise ValueError("ORCA in 3-D (RVO2-3D) has no obstacles: this scenario changes altitude and has some")
+        a0 = cfg.agents[0]
+        # the constructor takes the agent defaults: time step, neighbour distance, max neighbours,
+        # time horizon, radius, max speed (rvo23d.pyx, wrapping RVO2-3D's RVOSimulator)
+        self.sim = sim = rvo23d.PyRVOSimulator(dt, neighbour_dist_m, max_nb, horizon_s, _radius(a0), a0.speed_mps)
+        for a in cfg.agents:
+            sim.addAgent(
+                tuple(float(c) for c in a.start),
+                neighbour_dist_m,
+                max_nb,
+                horizon_s,
+                _radius(a),
+                float(a.speed_mps),
+                tuple(float(c) for c in a.start_velocity),
+            )
+        self.n = len(cfg.agents)
+
+    def state(self) -> tuple[FloatArray, FloatArray]:
+        """Positions [m] and velocities [m/s] (n, 3), world."""
+        P = np.array([self.sim.getAgentPosition(i) for i in range(self.n)], dtype=float)
+        V = np.array([self.sim.getAgentVelocity(i) for i in range(self.n)], dtype=float)
+        return P, V
+
+    def step(self, pref_w: FloatArray) -> None:
+        """One step with preferred velocities ``pref_w`` (n, 3) [m/s, world]."""
+        for i, v in enumerate(pref_w):
+            self.sim.setAgentPrefVelocity(i, (float(v[0]), float(v[1]), float(v[2])))
+        self.sim.doStep()
+
+
+def _radius(agent: AgentConfig) -> float:
+    """An agent's ORCA radius [m]: airframe radius plus half the filter margin."""
+    return agent.airframe.params().body_radius_m + 0.5 * agent.filter.margin_m
+
+
+def planar(cfg: ScenarioConfig) -> bool:
+    """Whether every agent of ``cfg`` keeps its start's altitude (ORCA's planar backend)."""
+    return all(abs(a.final_goal[2] - a.start[2]) <= 1e-6 for a in cfg.agents)
+
+
 def run_orca(
     cfg: ScenarioConfig,
     out: Path,
@@ -55,40 +153,14 @@ def run_orca(
     max_neighbours: int = 16,
     kp_per_s: float = 1.5,
 ) -> dict[str, Any]:
-    """Simulate ``cfg`` with ORCA at its control rate; write ``config.yaml`` and
-    ``metrics.json`` into ``out``; return the metrics."""
-    import pyrvo
-
-    z = np.array([a.start[2] for a in cfg.agents])
-    for a in cfg.agents:
-        if abs(a.final_goal[2] - a.start[2]) > 1e-6:
-            raise ValueError(f"ORCA is planar: agent {a.id} changes altitude ({a.start[2]} -> {a.final_goal[2]} m)")
+    """Simulate ``cfg`` with ORCA at its control rate (the planar backend if every agent
+    keeps its altitude, else the spatial one); write ``config.yaml`` and ``metrics.json``
+    into ``out``; return the metrics. A scenario neither backend can fly raises ValueError."""
     dt = 1.0 / cfg.time.control_hz
-    sim = pyrvo.RVOSimulator()
-    sim.set_time_step(dt)
-    for o in cfg.obstacles:
-        if o.shape != "cylinder" or o.axis is None or math.hypot(o.axis[0], o.axis[1]) > 1e-9 or any(o.velocity):
-            raise ValueError(f"ORCA is planar: obstacle {o.id} is not a static vertical cylinder")
-        sim.add_obstacle(_polygon(o.center[:2], o.radius_m))
-    if cfg.obstacles:
-        sim.process_obstacles()
-    ids, goals, body = [], [], []
-    for a in cfg.agents:
-        p = a.airframe.params()
-        radius = p.body_radius_m + 0.5 * a.filter.margin_m
-        i = sim.add_agent(
-            (float(a.start[0]), float(a.start[1])),
-            neighbour_dist_m,
-            max_neighbours,
-            time_horizon_s,
-            time_horizon_s,
-            radius,
-            float(a.speed_mps),
-        )
-        sim.set_agent_velocity(i, (float(a.start_velocity[0]), float(a.start_velocity[1])))
-        ids.append(a.id)
-        goals.append(np.array(a.final_goal[:2], dtype=float))
-        body.append(p.body_radius_m)
+    backend = (_Planar if planar(cfg) else _Spatial)(cfg, dt, time_horizon_s, neighbour_dist_m, max_neighbours)
+    ids = [a.id for a in cfg.agents]
+    goals = np.array([a.final_goal for a in cfg.agents], dtype=float)
+    body = [a.airframe.params().body_radius_m for a in cfg.agents]
     n = len(ids)
     speed = np.array([a.speed_mps for a in cfg.agents])
     l_m = np.array([a.airframe.params().l_m for a in cfg.agents])
@@ -99,8 +171,7 @@ def run_orca(
     k = 0
     for k in range(steps + 1):
         t = k * dt
-        P = np.array([sim.get_agent_position(i).to_tuple() for i in range(n)])
-        V = np.array([sim.get_agent_velocity(i).to_tuple() for i in range(n)])
+        P, V = backend.state()
         for i, aid in enumerate(ids):
             records.append(
                 {
@@ -110,27 +181,25 @@ def run_orca(
                     "k": k,
                     "q": q,
                     "w": [0.0, 0.0, 0.0],
-                    "x": [P[i, 0], P[i, 1], z[i]],
-                    "v": [V[i, 0], V[i, 1], 0.0],
+                    "x": P[i].tolist(),
+                    "v": V[i].tolist(),
                 }
             )
-        centres = np.column_stack([P, z + l_m])
+        centres = P + np.outer(l_m, [0.0, 0.0, 1.0])
         d = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
         for i in range(n):
             for j in range(i + 1, n):
                 if d[i, j] < body[i] + body[j] and (i, j) not in touching:
                     touching.add((i, j))
                     records.append({"kind": "collision", "t": t, "k": k, "a": ids[i], "b": ids[j]})
-        to_goal = np.array(goals) - P
+        to_goal = goals - P
         dist = np.linalg.norm(to_goal, axis=1)
         arrived = dist <= cfg.goal_tolerance_m
         if cfg.stop_when_all_reached and arrived.all() or k == steps:
             break
         pref = to_goal * (np.minimum(speed, kp_per_s * dist) / np.maximum(dist, 1e-9))[:, None]
-        for i in range(n):
-            sim.set_agent_pref_velocity(i, (float(pref[i, 0]), float(pref[i, 1])))
         t0 = time.perf_counter()
-        sim.do_step()
+        backend.step(pref)
         per_agent_us = (time.perf_counter() - t0) * 1e6 / n
         for aid in ids:
             records.append(

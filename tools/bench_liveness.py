@@ -1,13 +1,14 @@
 """Liveness benchmark: swarms that start at rest, C3BF (live rows, the default) beside
-ORCA on the same planar scenes. Prints one JSON line per scene family point.
+ORCA on the same scenes. Prints one JSON line per scene family point.
 
 Each point flies its scenes in one process (``swarm.closed_loop.simulate_swarm``: the
 agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the world's
 roster of body centres each tick) for every seed, and reports the success rate (every
 agent at its goal, no contact), collisions (pairs and obstacle contacts), deadlocked
 agents, infeasible agent ticks (ticks without the guarantee), and the mean and worst time
-to goal over the straight-line time (distance / target speed). ORCA (``swarm.orca``) runs
-the same scene where it is planar, with its figures under ``orca``; ``null`` otherwise.
+to goal over the straight-line time (distance / target speed). ORCA (``swarm.orca``: RVO2
+on planar scenes, RVO2-3D on the sphere swaps) runs the same scene at rho = 1, with its
+figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho = 0.5.
 
     python -m tools.bench_liveness                 # every family (about 15 min on 2 cores)
     python -m tools.bench_liveness --quick         # one seed, smaller swarms
@@ -138,7 +139,7 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
     with tempfile.TemporaryDirectory() as tmp:
         try:
             m = run_orca(cfg, Path(tmp))
-        except ValueError:  # not planar
+        except ValueError:  # a scene neither RVO2 nor RVO2-3D can fly
             return None
     ratios = [
         a["time_to_goal_s"] / (a["straight_line_m"] / cfg.agents[i].speed_mps)

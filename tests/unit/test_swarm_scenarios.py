@@ -97,5 +97,19 @@ def test_orca_flies_the_same_four_agent_circle(tmp_path):
     exact = run_orca(resolve(circle_swap(4, 2.0)), tmp_path / "orca_exact")
     assert exact["deadlocked_agents"]  # the exactly symmetric swap is ORCA's classic deadlock
     assert exact["stop_reason"] == "the scenario's duration"
-    with pytest.raises(ValueError, match="planar"):
-        run_orca(resolve(sphere_swap(4, 2.0)), tmp_path / "orca_sphere")
+
+
+def test_orca_flies_a_sphere_swap_in_space(tmp_path):
+    """A scenario that changes altitude flies on RVO2-3D: the agents reach the antipodes
+    through the centre, and the balls never overlap."""
+    cfg = resolve(sphere_swap(8, 1.5))
+    m = run_orca(cfg, tmp_path / "orca_sphere")
+    assert m["all_reached_goal"] and m["collisions"] == 0 and not m["deadlocked_agents"]
+    assert m["min_separation_m"] >= 2 * 0.07
+    for a, agent in zip(cfg.agents, m["agents"].values(), strict=True):
+        straight = float(np.linalg.norm(np.subtract(a.final_goal, a.start)))
+        assert straight > 2.9 and agent["path_length_m"] >= straight - 0.15  # it did cross the sphere
+    raw = sphere_swap(4, 2.0)
+    raw["obstacles"] = [{"id": "ball", "shape": "sphere", "center": [0.0, 0.0, 3.5], "radius_m": 0.2}]
+    with pytest.raises(ValueError, match="no obstacles"):
+        run_orca(resolve(raw), tmp_path / "orca_obstacles")

@@ -91,6 +91,28 @@ the cone's grazing contact. Its w-gradient is the cone's, so a row still asks to
 off the collision course rather than to brake. Measured (EXPERIMENTS.md, section 4): at
 ``tau = 2 s`` crowded swaps reach their goals far sooner, but with several times more
 infeasible ticks; it is not the default.
+
+**Contact horizon** (live neighbour rows, opt-in: ``filter.contact_s = T``). The cone
+also forbids a collision course however slowly it closes: a crowd at rest converging on a
+sphere's centre, every pair closing head on at a few cm/s, gets rows as hard as pairs
+closing at speed, and contracts only as fast as it can swirl. A neighbour row may instead
+relax its radius with the time to contact ``t_c = (|p| - r) / v_c`` (``v_c = -<p, w>/|p|``
+the closing speed; ``t_c`` infinite when not closing):
+
+    h_T = <p, w> + |w| S,   S = sqrt(|p|^2 - rho^2),   rho = r (1 - (1 - k) psi(t_c))   (3)
+
+with ``psi`` the smoothstep from 0 at ``t_c = T`` to 1 at ``2 T`` and ``k`` =
+``CONTACT_FLOOR`` (the radius never falls below ``k r``, so the cone keeps a gradient). The
+live row is the row of ``h_T``: ``h_d`` with ``S`` for ``s`` and ``d`` in the relaxed cone,
+plus rho's own gradient, ``dS = (g / S) dt_c`` with ``g = rho r (1 - k) psi'`` and
+``t_c = N / D`` (``N = |p|^2 - r |p|``, ``D = -<p, w>``), which adds
+``k_c (2 - r/|p|) D`` to ``a_p``, ``k_c N`` to ``b_p`` and to ``a_w`` (``k_c = <d, w> g /
+(S D^2)``): so the row also answers for the radius it will have as the pair closes faster.
+``rho <= r``, so ``h_T >= h``, and the two are equal where contact is less than ``T``
+away. It is still collision-free: a pair closing at the safety radius has ``t_c = 0``,
+hence ``rho = r`` and ``h_T = h``, and ``h_T >= 0`` there asks ``<p, w> >= 0`` as the cone
+does. What it lets through, like ORCA's time horizon, is a slow approach, never a fast
+one; obstacles keep the cone (``nb`` rows only). Measured in EXPERIMENTS.md, section 4.
 """
 
 from __future__ import annotations
@@ -140,6 +162,9 @@ LIVE_W_LO_MPS = 0.005
 LIVE_W_HI_MPS = 0.02
 """From this relative speed [m/s] up a live row is the exact C3BF row (``d = w/|w|``)."""
 _TINY = 1e-12
+CONTACT_FLOOR = 0.1
+"""The contact horizon relaxes a neighbour's radius to this fraction of it, not to nothing:
+the cone stays a cone (a zero radius would leave the row without a gradient)."""
 
 ROW_PARAMS = np.dtype(
     [
@@ -155,6 +180,7 @@ ROW_PARAMS = np.dtype(
         ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
         ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
         ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
+        ("t_contact", "f8"),  # live neighbour rows: contact time [s] beyond which the radius relaxes (0: never)
     ],
     align=True,
 )
@@ -176,9 +202,11 @@ def row_params(
     w_hi_mps: float = LIVE_W_HI_MPS,
     horizon_s: float | None = None,
     buffer_mps: float = 0.0,
+    contact_s: float = 0.0,
 ) -> np.ndarray:
     """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
-    C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live rows."""
+    C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live
+    rows, ``contact_s`` (the contact horizon [s], 0: none) to live neighbour rows."""
     kind = BarrierKind(kind)
     out = np.zeros(1, dtype=ROW_PARAMS)
     out[0] = (
@@ -194,6 +222,7 @@ def row_params(
         w_hi_mps,
         0.0 if horizon_s is None else 1.0 / horizon_s,
         buffer_mps if live and kind is BarrierKind.C3BF else 0.0,
+        contact_s if live and kind is BarrierKind.C3BF else 0.0,
     )
     return out
 
@@ -342,6 +371,27 @@ def cone_row(r, s, pp, pw, ww):
     return H, a_p, b_p, b_p, r * s / (rp * wperp)
 
 
+@njit(cache=True)
+def contact_radius(r, pp, pw, T):
+    """The contact horizon's radius (module docstring, "Contact horizon") for ``pp = |p|^2``
+    [m^2] outside the safety radius ``r`` [m], ``pw = <p, w>`` [m^2/s] and ``T`` [s] > 0:
+    (rho [m], g [m^2/s]) with ``rho = r (1 - (1 - CONTACT_FLOOR) psi(t_c))`` and
+    ``g = rho r (1 - CONTACT_FLOOR) psi'(t_c)``, so that ``S = sqrt(|p|^2 - rho^2)`` has
+    ``dS/dt_c = g / S``. ``t_c = (|p| - r) |p| / -<p, w>`` is the time to contact at the
+    closing speed (infinite when not closing), ``psi`` the smoothstep from 0 at ``t_c = T``
+    to 1 at ``2 T``."""
+    if pw >= 0.0:
+        return CONTACT_FLOOR * r, 0.0
+    rp = math.sqrt(pp)
+    x = (rp - r) * rp / (-pw * T) - 1.0
+    if x <= 0.0:
+        return r, 0.0
+    if x >= 1.0:
+        return CONTACT_FLOOR * r, 0.0
+    rho = r * (1.0 - (1.0 - CONTACT_FLOOR) * x * x * (3.0 - 2.0 * x))
+    return rho, rho * r * (1.0 - CONTACT_FLOOR) * 6.0 * x * (1.0 - x) / T
+
+
 @njit(cache=True, fastmath=False)
 def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
     """One row for relative ``p`` [m], ``w`` [m/s], safety radius ``r`` [m] and cylinder
@@ -379,14 +429,25 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
             nw = math.sqrt(ww)
             rp = math.sqrt(pp)
             c = pw / rp
+            rho_c, g_c = r, 0.0  # the contact horizon's radius [m] and rho r psi' [m^2/s]
+            if nb and par.t_contact > 0.0:
+                rho_c, g_c = contact_radius(r, pp, pw, par.t_contact)
+                s = math.sqrt(pp - rho_c * rho_c)
             if pw + nw * s < 0.0:  # inside the cone, closing at -c: leave it within half the time to contact
                 rate = RECOVERY_PER_CONTACT * -c / (rp - r)
             band = AXIS_BAND * nw
-            if nw >= par.w_hi and pw + nw * s < 0.0 and ww - c * c > band * band:  # inside, moving, off the axis: H
-                h, a_p, b_p, a_w, b_w = cone_row(r, s, pp, pw, ww)
+            if rho_c == r and nw >= par.w_hi and pw + nw * s < 0.0 and ww - c * c > band * band:
+                h, a_p, b_p, a_w, b_w = cone_row(r, s, pp, pw, ww)  # inside the full cone, moving, off the axis: H
             else:
                 dw = live_direction(P, W, A, s, pp, a, has_ref, nb, par.w_lo, par.w_hi, Y_out[2])
                 h, a_p, b_p, a_w, b_w, c_d = pw + s * dw, dw / s, 1.0, 1.0, 0.0, s
+                if g_c > 0.0:  # rho's own gradient: dS = (g / S) dt_c, t_c = N / D (module docstring)
+                    D = -pw
+                    N = pp - r * rp
+                    k = dw * g_c / (s * D * D)
+                    a_p += k * (2.0 - r / rp) * D
+                    b_p += k * N
+                    a_w += k * N
             if par.inv_tau > 0.0:  # the horizon allowance (module docstring): h + (|p|^2 - r^2) / (2 tau)
                 h += 0.5 * s2 * par.inv_tau
                 a_p += par.inv_tau
@@ -491,18 +552,28 @@ def evaluate(
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
     horizon_s: float | None = None,
+    contact_s: float = 0.0,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3). ``axis_w`` (n, 3) holds unit
     cylinder axes (zero rows for spheres); ``None`` means all spheres. With ``live`` the
     C3BF rows are live rows for the reference relative accelerations ``a_ref`` (n, 3)
     [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,),
-    with the horizon allowance of ``horizon_s`` [s] (None: none)."""
+    with the horizon allowance of ``horizon_s`` [s] (None: none) and the contact horizon
+    ``contact_s`` [s] (0: none)."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
-    params = row_params(kind, eps=eps, gamma_ho=gamma_ho, escape_speed=escape_speed, live=live, horizon_s=horizon_s)
+    params = row_params(
+        kind,
+        eps=eps,
+        gamma_ho=gamma_ho,
+        escape_speed=escape_speed,
+        live=live,
+        horizon_s=horizon_s,
+        contact_s=contact_s,
+    )
     Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
     return BarrierRows(Y_used, coef, inside)
 

@@ -81,6 +81,8 @@ class FilterSettings(_Strict):
     horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
     # m/s: live rows' velocity buffer (swarm.rows, EXPERIMENTS.md section 4); 0: the rows alone
     buffer_mps: float = Field(0.05, ge=0, allow_inf_nan=False)
+    # s: live neighbour rows' contact horizon (swarm.barriers, EXPERIMENTS.md section 4); 0: the cone alone
+    contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
@@ -96,6 +98,7 @@ class FilterSettings(_Strict):
             live=self.live,
             horizon_s=self.horizon_s,
             buffer_mps=self.buffer_mps,
+            contact_s=self.contact_s,
         )
 
 

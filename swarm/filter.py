@@ -265,6 +265,10 @@ class FilterConfig:
     class-K gain, ``v = min(b, 0.1 |w|)``), which keeps the relative velocity about ``v``
     outside its cone, and with the rows themselves only if those cannot all hold. 0: the
     rows alone."""
+    contact_s: float = 0.0
+    """Live neighbour rows: the contact horizon ``T`` [s] (``swarm.barriers``, "Contact
+    horizon"): a neighbour row whose time to contact exceeds ``T`` relaxes its radius,
+    to nothing from ``2 T``, so a slow approach is not held as hard as a fast one. 0: none."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon
@@ -279,7 +283,7 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number > 0, got {v!r}")
-        for name in ("margin_m", "escape_speed_mps", "buffer_mps"):
+        for name in ("margin_m", "escape_speed_mps", "buffer_mps", "contact_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
@@ -366,6 +370,7 @@ class SafetyFilter:
             w_hi_mps=cfg.live_hi_mps,
             horizon_s=cfg.horizon_s,
             buffer_mps=cfg.buffer_mps,
+            contact_s=cfg.contact_s,
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
         self._fparams[0] = (

@@ -16,10 +16,11 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
 
     python -m tools.bench_liveness --horizon-s 2   # with the live rows' horizon allowance
     python -m tools.bench_liveness --buffer-mps 0  # without the live rows' velocity buffer
+    python -m tools.bench_liveness --contact-s 0   # without the neighbour rows' contact horizon
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
-infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps
-(null: the default).
+infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
+contact_s (null: the default).
 """
 
 from __future__ import annotations
@@ -56,15 +57,13 @@ class Point:
     seeds: tuple[int, ...]
 
 
-def _with_filter(raw: dict, rho: float, horizon_s: float | None = None, buffer_mps: float | None = None) -> dict:
-    """``raw`` with every agent's responsibility share ``rho``, horizon ``horizon_s`` [s]
-    and velocity buffer ``buffer_mps`` [m/s] (None: unset, the default)."""
+def _with_filter(raw: dict, rho: float, **fields: float | None) -> dict:
+    """``raw`` with every agent's responsibility share ``rho`` and the other filter
+    ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s]; None: unset,
+    the config's own)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
-    if horizon_s is not None:
-        filt["horizon_s"] = horizon_s
-    if buffer_mps is not None:
-        filt["buffer_mps"] = buffer_mps
+    filt.update({k: v for k, v in fields.items() if v is not None})
     return raw
 
 
@@ -183,18 +182,19 @@ def main(
     orca: bool = True,
     horizon_s: float | None = None,
     buffer_mps: float | None = None,
+    contact_s: float | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
-            raws = [_with_filter(p.make(s), p.rho, horizon_s, buffer_mps) for s in p.seeds]
+            knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s}
+            raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
             results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _ in results])
             orca_runs = [o for _, o in results if o is not None]
             line["orca"] = _summary(orca_runs) if orca_runs else None
-            line["horizon_s"] = horizon_s
-            line["buffer_mps"] = buffer_mps
+            line |= knobs
             print(json.dumps(line), flush=True)
 
 
@@ -207,5 +207,6 @@ if __name__ == "__main__":
     ap.add_argument("--no-orca", action="store_true")
     ap.add_argument("--horizon-s", type=float, help="filter.horizon_s of every agent (default: none)")
     ap.add_argument("--buffer-mps", type=float, help="filter.buffer_mps of every agent (default: the config's)")
+    ap.add_argument("--contact-s", type=float, help="filter.contact_s of every agent (default: the config's)")
     a = ap.parse_args()
-    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca, a.horizon_s, a.buffer_mps)
+    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca, a.horizon_s, a.buffer_mps, a.contact_s)

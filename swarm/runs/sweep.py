@@ -13,7 +13,9 @@ Knobs (the config's names; units in brackets):
   or ``orca``: the ORCA baseline (``swarm/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
   ``sensing_radius_m`` [m] (neighbours farther away get no row), ``horizon_s`` [s] (the live
-  rows' horizon allowance, ``swarm.barriers``; ``none``: the cone alone).
+  rows' horizon allowance, ``swarm.barriers``; ``none``: the cone alone), ``buffer_mps``
+  [m/s] (the live rows' velocity buffer, ``swarm.rows``) and ``contact_s`` [s] (the live
+  neighbour rows' contact horizon, ``swarm.barriers``; 0: the cone alone).
 * ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
 * ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
   re-aimed so that it passes its configured centre when the first agent, flying its
@@ -141,6 +143,7 @@ KNOBS: dict[str, Knob] = {
     "sensing_radius_m": _each_filter("sensing_radius_m", _float),
     "horizon_s": _each_filter("horizon_s", _float_or_none),
     "buffer_mps": _each_filter("buffer_mps", _float),
+    "contact_s": _each_filter("contact_s", _float),
     "obstacle_speed": _aim("speed_mps"),
     "approach_angle_deg": _aim("angle_deg"),
     "seed": lambda raw, v: {**raw, "seed": int(_float("seed", v))},
@@ -350,6 +353,7 @@ UNITS = {
     "radius": "m",
     "horizon_s": "s",
     "buffer_mps": "m/s",
+    "contact_s": "s",
 }
 
 

@@ -46,6 +46,7 @@ def test_layers_defaults_then_type_then_agent():
         ({"agents": [{"id": "a", "start": [0, 0, 1], "filter": {"rho": 2}}]}, "agents.0.filter.rho"),
         ({"agents": [{"id": "a", "start": [0, 0, 1], "filter": {"horizon_s": 0}}]}, "agents.0.filter.horizon_s"),
         ({"agents": [{"id": "a", "start": [0, 0, 1], "filter": {"buffer_mps": -0.1}}]}, "agents.0.filter.buffer_mps"),
+        ({"agents": [{"id": "a", "start": [0, 0, 1], "filter": {"contact_s": -1.0}}]}, "agents.0.filter.contact_s"),
         ({"agents": [{"id": "a", "start": [0, 0, 1]}, {"id": "a", "start": [1, 0, 1]}]}, "duplicate agents id"),
         ({"agents": [{"id": "a", "start": [0, 0, 1], "type": "nope"}]}, "agents.0.type"),
         ({"time": {"physics_hz": 240, "control_hz": 100}}, "time"),

@@ -63,6 +63,10 @@ def test_filter_and_gains_reach_every_agent():
     )
     with pytest.raises(ConfigError, match="buffer_mps"):
         build(BASE, {"buffer_mps": "-1"})
+    cfg = build(BASE, {"contact_s": "0.75"})[0]
+    assert all(a.filter.filter_config(a.command_level).contact_s == 0.75 for a in cfg.agents)
+    with pytest.raises(ConfigError, match="contact_s"):
+        build(BASE, {"contact_s": "-1"})
 
 
 def test_an_obstacle_that_would_start_on_the_agent_is_refused():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from swarm.barriers import BarrierKind, BarrierRows, evaluate_pw
@@ -57,6 +59,32 @@ def satisfying(n_w: np.ndarray, c: float, acc: np.ndarray) -> np.ndarray:
     """``acc`` moved onto the half-space ``<n_w, a> + c >= 0`` if it is outside."""
     gap = n_w @ acc + c
     return acc if gap >= 0 else acc - gap * n_w / (n_w @ n_w)
+
+
+def closest_approach(
+    row_at: Callable[[np.ndarray, np.ndarray, np.ndarray], BarrierRows],
+    p: np.ndarray,
+    w: np.ndarray,
+    pull: Callable[[np.ndarray], np.ndarray],
+    gain: float,
+    steps: int,
+    dt: float = 0.005,
+) -> float:
+    """A pair in relative coordinates (``p`` obstacle minus agent [m], ``w = p'`` [m/s])
+    flown on its row: every ``dt`` [s], the relative acceleration nearest to the reference
+    ``pull(p)`` [m/s^2] that ``row_at(p, w, reference)`` admits at class-K gain ``gain``
+    [1/s]. Returns the closest distance [m] over ``steps`` steps, or until the row is
+    inside its safety radius."""
+    closest = np.inf
+    for _ in range(steps):
+        rel_ref = pull(p)
+        row = row_at(p, w, rel_ref)
+        acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + gain * row.h[0], rel_ref)
+        p, w = p + dt * w + 0.5 * dt * dt * acc, w + dt * acc
+        closest = min(closest, float(np.linalg.norm(p)))
+        if row.inside[0]:
+            break
+    return closest
 
 
 def live_rows(

@@ -28,7 +28,7 @@ from swarm.config import FilterSettings
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import satisfying
+from .helpers import closest_approach, satisfying
 
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
@@ -171,17 +171,15 @@ def test_flying_on_the_row_at_the_other_never_enters_the_safety_radius(direction
     assume(dist > r + 0.1)
     p, w = dist * d, w0
     assume(exact_h_T(p, w, r, T) >= 0)
-    dt = 0.005
-    closest = np.inf
-    for _ in range(1200):  # 6 s
-        rel_ref = -3.0 * (p / np.linalg.norm(p) + pull)
-        row = rows(p, w, r, rel_ref, T)
-        acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + gain * row.h[0], rel_ref)
-        p, w = p + dt * w + 0.5 * dt * dt * acc, w + dt * acc
-        closest = min(closest, np.linalg.norm(p))
-        if row.inside[0]:
-            break
-    assert closest > r - 2e-3
+    pulled = closest_approach(
+        lambda p, w, ref: rows(p, w, r, ref, T),
+        p,
+        w,
+        lambda p: -3.0 * (p / np.linalg.norm(p) + pull),
+        gain,
+        1200,  # 6 s
+    )
+    assert pulled > r - 2e-3
 
 
 def test_the_contact_horizon_is_checked_where_it_is_set():

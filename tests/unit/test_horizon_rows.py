@@ -22,7 +22,7 @@ from swarm.barriers import LIVE_W_HI_MPS
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import live_rows, outside, proj, satisfying
+from .helpers import closest_approach, live_rows, outside, proj, satisfying
 
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
@@ -124,16 +124,14 @@ def test_flying_on_the_row_from_inside_the_cone_never_enters_the_safety_radius(d
     a = np.zeros(3)
     p, w = dist * d, -v * d
     assert exact_h_tau(p, w, r, a, tau) > 0 > p @ w + v * s  # inside the cone, admitted
-    dt = 0.005
-    closest = np.inf
-    for _ in range(800):  # 4 s
-        rel_ref = -(p / np.linalg.norm(p) + pull)  # w' = -(agent's acceleration): a static obstacle
-        row = rows(p, w, r, a, rel_ref, tau)
-        acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + GAMMA * row.h[0], rel_ref)
-        p, w = p + dt * w + 0.5 * dt * dt * acc, w + dt * acc
-        closest = min(closest, np.linalg.norm(p))
-        if row.inside[0]:
-            break
+    closest = closest_approach(
+        lambda p, w, ref: rows(p, w, r, a, ref, tau),
+        p,
+        w,
+        lambda p: -(p / np.linalg.norm(p) + pull),  # w' = -(agent's acceleration): a static obstacle
+        GAMMA,
+        800,  # 4 s
+    )
     assert closest > r - 2e-3
 
 

@@ -444,10 +444,10 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
                 if g_c > 0.0:  # rho's own gradient: dS = (g / S) dt_c, t_c = N / D (module docstring)
                     D = -pw
                     N = pp - r * rp
-                    k = dw * g_c / (s * D * D)
-                    a_p += k * (2.0 - r / rp) * D
-                    b_p += k * N
-                    a_w += k * N
+                    k_c = dw * g_c / (s * D * D)
+                    a_p += k_c * (2.0 - r / rp) * D
+                    b_p += k_c * N
+                    a_w += k_c * N
             if par.inv_tau > 0.0:  # the horizon allowance (module docstring): h + (|p|^2 - r^2) / (2 tau)
                 h += 0.5 * s2 * par.inv_tau
                 a_p += par.inv_tau

@@ -268,7 +268,8 @@ class FilterConfig:
     contact_s: float = 0.0
     """Live neighbour rows: the contact horizon ``T`` [s] (``swarm.barriers``, "Contact
     horizon"): a neighbour row whose time to contact exceeds ``T`` relaxes its radius,
-    to nothing from ``2 T``, so a slow approach is not held as hard as a fast one. 0: none."""
+    to a tenth of it from ``2 T``, so a slow approach is not held as hard as a fast one.
+    0: none."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon

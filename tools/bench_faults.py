@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from swarm import transport as tp
 from swarm.config import ScenarioConfig, load
@@ -159,11 +160,23 @@ def world_stop(out: Path, mode: str) -> dict[str, Any]:
     return _summary("world_stop", cfg, h, None, "the world resumes; agents wait for its next tick")
 
 
+def _attacker_session(cfg: ScenarioConfig, acc: tp.Access | None) -> tuple[zenoh.Session, str]:
+    """The attacker's session and how it opened. Through a router a client without the run's
+    credentials has its one link refused and does not open (tests/integration/test_forged.py):
+    it then tries as a peer, which opens alone."""
+    try:
+        return tp.open_session(tp.process_config(cfg, tp.Role.OBSERVER, acc)), ""
+    except zenoh.ZError:
+        peer = cfg.model_copy(update={"network": cfg.network.model_copy(update={"topology": "mesh"})})
+        refused = "the router refused its link; as a peer, "
+        return tp.open_session(tp.process_config(peer, tp.Role.OBSERVER, acc)), refused
+
+
 def _attack(out: Path, mode: str, case: str, credentials_of: str | None) -> dict[str, Any]:
     cfg = _config(mode)
     h = RunHandle.start(cfg, out)
     acc = h.access(tp.Role.AGENT, credentials_of) if credentials_of else None
-    session = tp.open_session(tp.process_config(h.cfg, tp.Role.OBSERVER, acc))
+    session, opened = _attacker_session(h.cfg, acc)
     clock = tp.open_channel(session, tp.Keys(h.run).clock)
     pub = session.declare_publisher(tp.Keys(h.run).command("cf1"))
     sent, heard = 0, 0
@@ -191,7 +204,7 @@ def _attack(out: Path, mode: str, case: str, credentials_of: str | None) -> dict
         cfg,
         h,
         None,
-        f"zero-thrust commands for cf1's next tick; heard {heard} clocks; linked to {linked} processes",
+        f"{opened}zero-thrust commands for cf1's next tick; heard {heard} clocks; linked to {linked} processes",
     )
     res["sent"] = sent
     victim = h.result["agents"]["cf1"]

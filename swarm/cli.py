@@ -417,8 +417,8 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     multiple=True,
     metavar="NAME=v1,v2,...",
     help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
-    "sensing_radius_m, tiebreak, seed, obstacle_speed, approach_angle_deg; for generated scenarios "
-    "also agents, radius, perturb_m, density",
+    "sensing_radius_m, horizon_s, buffer_mps, contact_s, tiebreak, seed, obstacle_speed, approach_angle_deg; "
+    "for generated scenarios also agents, radius, perturb_m, density",
 )
 @click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time")
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/sweep-<name>-<time>)")

@@ -38,9 +38,9 @@ T_s = st.floats(0.3, 3.0)
 def rho_of(p, w, r, T):
     """The relaxed radius [m], straight from the definition."""
     pw = p @ w
-    with np.errstate(over="ignore", divide="ignore"):
+    with np.errstate(over="ignore", divide="ignore"):  # (a closing speed of 1e-300 m/s: t_c infinite)
         tc = (np.linalg.norm(p) - r) / (-pw / np.linalg.norm(p)) if pw < 0 else math.inf
-    x = min(max(tc / T - 1.0, 0.0), 1.0)
+        x = min(max(tc / T - 1.0, 0.0), 1.0)
     return r * (1.0 - (1.0 - CONTACT_FLOOR) * x * x * (3.0 - 2.0 * x))
 
 

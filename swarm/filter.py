@@ -46,19 +46,17 @@ DEFAULT_BACKEND = "daqp"
 
 
 @njit(cache=True)
-def _residuals(G, b, u, lb, ub, C, d, tol):
-    """``c = b - G u`` (>= 0 where a row holds), the rows with ``c <= tol`` (active), and
-    the largest violation of a row, bound or input row by ``u`` (0 when all hold)."""
+def _residuals(G, b, u, lb, ub, C, d):
+    """``c = b - G u`` (>= 0 where a row holds) and the largest violation of a row, bound
+    or input row by ``u`` (0 when all hold)."""
     n, m = G.shape
     c = np.empty(n)
-    active = np.empty(n, dtype=np.bool_)
     v = 0.0
     for i in range(n):
         acc = b[i]
         for j in range(m):
             acc -= G[i, j] * u[j]
         c[i] = acc
-        active[i] = acc <= tol
         v = max(v, -acc)
     for j in range(m):
         v = max(v, lb[j] - u[j], u[j] - ub[j])
@@ -67,7 +65,7 @@ def _residuals(G, b, u, lb, ub, C, d, tol):
         for j in range(m):
             acc += C[i, j] * u[j]
         v = max(v, acc)
-    return c, active, v
+    return c, v
 
 
 FILTER_PARAMS = np.dtype(
@@ -530,7 +528,7 @@ class SafetyFilter:
         if residuals is not None:  # the reference, already checked: c over [input rows; barrier rows]
             c, viol = residuals[0][ins.d.size :], residuals[1]
         else:
-            c, _, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d, ACTIVE_TOL)  # c = Lg_h u - lower
+            c, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
         active = c - rows.buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
         return FilterResult(
             u=u,

@@ -185,9 +185,9 @@ def main(
     contact_s: float | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
+    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
-            knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s}
             raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
             results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}

@@ -15,6 +15,7 @@ with scalar coefficients per row (``d`` is the live row's direction, below):
 | C3BF (live) | <p,w> + s <d,w> | <d,w>/s | 1 | 1 | 0 | s |
 | HO-CBF | <p,w> + gamma_ho s | gamma_ho/s | 1 | 1 | 0 | 0 |
 | + horizon allowance | + (\\|p\\|^2 - r^2) / (2 tau) | + 1/tau | | | | |
+| / \\|w\\|^lambda (free braking) | (row times \\|w\\|^lambda) | | | | - lambda h / \\|w\\|^2 | |
 | escape (inside r) | <p,w>/\\|p\\| - v_esc | -<p,w>/\\|p\\|^3 | 1/\\|p\\| | 1/\\|p\\| | 0 | 0 |
 
 with ``s = sqrt(|p|^2 - r^2)`` and the smoothed norm ``n = sqrt(|w|^2+eps^2) - eps``
@@ -113,6 +114,32 @@ away. It is still collision-free: a pair closing at the safety radius has ``t_c 
 hence ``rho = r`` and ``h_T = h``, and ``h_T >= 0`` there asks ``<p, w> >= 0`` as the cone
 does. What it lets through, like ORCA's time horizon, is a slow approach, never a fast
 one; obstacles keep the cone (``nb`` rows only). Measured in EXPERIMENTS.md, section 4.
+
+**Free braking** (live neighbour rows, on by default: ``filter.free_braking``). The cone's
+``h = |w| (<p, u> + s)``, ``u = w/|w|``, is the relative speed times an angular margin, so
+braking a relative velocity without turning it lowers h in proportion: ``h' + gamma k h >= 0``
+lets a relative speed decay no faster than ``exp(-gamma k t)`` (with ``rho < 1`` the agent's
+share of that). An agent whose reference brakes a drift, past neighbours well outside their
+cones, is held drifting: in the densest sphere swap at ``rho = 0.5`` one overshot its goal and
+was held drifting away from it. Any positive scaling of a barrier is a barrier with the same
+safe set, so a row may be the condition of
+
+    B = h / |w|^lambda,   0 <= lambda <= 1   (|w| > 0)                         (4)
+
+which, multiplied by ``|w|^lambda > 0``, is ``h' - lambda h <w, w'> / |w|^2 + gamma k h >= 0``:
+the row's ``b_w`` less ``lambda h / |w|^2``. h is homogeneous of degree 1 in w
+(``<dh/dw, w> = h``), so at ``lambda = 1`` braking along w neither helps the row nor costs it.
+At ``h = 0`` the row is the cone's ``h' >= 0`` whatever lambda, so ``h >= 0`` stays forward
+invariant with lambda chosen per tick; for ``h > 0`` it asks ``h' >= -(gamma k - lambda
+<w, w'> / |w|^2) h``, a class-K bound (``|w| >= w_hi`` and ``w'`` is bounded by the inputs).
+A row takes ``lambda = max(0, min(1, 1 - v_c / BRAKE_CLOSING_MPS))`` (``v_c = -<p, w>/|p|`` the
+closing speed) where its reference's relative acceleration brakes (``<w, a_ref> < 0``), it is
+a neighbour's, outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair
+closing fast keeps the paper's row: there braking is what the cone must price (measured:
+rescaling those rows too gave crowds that met at speed more least-violation ticks). The
+lambda of a row is held for the tick; a tick that brakes a relative velocity through zero can
+leave the row's set by at most ``|w| (|p| + s)`` of h, which the next tick's recovery
+(``RATE``) takes back. Measured in EXPERIMENTS.md, section 4.
 """
 
 from __future__ import annotations
@@ -162,6 +189,8 @@ LIVE_W_LO_MPS = 0.005
 LIVE_W_HI_MPS = 0.02
 """From this relative speed [m/s] up a live row is the exact C3BF row (``d = w/|w|``)."""
 _TINY = 1e-12
+BRAKE_CLOSING_MPS = 0.5
+"""Free braking (module docstring) fades out as a pair's closing speed grows to this [m/s]."""
 CONTACT_FLOOR = 0.1
 """The contact horizon relaxes a neighbour's radius to this fraction of it, not to nothing:
 the cone stays a cone (a zero radius would leave the row without a gradient)."""
@@ -181,6 +210,7 @@ ROW_PARAMS = np.dtype(
         ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
         ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
         ("t_contact", "f8"),  # live neighbour rows: contact time [s] beyond which the radius relaxes (0: never)
+        ("free_brake", "?"),  # live neighbour rows: free braking (module docstring)
     ],
     align=True,
 )
@@ -203,10 +233,12 @@ def row_params(
     horizon_s: float | None = None,
     buffer_mps: float = 0.0,
     contact_s: float = 0.0,
+    free_braking: bool = False,
 ) -> np.ndarray:
     """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
     C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live
-    rows, ``contact_s`` (the contact horizon [s], 0: none) to live neighbour rows."""
+    rows, ``contact_s`` (the contact horizon [s], 0: none) and ``free_braking`` to live
+    neighbour rows."""
     kind = BarrierKind(kind)
     out = np.zeros(1, dtype=ROW_PARAMS)
     out[0] = (
@@ -223,6 +255,7 @@ def row_params(
         0.0 if horizon_s is None else 1.0 / horizon_s,
         buffer_mps if live and kind is BarrierKind.C3BF else 0.0,
         contact_s if live and kind is BarrierKind.C3BF else 0.0,
+        free_braking and live and kind is BarrierKind.C3BF,
     )
     return out
 
@@ -453,6 +486,10 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
                 a_p += par.inv_tau
                 if h >= 0.0:  # (the recovery gain is for rows that are violated)
                     rate = 0.0
+            if par.free_brake and nb and has_ref and nw >= par.w_hi and h >= 0.0:  # B = h / |w|^lambda
+                lam = min(1.0, max(0.0, 1.0 + c / BRAKE_CLOSING_MPS))  # (c = -v_c)
+                if lam > 0.0 and W[0] * A[0] + W[1] * A[1] + W[2] * A[2] < 0.0:
+                    b_w -= lam * h / ww
             inside = False
         elif kind == 0:
             root = math.sqrt(ww + par.eps * par.eps)
@@ -553,13 +590,14 @@ def evaluate(
     is_neighbour: BoolArray | None = None,
     horizon_s: float | None = None,
     contact_s: float = 0.0,
+    free_braking: bool = False,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3). ``axis_w`` (n, 3) holds unit
     cylinder axes (zero rows for spheres); ``None`` means all spheres. With ``live`` the
     C3BF rows are live rows for the reference relative accelerations ``a_ref`` (n, 3)
     [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,),
-    with the horizon allowance of ``horizon_s`` [s] (None: none) and the contact horizon
-    ``contact_s`` [s] (0: none)."""
+    with the horizon allowance of ``horizon_s`` [s] (None: none), the contact horizon
+    ``contact_s`` [s] (0: none) and free braking (``free_braking``)."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
@@ -573,6 +611,7 @@ def evaluate(
         live=live,
         horizon_s=horizon_s,
         contact_s=contact_s,
+        free_braking=free_braking,
     )
     Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
     return BarrierRows(Y_used, coef, inside)

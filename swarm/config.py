@@ -83,6 +83,8 @@ class FilterSettings(_Strict):
     buffer_mps: float = Field(0.05, ge=0, allow_inf_nan=False)
     # s: live neighbour rows' contact horizon (swarm.barriers, EXPERIMENTS.md section 4); 0: the cone alone
     contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
+    # live neighbour rows leave the braking of a relative velocity free (swarm.barriers, "Free braking")
+    free_braking: bool = True
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
@@ -99,6 +101,7 @@ class FilterSettings(_Strict):
             horizon_s=self.horizon_s,
             buffer_mps=self.buffer_mps,
             contact_s=self.contact_s,
+            free_braking=self.free_braking,
         )
 
 

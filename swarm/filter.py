@@ -268,6 +268,10 @@ class FilterConfig:
     horizon"): a neighbour row whose time to contact exceeds ``T`` relaxes its radius,
     to a tenth of it from ``2 T``, so a slow approach is not held as hard as a fast one.
     0: none."""
+    free_braking: bool = True
+    """Live neighbour rows: free braking (``swarm.barriers``, "Free braking"): where the
+    reference brakes a relative velocity, outside the cone and not closing fast, the row
+    is the condition of ``h / |w|``, which leaves braking free, rather than of h."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon
@@ -370,6 +374,7 @@ class SafetyFilter:
             horizon_s=cfg.horizon_s,
             buffer_mps=cfg.buffer_mps,
             contact_s=cfg.contact_s,
+            free_braking=cfg.free_braking,
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
         self._fparams[0] = (
@@ -398,7 +403,9 @@ class SafetyFilter:
         sel: IntArray | None = None,
     ) -> Rows:
         """The barrier rows for ``obstacles`` (all of them, or those ``sel`` indexes); with
-        ``u_ref`` also their residuals at it (against ``input_set``, default the filter's)."""
+        ``u_ref`` also their residuals at it (against ``input_set``, default the filter's).
+        Live rows depend on the reference (their direction at low speed, free braking), so
+        the rows a command was filtered against are ``rows(state, obstacles, u_ref)``."""
         own = self._own(state)
         return assemble_with(own, obstacles, self._params, u_ref=u_ref, input_set=input_set or self.input_set, sel=sel)
 

@@ -17,10 +17,11 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --horizon-s 2   # with the live rows' horizon allowance
     python -m tools.bench_liveness --buffer-mps 0  # without the live rows' velocity buffer
     python -m tools.bench_liveness --contact-s 0   # without the neighbour rows' contact horizon
+    python -m tools.bench_liveness --no-free-braking   # neighbour rows price braking as the cone does
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
-contact_s (null: the default).
+contact_s, free_braking (null: the default).
 """
 
 from __future__ import annotations
@@ -57,10 +58,10 @@ class Point:
     seeds: tuple[int, ...]
 
 
-def _with_filter(raw: dict, rho: float, **fields: float | None) -> dict:
+def _with_filter(raw: dict, rho: float, **fields: float | bool | None) -> dict:
     """``raw`` with every agent's responsibility share ``rho`` and the other filter
-    ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s]; None: unset,
-    the config's own)."""
+    ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s],
+    ``free_braking``; None: unset, the config's own)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
     filt.update({k: v for k, v in fields.items() if v is not None})
@@ -183,9 +184,10 @@ def main(
     horizon_s: float | None = None,
     buffer_mps: float | None = None,
     contact_s: float | None = None,
+    free_braking: bool | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
-    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s}
+    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s, "free_braking": free_braking}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
             raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
@@ -208,5 +210,16 @@ if __name__ == "__main__":
     ap.add_argument("--horizon-s", type=float, help="filter.horizon_s of every agent (default: none)")
     ap.add_argument("--buffer-mps", type=float, help="filter.buffer_mps of every agent (default: the config's)")
     ap.add_argument("--contact-s", type=float, help="filter.contact_s of every agent (default: the config's)")
+    ap.add_argument("--no-free-braking", action="store_true", help="filter.free_braking false for every agent")
     a = ap.parse_args()
-    main(a.quick, a.seeds, a.family, a.jobs, not a.no_orca, a.horizon_s, a.buffer_mps, a.contact_s)
+    main(
+        a.quick,
+        a.seeds,
+        a.family,
+        a.jobs,
+        not a.no_orca,
+        a.horizon_s,
+        a.buffer_mps,
+        a.contact_s,
+        False if a.no_free_braking else None,
+    )

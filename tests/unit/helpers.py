@@ -65,19 +65,19 @@ def closest_approach(
     row_at: Callable[[np.ndarray, np.ndarray, np.ndarray], BarrierRows],
     p: np.ndarray,
     w: np.ndarray,
-    pull: Callable[[np.ndarray], np.ndarray],
+    pull: Callable[[np.ndarray, np.ndarray], np.ndarray],
     gain: float,
     steps: int,
     dt: float = 0.005,
 ) -> float:
     """A pair in relative coordinates (``p`` obstacle minus agent [m], ``w = p'`` [m/s])
     flown on its row: every ``dt`` [s], the relative acceleration nearest to the reference
-    ``pull(p)`` [m/s^2] that ``row_at(p, w, reference)`` admits at class-K gain ``gain``
+    ``pull(p, w)`` [m/s^2] that ``row_at(p, w, reference)`` admits at class-K gain ``gain``
     [1/s]. Returns the closest distance [m] over ``steps`` steps, or until the row is
     inside its safety radius."""
     closest = np.inf
     for _ in range(steps):
-        rel_ref = pull(p)
+        rel_ref = pull(p, w)
         row = row_at(p, w, rel_ref)
         acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + gain * row.h[0], rel_ref)
         p, w = p + dt * w + 0.5 * dt * dt * acc, w + dt * acc

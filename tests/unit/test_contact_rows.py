@@ -175,7 +175,7 @@ def test_flying_on_the_row_at_the_other_never_enters_the_safety_radius(direction
         lambda p, w, ref: rows(p, w, r, ref, T),
         p,
         w,
-        lambda p: -3.0 * (p / np.linalg.norm(p) + pull),
+        lambda p, w: -3.0 * (p / np.linalg.norm(p) + pull),
         gain,
         1200,  # 6 s
     )

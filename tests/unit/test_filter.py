@@ -55,7 +55,7 @@ def test_filter_result_satisfies_rows_and_bounds(seed, n, level, backend, kind):
     filt = FILTERS[(level, backend, kind)]
     res = filt.filter(state, u_ref, obs)
     assert np.isfinite(res.u).all() and np.isfinite(res.h).all() and np.isfinite(res.slack).all()
-    rows = filt.rows(state, obs.subset(res.row_index))
+    rows = filt.rows(state, obs.subset(res.row_index), u_ref)
     residual = rows.Lg_h @ res.u - rows.lower  # >= 0 means the barrier condition holds
     np.testing.assert_allclose(residual, res.constraint, atol=1e-12)
     assert filt.input_set.violation(res.u) <= 1e-6
@@ -230,7 +230,7 @@ def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, flo
     the active constraints by non-negative least squares."""
     from scipy.optimize import nnls
 
-    rows = filt.rows(state, obs.subset(res.row_index))
+    rows = filt.rows(state, obs.subset(res.row_index), u_ref)
     ins = filt.input_set
     u, m = res.u, filt.m
     # every constraint as  a_i . u <= c_i

@@ -128,7 +128,7 @@ def test_flying_on_the_row_from_inside_the_cone_never_enters_the_safety_radius(d
         lambda p, w, ref: rows(p, w, r, a, ref, tau),
         p,
         w,
-        lambda p: -(p / np.linalg.norm(p) + pull),  # w' = -(agent's acceleration): a static obstacle
+        lambda p, w: -(p / np.linalg.norm(p) + pull),  # w' = -(agent's acceleration): a static obstacle
         GAMMA,
         800,  # 4 s
     )

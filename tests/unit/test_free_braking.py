@@ -12,7 +12,8 @@ acceleration brakes ``w`` (``<w, a_ref> < 0``) is the condition of ``B = h / |w|
   rows inside the cone, references that do not brake and pairs closing fast keep the
   plain row;
 * a drift away from a neighbour may be braked as fast as the reference asks (the plain
-  row forbids it);
+  row forbids it), and the filter, at rho 0.5 among hovering neighbours, passes such a
+  reference unchanged;
 * pairs pulled at each other and braking, flown on their rows, never come inside their
   safety radius."""
 
@@ -26,7 +27,9 @@ from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import BRAKE_CLOSING_MPS, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
 from swarm.config import FilterSettings
-from swarm.filter import FilterConfig
+from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.obstacles import ObstacleArrays
 
 from .helpers import closest_approach, satisfying
 
@@ -167,6 +170,28 @@ def test_a_drift_away_from_a_neighbour_may_be_braked_at_once():
     inside = np.array([-0.2, -0.1, 0.0])  # closing slowly inside the cone (h < 0): the plain row
     assert exact_h(p, inside, r) < 0 and inside @ -a_ref < 0
     np.testing.assert_array_equal(rows(p, inside, r, -a_ref).coef, rows(p, inside, r, -a_ref, free=False).coef)
+
+
+def test_the_filter_lets_a_drifting_agent_brake_as_its_reference_asks():
+    """An agent drifting at 0.3 m/s away from three hovering neighbours 1.2 to 1.4 m off, at
+    rho = 0.5, its reference braking at 2 m/s^2 (attitude level: the thrust vector [N,
+    world]): with free braking the command is the reference; with the cone's rows the filter
+    keeps about a quarter of the braking."""
+    model = QuadModel()
+    m, g = model.params.mass_kg, model.params.g_mps2
+    u_ref = m * np.array([2.0, 0.0, g])
+    braking = {}
+    for free in (False, True):
+        filt = SafetyFilter(model, FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, free_braking=free))
+        agent = QuadState.hover([0.0, 0.0, 1.0])
+        agent.v_w = np.array([-0.3, 0.0, 0.0])
+        centres = np.array([[1.0, 0.6, 1.0], [1.0, -0.6, 1.0], [1.3, 0.0, 1.4]]) + [0.0, 0.0, model.params.l_m]
+        others = ObstacleArrays.build(centres, [filt.r_own_m] * 3, np.zeros((3, 3)), is_neighbour=[True] * 3)
+        res = filt.filter(agent, u_ref, others)
+        assert res.status is FilterStatus.OK and (res.h > 0).all()
+        braking[free] = res.u[0] / m  # m/s^2 along +x
+    assert braking[True] == pytest.approx(2.0, rel=1e-6)
+    assert braking[False] < 0.3 * 2.0
 
 
 @settings(max_examples=60, deadline=None)

@@ -61,6 +61,21 @@ def satisfying(n_w: np.ndarray, c: float, acc: np.ndarray) -> np.ndarray:
     return acc if gap >= 0 else acc - gap * n_w / (n_w @ n_w)
 
 
+def central_gradients(f: Callable[[np.ndarray, np.ndarray], float], p: np.ndarray, w: np.ndarray, e: float = 1e-6):
+    """(df/dp, df/dw) of ``f(p, w)`` by central differences of step ``e``."""
+    grads = []
+    for which in (0, 1):
+        num = np.zeros(3)
+        for i in range(3):
+            E = np.zeros(3)
+            E[i] = e
+            hi = f(p + E, w) if which == 0 else f(p, w + E)
+            lo = f(p - E, w) if which == 0 else f(p, w - E)
+            num[i] = (hi - lo) / (2 * e)
+        grads.append(num)
+    return grads[0], grads[1]
+
+
 def closest_approach(
     row_at: Callable[[np.ndarray, np.ndarray, np.ndarray], BarrierRows],
     p: np.ndarray,
@@ -95,10 +110,12 @@ def live_rows(
     a_ref: np.ndarray | None,
     nb: bool = False,
     horizon_s: float | None = None,
+    **settings: float | bool,
 ) -> BarrierRows:
     """One live C3BF row (``swarm.barriers.evaluate_pw``) for relative ``p`` [m], ``w`` [m/s],
     safety radius ``r`` [m], cylinder axis ``a`` (zeros: a sphere), the reference's relative
-    acceleration ``a_ref`` [m/s^2] (or None), a neighbour or not, with ``horizon_s`` [s]."""
+    acceleration ``a_ref`` [m/s^2] (or None), a neighbour or not, with ``horizon_s`` [s] and
+    the other row ``settings`` of ``evaluate`` (``contact_s``, ``free_braking``)."""
     return evaluate_pw(
         BarrierKind.C3BF,
         p[None],
@@ -109,4 +126,5 @@ def live_rows(
         a_ref=None if a_ref is None else a_ref[None],
         is_neighbour=np.array([nb]),
         horizon_s=horizon_s,
+        **settings,
     )

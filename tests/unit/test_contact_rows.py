@@ -23,14 +23,15 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import CONTACT_FLOOR, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
+from swarm.barriers import CONTACT_FLOOR, LIVE_W_HI_MPS
 from swarm.config import FilterSettings
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import closest_approach, satisfying
+from .helpers import central_gradients, closest_approach, live_rows, outside, satisfying
 
 GAMMA = 1.0
+SPHERE = np.zeros(3)  # no cylinder axis
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 T_s = st.floats(0.3, 3.0)
 
@@ -50,24 +51,7 @@ def exact_h_T(p, w, r, T):
 
 
 def rows(p, w, r, a_ref, T, nb=True):
-    return evaluate_pw(
-        BarrierKind.C3BF,
-        p[None],
-        w[None],
-        np.array([r]),
-        live=True,
-        a_ref=None if a_ref is None else a_ref[None],
-        is_neighbour=np.array([nb]),
-        contact_s=T,
-    )
-
-
-def away(p, r):
-    """p moved clear of the safety radius (or None)."""
-    if np.linalg.norm(p) >= r + 0.05:
-        return p
-    p = p + np.array([r + 0.2, 0.0, 0.0])
-    return p if np.linalg.norm(p) >= r + 0.05 else None
+    return live_rows(p, w, r, SPHERE, a_ref, nb, contact_s=T)
 
 
 @settings(max_examples=500, deadline=None)
@@ -81,7 +65,7 @@ def away(p, r):
     acc=vec,
 )
 def test_a_row_bounds_h_T_from_below_and_keeps_it_along_the_motion(p, w, w_scale, r, a_ref, T, acc):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     w = w * w_scale
     row = rows(p, w, r, a_ref, T)
@@ -98,23 +82,16 @@ def test_a_row_bounds_h_T_from_below_and_keeps_it_along_the_motion(p, w, w_scale
 @settings(max_examples=500, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), T=T_s, acc=vec)
 def test_above_the_blend_speed_outside_the_cone_the_row_is_the_exact_h_T_condition(p, w, r, T, acc):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     assume(np.linalg.norm(w) >= 2 * LIVE_W_HI_MPS)
     assume(exact_h_T(p, w, r, T) >= 1e-6)  # outside the relaxed cone
     row = rows(p, w, r, None, T)
     h = exact_h_T(p, w, r, T)
     assert row.h[0] == pytest.approx(h, rel=1e-9, abs=1e-12)
-    for grad, which in ((row.dh_dp[0], 0), (row.dh_dw[0], 1)):  # the gradient of h_T, rho's terms included
-        e = 1e-6
-        num = np.zeros(3)
-        for i in range(3):
-            E = np.zeros(3)
-            E[i] = e
-            hi = exact_h_T(p + E, w, r, T) if which == 0 else exact_h_T(p, w + E, r, T)
-            lo = exact_h_T(p - E, w, r, T) if which == 0 else exact_h_T(p, w - E, r, T)
-            num[i] = (hi - lo) / (2 * e)
-        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5 * (1 + 1 / T))
+    num = central_gradients(lambda p, w: exact_h_T(p, w, r, T), p, w)  # rho's terms included
+    for grad, fd in zip((row.dh_dp[0], row.dh_dw[0]), num, strict=True):
+        np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-5 * (1 + 1 / T))
     # an admitted acceleration satisfies h_T' + gamma h_T >= 0 (central difference along the motion)
     acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + GAMMA * h, acc)
     dt = 1e-6
@@ -128,7 +105,7 @@ def test_above_the_blend_speed_outside_the_cone_the_row_is_the_exact_h_T_conditi
 @settings(max_examples=300, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a_ref=st.one_of(st.none(), vec), T=T_s)
 def test_near_contact_and_for_obstacles_the_row_is_the_plain_live_row(p, w, r, a_ref, T):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     plain = rows(p, w, r, a_ref, 0.0)
     obstacle = rows(p, w, r, a_ref, T, nb=False)  # only neighbour rows relax

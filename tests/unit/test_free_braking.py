@@ -25,15 +25,16 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import BRAKE_CLOSING_MPS, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
+from swarm.barriers import BRAKE_CLOSING_MPS, LIVE_W_HI_MPS
 from swarm.config import FilterSettings
 from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 
-from .helpers import closest_approach, satisfying
+from .helpers import central_gradients, closest_approach, live_rows, outside, satisfying
 
 GAMMA = 1.0
+SPHERE = np.zeros(3)  # no cylinder axis
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 
 
@@ -54,30 +55,13 @@ def exact_B(p, w, r, lam):
 
 
 def rows(p, w, r, a_ref, free=True, nb=True):
-    return evaluate_pw(
-        BarrierKind.C3BF,
-        p[None],
-        w[None],
-        np.array([r]),
-        live=True,
-        a_ref=None if a_ref is None else a_ref[None],
-        is_neighbour=np.array([nb]),
-        free_braking=free,
-    )
-
-
-def away(p, r):
-    """p moved clear of the safety radius (or None)."""
-    if np.linalg.norm(p) >= r + 0.05:
-        return p
-    p = p + np.array([r + 0.2, 0.0, 0.0])
-    return p if np.linalg.norm(p) >= r + 0.05 else None
+    return live_rows(p, w, r, SPHERE, a_ref, nb, free_braking=free)
 
 
 @settings(max_examples=500, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a_ref=vec, acc=vec)
 def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, a_ref, acc):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     assume(np.linalg.norm(w) >= 2 * LIVE_W_HI_MPS)
     assume(exact_h(p, w, r) >= 1e-6)  # outside the cone
@@ -85,17 +69,10 @@ def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, 
     row = rows(p, w, r, a_ref)
     scale = np.linalg.norm(w) ** lam
     assert row.h[0] == pytest.approx(exact_h(p, w, r), rel=1e-9, abs=1e-12)
-    for grad, which in ((row.dh_dp[0], 0), (row.dh_dw[0], 1)):  # |w|^lambda times B's gradient
-        e = 1e-6
-        num = np.zeros(3)
-        for i in range(3):
-            E = np.zeros(3)
-            E[i] = e
-            hi = exact_B(p + E, w, r, lam) if which == 0 else exact_B(p, w + E, r, lam)
-            lo = exact_B(p - E, w, r, lam) if which == 0 else exact_B(p, w - E, r, lam)
-            num[i] = (hi - lo) / (2 * e)
-        tol = 1e-5 * (1 + np.linalg.norm(p)) * (1 + 1 / np.linalg.norm(w))
-        np.testing.assert_allclose(grad, scale * num, rtol=1e-5, atol=tol)
+    num = central_gradients(lambda p, w: exact_B(p, w, r, lam), p, w)  # |w|^lambda times B's gradient
+    tol = 1e-5 * (1 + np.linalg.norm(p)) * (1 + 1 / np.linalg.norm(w))
+    for grad, fd in zip((row.dh_dp[0], row.dh_dw[0]), num, strict=True):
+        np.testing.assert_allclose(grad, scale * fd, rtol=1e-5, atol=tol)
     # an admitted relative acceleration satisfies B' + gamma B >= 0 (central difference along the motion)
     acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + GAMMA * row.h[0], acc)
     dt = 1e-6
@@ -109,7 +86,7 @@ def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, 
 @settings(max_examples=300, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), brake=st.floats(0.1, 5.0), other=vec)
 def test_braking_along_w_is_free_where_lambda_is_one(p, w, r, brake, other):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     assume(np.linalg.norm(w) >= 2 * LIVE_W_HI_MPS and p @ w >= 0)  # receding or sliding past: lambda = 1
     assume(exact_h(p, w, r) >= 1e-6)
@@ -125,7 +102,7 @@ def test_braking_along_w_is_free_where_lambda_is_one(p, w, r, brake, other):
 @settings(max_examples=300, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), a_ref=st.one_of(st.none(), vec))
 def test_every_other_row_is_the_plain_live_row(p, w, r, a_ref):
-    p = away(p, r)
+    p = outside(p, r, SPHERE)
     assume(p is not None)
     plain = rows(p, w, r, a_ref, free=False)
     np.testing.assert_array_equal(rows(p, w, r, a_ref, nb=False).coef, rows(p, w, r, a_ref, free=False, nb=False).coef)

@@ -22,7 +22,7 @@ from swarm.barriers import LIVE_W_HI_MPS
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import closest_approach, live_rows, outside, proj, satisfying
+from .helpers import central_gradients, closest_approach, live_rows, outside, proj, satisfying
 
 GAMMA = 1.0
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
@@ -83,16 +83,9 @@ def test_above_the_blend_speed_outside_the_cone_the_row_is_the_exact_h_tau_condi
     row = rows(p, w, r, a, None, tau)
     h = exact_h_tau(p, w, r, a, tau)
     assert row.h[0] == pytest.approx(h, rel=1e-9, abs=1e-12)
-    for grad, which in ((row.dh_dp[0], 0), (row.dh_dw[0], 1)):  # the gradient of h_tau
-        e = 1e-6
-        num = np.zeros(3)
-        for i in range(3):
-            E = np.zeros(3)
-            E[i] = e
-            hi = exact_h_tau(p + E, w, r, a, tau) if which == 0 else exact_h_tau(p, w + E, r, a, tau)
-            lo = exact_h_tau(p - E, w, r, a, tau) if which == 0 else exact_h_tau(p, w - E, r, a, tau)
-            num[i] = (hi - lo) / (2 * e)
-        np.testing.assert_allclose(grad, num, rtol=1e-5, atol=1e-5)
+    num = central_gradients(lambda p, w: exact_h_tau(p, w, r, a, tau), p, w)  # the gradient of h_tau
+    for grad, fd in zip((row.dh_dp[0], row.dh_dw[0]), num, strict=True):
+        np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-5)
     # an admitted acceleration satisfies h_tau' + gamma h_tau >= 0 (central difference along the motion)
     acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + GAMMA * h, acc)
     dt = 1e-5

@@ -80,7 +80,7 @@ class FilterSettings(_Strict):
     # s: live rows' horizon allowance (swarm.barriers, EXPERIMENTS.md section 4); null: the cone alone
     horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
     # m/s: live rows' velocity buffer (swarm.rows, EXPERIMENTS.md section 4); 0: the rows alone
-    buffer_mps: float = Field(0.05, ge=0, allow_inf_nan=False)
+    buffer_mps: float = Field(0.1, ge=0, allow_inf_nan=False)
     # s: live neighbour rows' contact horizon (swarm.barriers, EXPERIMENTS.md section 4); 0: the cone alone
     contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
     # live neighbour rows leave the braking of a relative velocity free (swarm.barriers, "Free braking")

@@ -257,7 +257,7 @@ class FilterConfig:
     """Relative speed [m/s] below which a live row aims at the reference alone."""
     live_hi_mps: float = LIVE_W_HI_MPS
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
-    buffer_mps: float = 0.05
+    buffer_mps: float = 0.1
     """Live rows: the velocity buffer ``b`` [m/s] (``swarm.rows``, "Velocity buffer"): the
     QP is first solved with every live row asking ``h' + g k h >= g v |dh/dw|`` (``g k`` its
     class-K gain, ``v = min(b, 0.1 |w|)``), which keeps the relative velocity about ``v``

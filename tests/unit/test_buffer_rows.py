@@ -173,7 +173,7 @@ def test_a_perturbed_circle_swap_from_rest_flies_without_a_least_violation_tick(
         for key in ("gamma", "buffer_mps"):
             del raw["defaults"]["filter"][key]
     cfg = resolve(raw)
-    want = (2.0, 0.1) if gains == "generated" else (1.0, 0.05)
+    want = (2.0, 0.1) if gains == "generated" else (1.0, 0.1)
     assert all((a.filter.gamma, a.filter.buffer_mps) == want for a in cfg.agents)
     agents, obs = scenario_swarm(cfg)
     t = cfg.time

@@ -18,10 +18,11 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --buffer-mps 0  # without the live rows' velocity buffer
     python -m tools.bench_liveness --contact-s 0   # without the neighbour rows' contact horizon
     python -m tools.bench_liveness --no-free-braking   # neighbour rows price braking as the cone does
+    python -m tools.bench_liveness --gamma 1       # the paper's gain, as hand-written configs fly
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
-contact_s, free_braking (null: the default).
+contact_s, free_braking, gamma (null: the default).
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ class Point:
 def _with_filter(raw: dict, rho: float, **fields: float | bool | None) -> dict:
     """``raw`` with every agent's responsibility share ``rho`` and the other filter
     ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s],
-    ``free_braking``; None: unset, the config's own)."""
+    ``free_braking``, ``gamma`` [1/s]; None: unset, the config's own)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
     filt.update({k: v for k, v in fields.items() if v is not None})
@@ -185,9 +186,10 @@ def main(
     buffer_mps: float | None = None,
     contact_s: float | None = None,
     free_braking: bool | None = None,
+    gamma: float | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
-    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s, "free_braking": free_braking}
+    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s, "free_braking": free_braking, "gamma": gamma}
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
             raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
@@ -211,6 +213,7 @@ if __name__ == "__main__":
     ap.add_argument("--buffer-mps", type=float, help="filter.buffer_mps of every agent (default: the config's)")
     ap.add_argument("--contact-s", type=float, help="filter.contact_s of every agent (default: the config's)")
     ap.add_argument("--no-free-braking", action="store_true", help="filter.free_braking false for every agent")
+    ap.add_argument("--gamma", type=float, help="filter.gamma of every agent (default: the config's)")
     a = ap.parse_args()
     main(
         a.quick,
@@ -222,4 +225,5 @@ if __name__ == "__main__":
         a.buffer_mps,
         a.contact_s,
         False if a.no_free_braking else None,
+        a.gamma,
     )

@@ -189,7 +189,13 @@ def main(
     gamma: float | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
-    knobs = {"horizon_s": horizon_s, "buffer_mps": buffer_mps, "contact_s": contact_s, "free_braking": free_braking, "gamma": gamma}
+    knobs = {
+        "horizon_s": horizon_s,
+        "buffer_mps": buffer_mps,
+        "contact_s": contact_s,
+        "free_braking": free_braking,
+        "gamma": gamma,
+    }
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
             raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]

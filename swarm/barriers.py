@@ -137,9 +137,10 @@ closing speed) where its reference's relative acceleration brakes (``<w, a_ref> 
 a neighbour's, outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair
 closing fast keeps the paper's row: there braking is what the cone must price (measured:
 rescaling those rows too gave crowds that met at speed more least-violation ticks). The
-lambda of a row is held for the tick; a tick that brakes a relative velocity through zero can
-leave the row's set by at most ``|w| (|p| + s)`` of h, which the next tick's recovery
-(``RATE``) takes back. Measured in EXPERIMENTS.md, section 4.
+lambda of a row is held for the tick. A tick whose braking carries ``w`` through zero (the
+plain row would have capped the braking near ``gamma |w|``) leaves ``h >= -|w+| (|p| - s)``,
+``w+`` the relative velocity after it, no larger than the tick's change of velocity; the next
+tick's recovery (``RATE``) takes that back. Measured in EXPERIMENTS.md, section 4.
 """
 
 from __future__ import annotations

@@ -271,7 +271,8 @@ class FilterConfig:
     free_braking: bool = True
     """Live neighbour rows: free braking (``swarm.barriers``, "Free braking"): where the
     reference brakes a relative velocity, outside the cone and not closing fast, the row
-    is the condition of ``h / |w|``, which leaves braking free, rather than of h."""
+    is the condition of ``h / |w|^lambda`` (``lambda`` up to 1, fading with the closing
+    speed), which leaves braking free, rather than of h."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon

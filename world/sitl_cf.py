@@ -162,8 +162,10 @@ class SitlDrone:
         port, ch = (h >> 4) & 0x0F, h & 0x03
         fw = self.firmware
         with self.lock:
-            self.packets += 1
-            self.last_packet_s = now
+            if data != b"\xff":  # a lone null packet is a probe (cflib/crtp/udpdriver.py's scan, and
+                # swarm run's readiness check), not a client: the drone is not "handed back" 3 s after it
+                self.packets += 1
+                self.last_packet_s = now
             if port == 3 and ch == 0 and len(body) == 14:
                 r, p, y, thr = struct.unpack("<fffH", body)
                 self.setpoints.append(Setpoint(now, r, -p, y, thr))
@@ -246,7 +248,8 @@ class SitlDrone:
         return sum(1 << b for b, on in bits.items() if on)
 
     def handed_back(self, now: float) -> bool:
-        """Its client is done with it: handed back (notify-stop), or silent for 3 s after talking."""
+        """Its client is done with it: handed back (notify-stop), or silent for 3 s after talking
+        (probes do not count: a client may connect long after ``swarm run`` probed the drone)."""
         return self.notify_stops > 0 or (self.packets > 0 and now - self.last_packet_s > 3.0)
 
     def tilt_rad(self) -> float:

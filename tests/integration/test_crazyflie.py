@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -215,6 +216,27 @@ def test_world_gone_and_ctrl_c_send_an_emergency_stop(rig):
     standin2, _world2, agent2, _cfg2 = rig()
     os.kill(agent2.pid, signal.SIGINT)
     assert standin2.wait_for("estops", 1, timeout_s=5.0)
+
+
+def test_a_probe_is_not_a_client_the_stand_in_waits_for_one():
+    """``swarm run`` probes each stand-in with a lone null packet (as cflib's UDP scan does)
+    before the agents start, and an agent with a cold numba cache connects seconds later:
+    the probe must not count as a client that has since gone silent (the stand-in then
+    ended, and the agent found no drone). A packet of a client does count."""
+    drone = StandIn.start()
+    port = int(drone.uri.rsplit(":", 1)[1])
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.settimeout(2.0)
+    try:
+        probe.sendto(b"\xff", ("127.0.0.1", port))
+        probe.recv(64)  # answered
+        assert not drone.handed_back(time.monotonic() + 10.0)
+        probe.sendto(bytes([0x90, 0x0C]), ("127.0.0.1", port))  # CMD_GET_STATE_BITFIELD (port 9, ch 0)
+        assert probe.recv(64)[:2] == bytes([0x9C, 0x8C])
+        assert drone.handed_back(time.monotonic() + 10.0)  # a client that has been silent 3 s is done
+    finally:
+        probe.close()
+        drone.close()
 
 
 def test_mixed_swarm_with_mock_motion_capture(tmp_path):

@@ -58,7 +58,9 @@ def test_sitl_drones_take_off_hold_height_and_yaw_let_the_others_pass_and_land(s
         # as rho = 1 asks, and it takes a second to come back) to the landing
         held = (t > max(t[up[0]] + 2.5, crossed + 1.5)) & (t < cfg.duration_s)
         assert held.sum() > 200 and np.abs(x[held, 2] - 1.0).max() < 0.03  # within 3 cm of its height target
-        assert x[t < cfg.duration_s, 2].max() < 1.08  # the climb overshoots by less than 8 cm
+        # it climbs while the simulated drones close in, and rises to let one pass (both yield at rho = 1):
+        # by less than 15 cm above its height (a wrong thrust map overshoots by far more, or never gets there)
+        assert x[t < cfg.duration_s, 2].max() < 1.15
         assert abs(np.degrees(yaw[0])) > 15.0  # it started 20 degrees off
         assert np.abs(np.degrees(yaw[held])).max() < 3.0  # and turned to its yaw, not away from it
         assert x[-1, 2] < 0.1  # landed

@@ -5,10 +5,17 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import BarrierKind, BarrierRows, evaluate_pw
 from swarm.model import QuadState
 from swarm.rotation import euler_to_quat
+
+vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
+"""Hypothesis: a 3-vector with components in [-3, 3] (a position [m], velocity [m/s] or acceleration [m/s^2])."""
+directions = arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda d: np.linalg.norm(d) > 0.1)
+"""Hypothesis: a 3-vector in [-1, 1]^3 at least 0.1 long, to normalise into a direction."""
 
 
 def random_state(rng: np.random.Generator, *, tilt: float = 0.4, rates: float = 3.0) -> QuadState:

@@ -4,11 +4,11 @@ and a defined, finite answer in every edge case of ``swarm.barriers``'s docstrin
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import BarrierKind, evaluate_pw
 
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
+from .helpers import vec
+
 unit_or_zero = st.one_of(
     st.just(np.zeros(3)), vec.filter(lambda a: np.linalg.norm(a) > 0.1).map(lambda a: a / np.linalg.norm(a))
 )

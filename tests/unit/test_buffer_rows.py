@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import RATE
 from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
@@ -32,13 +31,12 @@ from swarm.obstacles import ObstacleArrays
 from swarm.rows import BUFFER_PER_SPEED
 from swarm.scenario import SwapSettings, circle_swap
 
-from .helpers import outside, satisfying
+from .helpers import outside, satisfying, vec
 
 MODEL = QuadModel()
 MASS = MODEL.params.mass_kg
 G = MODEL.params.g_mps2
 HOVER = np.array([0.0, 0.0, MASS * G])  # N, world: the attitude level's hover command
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 
 
 def attitude_filter(**kw: object) -> SafetyFilter:

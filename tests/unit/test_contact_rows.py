@@ -28,11 +28,10 @@ from swarm.config import FilterSettings
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import central_gradients, closest_approach, live_rows, outside, satisfying
+from .helpers import central_gradients, closest_approach, directions, live_rows, outside, satisfying, vec
 
 GAMMA = 1.0
 SPHERE = np.zeros(3)  # no cylinder axis
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 T_s = st.floats(0.3, 3.0)
 
 
@@ -130,7 +129,7 @@ def test_a_slow_collision_course_is_admitted_and_a_fast_one_is_not():
 
 @settings(max_examples=60, deadline=None)
 @given(
-    direction=arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda d: np.linalg.norm(d) > 0.1),
+    direction=directions,
     dist=st.floats(0.5, 4.0),
     r=st.floats(0.1, 0.6),
     T=T_s,

@@ -31,11 +31,10 @@ from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
 
-from .helpers import central_gradients, closest_approach, live_rows, outside, satisfying
+from .helpers import central_gradients, closest_approach, directions, live_rows, outside, satisfying, vec
 
 GAMMA = 1.0
 SPHERE = np.zeros(3)  # no cylinder axis
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 
 
 def exact_h(p, w, r):
@@ -173,7 +172,7 @@ def test_the_filter_lets_a_drifting_agent_brake_as_its_reference_asks():
 
 @settings(max_examples=60, deadline=None)
 @given(
-    direction=arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda d: np.linalg.norm(d) > 0.1),
+    direction=directions,
     dist=st.floats(0.5, 4.0),
     r=st.floats(0.1, 0.6),
     w0=st.one_of(st.just(np.zeros(3)), arrays(np.float64, 3, elements=st.floats(-2, 2))),

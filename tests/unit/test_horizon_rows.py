@@ -22,10 +22,9 @@ from swarm.barriers import LIVE_W_HI_MPS
 from swarm.errors import InputError
 from swarm.filter import FilterConfig
 
-from .helpers import central_gradients, closest_approach, live_rows, outside, proj, satisfying
+from .helpers import central_gradients, closest_approach, directions, live_rows, outside, proj, satisfying, vec
 
 GAMMA = 1.0
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 tau_s = st.floats(0.5, 20.0)
 axis_or_none = st.one_of(
     st.just(np.zeros(3)), vec.filter(lambda a: np.linalg.norm(a) > 0.1).map(lambda a: a / np.linalg.norm(a))
@@ -98,7 +97,7 @@ def test_above_the_blend_speed_outside_the_cone_the_row_is_the_exact_h_tau_condi
 
 @settings(max_examples=60, deadline=None)
 @given(
-    direction=arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda d: np.linalg.norm(d) > 0.1),
+    direction=directions,
     dist=st.floats(1.5, 4.0),
     r=st.floats(0.1, 0.6),
     tau=tau_s,

@@ -16,16 +16,14 @@ import math
 import numpy as np
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
-from hypothesis.extra.numpy import arrays
 
 from swarm.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
 from swarm.obstacles import ObstacleArrays
 
 from .helpers import live_rows as live
-from .helpers import outside, proj, satisfying
+from .helpers import outside, proj, satisfying, vec
 
 GAMMA = 1.0
-vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 small = st.floats(-1.0, 1.0).map(lambda e: 10.0 ** (-9 * abs(e)) * math.copysign(1.0, e))  # 1e-9 .. 1
 axis_or_none = st.one_of(
     st.just(np.zeros(3)), vec.filter(lambda a: np.linalg.norm(a) > 0.1).map(lambda a: a / np.linalg.norm(a))

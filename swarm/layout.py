@@ -2,7 +2,7 @@
 
 A 3-D view of ``/scene`` and ``/tf`` (the world frame fixed), and per drone the plots a
 user of a safety filter looks at first: the smallest barrier value ``min_h`` of its rows
-[m^2/s] and the filter's intervention ``|u - u_ref|`` [N], the filter status over time,
+so far in the run [m^2/s] and the filter's intervention ``|u - u_ref|`` [N], the filter status over time,
 and the processes' log. ``docs/foxglove_layout.json`` is this layout for
 ``configs/swap_2.yaml`` (drones cf1 and cf2); every run folder gets its own
 ``foxglove_layout.json`` for its drones. Import it in Foxglove (Layouts, Import from file).

@@ -291,6 +291,9 @@ class World:
         if key != self.keys.command(m.src):  # a header naming another agent than its key
             counter.drop("command whose sender is not its key's agent")
             return
+        if m.src in self.real:  # it answers a motion-capture frame, stamped on the wall clock (_on_frame),
+            # which runs ahead of the ticks while the world is late
+            k_now = max(k_now, int((time.monotonic() - self.wall0) / self.dt_ctrl))
         if m.k > k_now + 1 or abs(m.t - m.k * self.dt_ctrl) > 2.0 * self.dt_ctrl:  # not an answer to a tick we sent
             counter.drop("command for a tick or time the world has not reached")
             return
@@ -637,6 +640,7 @@ class World:
             "startup_cpu_s": startup_cpu_s,
             "phase_wall_s": {n: round(v, 3) for n, v in self.phase.items()},
             "dropped": self.counter.dropped,
+            "dropped_reasons": dict(self.counter.reasons),
             "braking_ticks": sum(s.braking_ticks for s in slots),
             "mocap": None
             if relay is None

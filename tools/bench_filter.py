@@ -33,7 +33,7 @@ def scenes(model: QuadModel, level: CommandLevel, rows: int, count: int, seed: i
         s = QuadState(
             np.array([0.0, 0.0, 1.0]),
             np.array([1.0, 0.0, 0.0]) + rng.normal(0, 0.2, 3),
-            euler_to_quat(*rng.normal(0, 0.1, 2), 0.0),
+            euler_to_quat(float(rng.normal(0, 0.1)), float(rng.normal(0, 0.1)), 0.0),
             rng.normal(0, 0.5, 3),
         )
         d = rng.uniform(0.6, 3.0, rows)

@@ -33,6 +33,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -69,39 +70,39 @@ def _with_filter(raw: dict, rho: float, **fields: float | bool | None) -> dict:
     return raw
 
 
+def _field(k: int, seed: int) -> dict:
+    return sphere_field(k, SwapSettings(seed=seed))
+
+
+def _circle(n: int, perturbed: bool, seed: int) -> dict:
+    return circle_swap(n, 2.0 if n <= 16 else 3.0, SwapSettings(perturb_m=PERTURB_M, seed=seed) if perturbed else None)
+
+
+def _sphere(n: int, radius_m: float, seed: int) -> dict:
+    return sphere_swap(n, radius_m)
+
+
+def _formation(seed: int) -> dict:
+    return formation(4)
+
+
+def _pillar(seed: int) -> dict:
+    return pillar_swap(8)
+
+
 def points(quick: bool, seeds: int) -> Iterator[Point]:
     few = (0,) if quick else tuple(range(seeds))
     for rho in (1.0, 0.5):
         for density, k in (("sparse", 5), ("medium", 10), ("dense", 20)):
-            yield Point(
-                "sphere_field", density, 1, rho, False, lambda s, k=k: sphere_field(k, SwapSettings(seed=s)), few
-            )
+            yield Point("sphere_field", density, 1, rho, False, partial(_field, k), few)
         for n in (2, 4, 8) if quick else (2, 4, 8, 16, 32):
-            yield Point(
-                "circle", f"circle_{n}", n, rho, True, lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0), (0,)
-            )
-            yield Point(
-                "circle",
-                f"circle_{n}",
-                n,
-                rho,
-                False,
-                lambda s, n=n: circle_swap(n, 2.0 if n <= 16 else 3.0, SwapSettings(perturb_m=PERTURB_M, seed=s)),
-                few,
-            )
+            yield Point("circle", f"circle_{n}", n, rho, True, partial(_circle, n, False), (0,))
+            yield Point("circle", f"circle_{n}", n, rho, False, partial(_circle, n, True), few)
         for n in (8,) if quick else (8, 12, 16, 32):
             for radius in (2.0, 1.5):
-                yield Point(
-                    "sphere",
-                    f"sphere_{n}_r{radius:g}",
-                    n,
-                    rho,
-                    True,
-                    lambda s, n=n, radius=radius: sphere_swap(n, radius),
-                    (0,),
-                )
-        yield Point("formation", "formation_4", 4, rho, True, lambda s: formation(4), (0,))
-        yield Point("pillar", "pillar_8", 8, rho, True, lambda s: pillar_swap(8), (0,))
+                yield Point("sphere", f"sphere_{n}_r{radius:g}", n, rho, True, partial(_sphere, n, radius), (0,))
+        yield Point("formation", "formation_4", 4, rho, True, _formation, (0,))
+        yield Point("pillar", "pillar_8", 8, rho, True, _pillar, (0,))
         yield Point(
             "pillar",
             "pillar_8",

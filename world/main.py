@@ -552,7 +552,7 @@ class World:
                 f_all[i] = _velocity_hold(sl, fs.state(i), _STOP)
                 if first_substep:
                     sl.braking_ticks += 1
-            else:  # rotor level: the agent's thrusts, held
+            elif sl.command is not None:  # rotor level: the agent's thrusts, held (`att` has the drones without one)
                 f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
         return f_all
 

@@ -86,8 +86,8 @@ def _formation(seed: int) -> dict:
     return formation(4)
 
 
-def _pillar(seed: int) -> dict:
-    return pillar_swap(8)
+def _pillar(perturbed: bool, seed: int) -> dict:
+    return pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=seed) if perturbed else None)
 
 
 def points(quick: bool, seeds: int) -> Iterator[Point]:
@@ -102,16 +102,8 @@ def points(quick: bool, seeds: int) -> Iterator[Point]:
             for radius in (2.0, 1.5):
                 yield Point("sphere", f"sphere_{n}_r{radius:g}", n, rho, True, partial(_sphere, n, radius), (0,))
         yield Point("formation", "formation_4", 4, rho, True, _formation, (0,))
-        yield Point("pillar", "pillar_8", 8, rho, True, _pillar, (0,))
-        yield Point(
-            "pillar",
-            "pillar_8",
-            8,
-            rho,
-            False,
-            lambda s: pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=s)),
-            few,
-        )
+        yield Point("pillar", "pillar_8", 8, rho, True, partial(_pillar, False), (0,))
+        yield Point("pillar", "pillar_8", 8, rho, False, partial(_pillar, True), few)
 
 
 def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:

@@ -62,19 +62,25 @@ to contact (coefficient ``RATE``). Within ``AXIS_BAND`` of the axis, where the l
 speed is noise, it holds the generator on the side rule's side instead.
 
 **Far neighbours** (live rows only). The cone condition does not weaken with distance: a
-neighbour 2 m away drifting slowly towards the agent binds its row as hard as one close
-by, and in a crowd settling at its goals every agent's small motions push the others
-(with ``rho < 1`` this never settles). A neighbour row with ``h > 0`` therefore asks
+neighbour 2 m away binds its row as hard as one close by. Two cases matter. In a crowd
+settling at its goals every agent's small motions push the others (with ``rho < 1`` this
+never settles). In a crowd converging from rest (a sphere swap) every pair's relative
+velocity starts on its cone's axis; h grows only with the relative speed, and the paper's
+rate ``h' >= -gamma h`` then lets a pair 2 m apart, still 10 s from contact, speed up
+towards its cone by a few tenths of a m/s^2. A neighbour row with ``h > 0`` therefore asks
 ``h' + gamma k h >= 0`` with the gain factor (:func:`far_gain`)
 
-    k = 1 + max(0, |p| / (FAR_GAIN_RADII r) - 1) * max(0, 1 - v_c / FAR_GAIN_CLOSING_MPS)
+    k = 1 + max(0, |p| / (FAR_GAIN_RADII r) - 1) * clip(1 - FAR_GAIN_CONTACT_S v_c / (|p| - r), 0, 1)
 
-(``v_c = -<p, w>/|p|`` the closing speed). ``k >= 1`` is continuous and bounded on the
-sensing ball, so ``gamma k h`` is a class-K function of h for every state, and at ``h = 0``
-the row is unchanged (``h' >= 0``): the set ``h >= 0`` stays forward invariant. What it
-gives up is the rate ``h' + gamma h >= 0`` for far, slowly closing pairs; a pair closing
-at ``FAR_GAIN_CLOSING_MPS`` or faster, or within ``FAR_GAIN_RADII`` safety radii, keeps
-the paper's gain.
+(``v_c = -<p, w>/|p|`` the closing speed, ``(|p| - r) / v_c`` the time to contact). ``k >= 1``
+is continuous and bounded on the sensing ball, so ``gamma k h`` is a class-K function of h
+for every state, and at ``h = 0`` the row is unchanged (``h' >= 0``): the set ``h >= 0``
+stays forward invariant. What it gives up is the rate ``h' + gamma h >= 0`` for far pairs
+that would not meet within ``FAR_GAIN_CONTACT_S`` (half the extra gain at twice that time,
+all of it for a pair that is not closing); a pair that would meet within
+``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain.
+(Until 2026-12-03 the fade was in the closing speed alone, ``1 - v_c / 0.1 m/s``; the time
+to contact also frees far pairs that close at a walking pace: EXPERIMENTS.md section 4.)
 
 **Horizon allowance** (live rows, opt-in: ``filter.horizon_s = tau``). The cone forbids a
 collision course however far away the contact is; ORCA truncates its velocity obstacles
@@ -182,8 +188,9 @@ RECOVERY_PER_CONTACT = 2.0
 FAR_GAIN_RADII = 2.0
 """A neighbour row's class-K gain grows with distance beyond this many safety radii
 (:func:`far_gain`) [unit-free]."""
-FAR_GAIN_CLOSING_MPS = 0.1
-"""... and fades out as the pair's closing speed grows to this [m/s]."""
+FAR_GAIN_CONTACT_S = 2.0
+"""... times ``1 - FAR_GAIN_CONTACT_S / (time to contact)``: none for a pair that would meet
+within this [s], all of it for one that is not closing."""
 
 LIVE_W_LO_MPS = 0.005
 """Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
@@ -414,10 +421,12 @@ def contact_radius(r, pp, pw, T):
     ``dS/dt_c = g / S``. ``t_c = (|p| - r) |p| / -<p, w>`` is the time to contact at the
     closing speed (infinite when not closing), ``psi`` the smoothstep from 0 at ``t_c = T``
     to 1 at ``2 T``."""
-    if pw >= 0.0:
-        return CONTACT_FLOOR * r, 0.0
     rp = math.sqrt(pp)
-    x = (rp - r) * rp / (-pw * T) - 1.0
+    num = (rp - r) * rp  # m^2
+    den = -pw * T  # m^2 (can underflow to 0 for a closing speed of a few 1e-324 m/s)
+    if den <= 0.5 * num:  # not closing, or t_c >= 2 T
+        return CONTACT_FLOOR * r, 0.0
+    x = num / den - 1.0  # (den > 0.5 num > 0)
     if x <= 0.0:
         return r, 0.0
     if x >= 1.0:
@@ -478,7 +487,7 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
                 if g_c > 0.0:  # rho's own gradient: dS = (g / S) dt_c, t_c = N / D (module docstring)
                     D = -pw
                     N = pp - r * rp
-                    k_c = dw * g_c / (s * D * D)
+                    k_c = dw * g_c / max(s * D * D, 1e-300)  # (D > 0 here; the max for underflow)
                     a_p += k_c * (2.0 - r / rp) * D
                     b_p += k_c * N
                     a_w += k_c * N
@@ -529,7 +538,7 @@ def far_gain(p, w, r):
     if dist <= FAR_GAIN_RADII * r:
         return 1.0
     closing = -(p[0] * w[0] + p[1] * w[1] + p[2] * w[2]) / dist  # m/s
-    fade = min(1.0, max(0.0, 1.0 - closing / FAR_GAIN_CLOSING_MPS))
+    fade = min(1.0, max(0.0, 1.0 - FAR_GAIN_CONTACT_S * closing / (dist - r)))  # (dist - r > r > 0)
     return 1.0 + (dist / (FAR_GAIN_RADII * r) - 1.0) * fade
 
 

@@ -27,13 +27,17 @@ mirrored ``p`` and ``w``.
 class-K gain ``g k`` (``g = max(gamma, rate)``, ``k`` the far-neighbour factor, 1 for other
 rows) asks ``h' + g k h >= 0``; its buffered form asks
 
-    h' + g k h >= g v |dh/dw|,     v = min(buffer, BUFFER_PER_SPEED |w|)               (B)
+    h' + g k h >= g k_b v |dh/dw|,   v = min(buffer, BUFFER_PER_SPEED |w|),
+                                      k_b = min(k, BUFFER_FAR_GAIN_MAX)                  (B)
 
-i.e. ``b - buffer`` in place of ``b`` with ``buffer = share g v |dh/dw|`` (``Rows.buffer``).
-h is homogeneous of degree 1 in w, so ``h / |dh/dw|`` is, to first order, how far [m/s] the
-relative velocity lies outside the cone; (B) makes it settle about ``v / k`` outside rather
-than on the cone's boundary (a far neighbour drifting slowly needs little buffer, and
-multiplying it by ``k`` pushed agents off their goals in dense crowds with ``rho < 1``).
+i.e. ``b - buffer`` in place of ``b`` with ``buffer = share g k_b v |dh/dw|``
+(``Rows.buffer``). h is homogeneous of degree 1 in w, so ``h / |dh/dw|`` is, to first order,
+how far [m/s] the relative velocity lies outside the cone; (B) makes it settle about
+``v k_b / k`` outside rather than on the cone's boundary: ``v`` for ``k`` up to
+``BUFFER_FAR_GAIN_MAX``, less for the farthest, slowest pairs (a far neighbour drifting
+slowly needs little buffer). With ``k_b = 1`` the far-neighbour gain's time-to-contact fade
+let crowds ride closer to their cones and slip in more often; with ``k_b = k`` the rho 0.5
+32-drone circles did (EXPERIMENTS.md section 4).
 The filter solves the QP with the buffered rows first and with the rows themselves only
 if the buffered ones cannot all hold, so every command still satisfies
 every row whenever the rows can hold: the buffer changes no guarantee, it only chooses among
@@ -175,6 +179,9 @@ def own_affine(air, x, v, q, Om):
 BUFFER_PER_SPEED = 0.1
 """Below ``buffer / BUFFER_PER_SPEED`` of relative speed a row's velocity buffer is this
 fraction of the relative speed [unit-free]: none at rest (module docstring, (B))."""
+BUFFER_FAR_GAIN_MAX = 3.0
+"""A live neighbour row's buffer grows with its far-neighbour gain factor ``k`` up to this
+factor [unit-free] (module docstring, (B))."""
 
 RING = 16
 """Candidate directions per static cone in :func:`free_target` (around its boundary)."""
@@ -298,7 +305,8 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
     the cone, twice the inverse time to contact), times :func:`swarm.barriers.far_gain`
     for a live neighbour row with ``h > 0``. With ``params.buffer`` each live row outside
-    its safety radius also gets its velocity buffer (module docstring, (B)): the buffered
+    its safety radius also gets its velocity buffer (module docstring, (B); for a neighbour
+    row with ``h > 0`` times the far gain, at most ``BUFFER_FAR_GAIN_MAX``): the buffered
     rows are ``b - buffer``, and ``u_ref`` counts as satisfying the rows only if it holds
     them.
 
@@ -368,7 +376,9 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
         if ob.is_nb and live and co[H] > 0.0:
-            gain *= far_gain(p, w, ob.r + r_own)
+            k_far = far_gain(p, w, ob.r + r_own)
+            gain *= k_far
+            tight[i] *= min(k_far, BUFFER_FAR_GAIN_MAX)
         b[row] = own + share * (rel + gain * co[H])
     if with_ref:
         for row in range(k_in + n):

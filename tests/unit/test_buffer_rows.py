@@ -1,9 +1,10 @@
 """The live rows' velocity buffer (swarm.rows, "Velocity buffer") by its definition.
 
-A row's buffered form asks ``h' + g k h >= g v |dh/dw|`` (``g k`` the row's class-K gain,
+A row's buffered form asks ``h' + g k h >= g k_b v |dh/dw|`` (``g k`` the row's class-K gain,
 ``k`` the far-neighbour factor, ``v = min(buffer, BUFFER_PER_SPEED |w|)``), so:
 
-* the buffer is that term, times the row's share, and nothing inside a safety radius or
+* the buffer is that term, times the row's share (and for a neighbour row with h > 0 the
+  far-neighbour factor, at most BUFFER_FAR_GAIN_MAX), and nothing inside a safety radius or
   at zero relative velocity; a command that holds the buffered rows holds the rows;
 * with the exact h (finite difference along the motion) a relative acceleration that
   holds a buffered row gives ``h' + gamma h >= gamma v |dh/dw|``;
@@ -22,13 +23,13 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import RATE
+from swarm.barriers import RATE, far_gain
 from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
 from swarm.config import resolve
 from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.obstacles import ObstacleArrays
-from swarm.rows import BUFFER_PER_SPEED
+from swarm.rows import BUFFER_FAR_GAIN_MAX, BUFFER_PER_SPEED
 from swarm.scenario import SwapSettings, circle_swap
 
 from .helpers import outside, satisfying, vec
@@ -66,7 +67,9 @@ def test_the_buffer_is_its_definition_and_only_tightens(seed, n, buffer, rho, ga
     c = state.x_w + rng.uniform(-2.0, 2.0, (n, 3))
     cd = np.tile(v, (n, 1)) if at_rest else rng.uniform(-1.5, 1.5, (n, 3))  # at rest: w = 0 for every row
     nb = rng.random(n) < 0.5
-    obs = ObstacleArrays.build(c, rng.uniform(0.05, 0.4, n), cd, is_neighbour=nb)
+    radii = rng.uniform(0.05, 0.4, n)
+    obs = ObstacleArrays.build(c, radii, cd, is_neighbour=nb)
+    r_pair = radii + filt.r_own_m  # m: each row's safety radius (rows in obstacle order)
     u_ref = HOVER + rng.uniform(-0.1, 0.1, 3)
     rows = filt.rows(state, obs, u_ref)
     bar = rows.barrier
@@ -76,7 +79,9 @@ def test_the_buffer_is_its_definition_and_only_tightens(seed, n, buffer, rho, ga
             assert rows.buffer[i] == 0.0
             continue
         share = rho if nb[i] else 1.0
-        gain = max(gamma, bar.coef[i, RATE])  # the row's base gain: not the far-neighbour factor
+        gain = max(gamma, bar.coef[i, RATE])  # the row's base gain
+        if nb[i] and bar.h[i] > 0.0:  # times the far-neighbour factor, at most BUFFER_FAR_GAIN_MAX
+            gain *= min(far_gain(bar.Y[i, 0], W[i], r_pair[i]), BUFFER_FAR_GAIN_MAX)
         v_buf = min(buffer, BUFFER_PER_SPEED * np.linalg.norm(W[i]))
         expected = share * gain * v_buf * np.linalg.norm(bar.dh_dw[i])
         assert rows.buffer[i] == pytest.approx(expected, rel=1e-9, abs=1e-15)

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -80,6 +80,8 @@ def test_a_row_bounds_h_T_from_below_and_keeps_it_along_the_motion(p, w, w_scale
 
 @settings(max_examples=500, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), T=T_s, acc=vec)
+# a closing speed of 5e-324 m/s: the time to contact's denominator underflowed to 0 (ZeroDivisionError)
+@example(p=np.array([-5e-324, 2.0, 0.0]), w=np.array([1.0, 0.0, 1.0]), r=1.0, T=0.5, acc=np.zeros(3))
 def test_above_the_blend_speed_outside_the_cone_the_row_is_the_exact_h_T_condition(p, w, r, T, acc):
     p = outside(p, r, SPHERE)
     assume(p is not None)

@@ -14,6 +14,7 @@ rows of one pair are mirror images (``d_ji = -d_ij``), so the pair keeps the con
 import math
 
 import numpy as np
+import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
@@ -319,11 +320,15 @@ def test_a_neighbour_that_does_not_share_gets_a_full_row():
 
 def reference_far_gain(p, w, r):
     """The module docstring's k ("Far neighbours"), written out again."""
-    from swarm.barriers import FAR_GAIN_CLOSING_MPS, FAR_GAIN_RADII
+    from swarm.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII
 
     dist = np.linalg.norm(p)
+    if dist <= FAR_GAIN_RADII * r:
+        return 1.0
     closing = -(p @ w) / dist
-    return 1.0 + max(0.0, dist / (FAR_GAIN_RADII * r) - 1.0) * min(1.0, max(0.0, 1.0 - closing / FAR_GAIN_CLOSING_MPS))
+    time_to_contact_s = (dist - r) / closing if closing > 0 else np.inf
+    fade = np.clip(1.0 - FAR_GAIN_CONTACT_S / time_to_contact_s, 0.0, 1.0)
+    return 1.0 + (dist / (FAR_GAIN_RADII * r) - 1.0) * fade
 
 
 def _row_pair(p, w, r, rho):
@@ -343,11 +348,12 @@ def _row_pair(p, w, r, rho):
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), rho=st.sampled_from([1.0, 0.5]), acc=vec)
 def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p, w, r, rho, acc):
     """h > 0, above the blend speed: a neighbour's row is the obstacle's with gamma times
-    k >= 1 (k by its definition), k = 1 within FAR_GAIN_RADII safety radii or closing at
-    FAR_GAIN_CLOSING_MPS, k bounded by |p| / (FAR_GAIN_RADII r) on the sensing ball, and
+    k >= 1 (k by its definition), k = 1 within FAR_GAIN_RADII safety radii or within
+    FAR_GAIN_CONTACT_S of contact, the whole factor |p| / (FAR_GAIN_RADII r) when not
+    closing and a linear fade in the inverse time to contact between, and
     every relative acceleration the row admits satisfies the exact h' + gamma k h >= 0
     (a finite difference of the unsmoothed h): h >= 0 stays forward invariant."""
-    from swarm.barriers import FAR_GAIN_CLOSING_MPS, FAR_GAIN_RADII
+    from swarm.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII
 
     assume(np.linalg.norm(p) >= r + 0.05 and np.linalg.norm(w) >= 1.01 * LIVE_W_HI_MPS)
     h = exact_h(p, w, r, np.zeros(3))
@@ -356,8 +362,13 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
     k = reference_far_gain(p, w, r)
     dist, closing = np.linalg.norm(p), -(p @ w) / np.linalg.norm(p)
     assert 1.0 <= k <= max(1.0, dist / (FAR_GAIN_RADII * r)) + 1e-12
-    if dist <= FAR_GAIN_RADII * r or closing >= FAR_GAIN_CLOSING_MPS:
+    if dist <= FAR_GAIN_RADII * r or closing * FAR_GAIN_CONTACT_S >= dist - r:
         assert k == 1.0
+    elif closing <= 0.0:
+        assert k == pytest.approx(dist / (FAR_GAIN_RADII * r), rel=1e-12)
+    else:  # the factor's excess over 1 times 1 - FAR_GAIN_CONTACT_S / (time to contact)
+        excess = dist / (FAR_GAIN_RADII * r) - 1.0
+        assert k - 1.0 == pytest.approx(excess * (1.0 - FAR_GAIN_CONTACT_S * closing / (dist - r)), rel=1e-9)
     b_nb, b_obs = rows.b
     own_term = b_obs - (rows.barrier.dh_dp[1] @ w + GAMMA * rows.h[1])  # <dh_dw, c'' + a0_own>
     scale = 1 + dist * np.linalg.norm(w)

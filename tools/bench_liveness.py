@@ -19,10 +19,11 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --contact-s 0   # without the neighbour rows' contact horizon
     python -m tools.bench_liveness --no-free-braking   # neighbour rows price braking as the cone does
     python -m tools.bench_liveness --gamma 1       # the paper's gain, as hand-written configs fly
+    python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
-contact_s, free_braking, gamma (null: the default).
+contact_s, free_braking, gamma, sensing_radius_m (null: the default).
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ class Point:
 def _with_filter(raw: dict, rho: float, **fields: float | bool | None) -> dict:
     """``raw`` with every agent's responsibility share ``rho`` and the other filter
     ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s],
-    ``free_braking``, ``gamma`` [1/s]; None: unset, the config's own)."""
+    ``free_braking``, ``gamma`` [1/s], ``sensing_radius_m`` [m]; None: unset, the config's
+    own)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
     filt.update({k: v for k, v in fields.items() if v is not None})
@@ -180,6 +182,7 @@ def main(
     contact_s: float | None = None,
     free_braking: bool | None = None,
     gamma: float | None = None,
+    sensing_radius_m: float | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     knobs = {
@@ -188,6 +191,7 @@ def main(
         "contact_s": contact_s,
         "free_braking": free_braking,
         "gamma": gamma,
+        "sensing_radius_m": sensing_radius_m,
     }
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for p in todo:
@@ -213,6 +217,9 @@ if __name__ == "__main__":
     ap.add_argument("--contact-s", type=float, help="filter.contact_s of every agent (default: the config's)")
     ap.add_argument("--no-free-braking", action="store_true", help="filter.free_braking false for every agent")
     ap.add_argument("--gamma", type=float, help="filter.gamma of every agent (default: the config's)")
+    ap.add_argument(
+        "--sensing-radius-m", type=float, help="filter.sensing_radius_m of every agent (default: the config's)"
+    )
     a = ap.parse_args()
     main(
         a.quick,
@@ -225,4 +232,5 @@ if __name__ == "__main__":
         contact_s=a.contact_s,
         free_braking=False if a.no_free_braking else None,
         gamma=a.gamma,
+        sensing_radius_m=a.sensing_radius_m,
     )

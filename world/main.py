@@ -334,8 +334,8 @@ class World:
         fs = self.sim.read_states(self.flown)  # reading only: the drones do not move
         if self.flown:  # _onboard_thrusts' kernel, with its argument layouts, changing no slot
             att = list(range(len(self.flown)))
-            gains = OnboardGains.stack([self.slots[a].onboard.gains for a in self.flown])
             sp = np.zeros((len(att), 4))
+            gains = self._stacked_gains(tuple(self.flown))
             onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1], np.zeros(len(att)), sp[:, 3], *gains)
         warm_up()
 
@@ -573,9 +573,7 @@ class World:
         flying their setpoints as the firmware does (``_setpoint``), in one compiled call."""
         slots, dt_s = self.slots, self.sim.dt_s
         att_names = tuple(self.flown[i] for i in att)
-        gains = self.onboard_gains.get(att_names)
-        if gains is None:
-            gains = self.onboard_gains[att_names] = OnboardGains.stack([slots[a].onboard.gains for a in att_names])
+        gains = self._stacked_gains(att_names)
         sp = np.array([_setpoint(slots[a], self.sim.t_s) for a in att_names])
         for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
             slots[a].yaw_sp_rad += yaw_rate * dt_s
@@ -588,6 +586,13 @@ class World:
             sp[:, 3],
             *gains,
         )
+
+    def _stacked_gains(self, names: tuple[str, ...]) -> OnboardGains:
+        """The onboard gains of the drones ``names``, stacked for one compiled call (kept per set)."""
+        gains = self.onboard_gains.get(names)
+        if gains is None:
+            gains = self.onboard_gains[names] = OnboardGains.stack([self.slots[a].onboard.gains for a in names])
+        return gains
 
     def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
         """Count and publish the contacts that began in this substep."""

@@ -231,7 +231,11 @@ class FilterConfig:
     gamma_ho: float = 1.0
     """HO-CBF gain [m/s] in ``h = <p,w> + gamma_ho s``."""
     rho: float = 1.0
-    """Responsibility share of neighbour rows, in (0, 1]."""
+    """Responsibility share of neighbour rows, in (0, 1]: the agent's share of a pair's
+    relative drift and, inside the cone, of its recovery; outside the cone each agent keeps
+    its row's whole allowance ``gamma h`` (``swarm.rows``, "Responsibility share"). 1: the
+    whole condition, as if the neighbour did nothing; 0.5: reciprocal, each pair then asks
+    ``h' + 2 gamma h >= 0`` outside its cone between its two agents."""
     sensing_radius_m: float = 3.0
     """Neighbours farther than this (body centre to centre) get no row."""
     margin_m: float = 0.02
@@ -314,7 +318,7 @@ class FilterResult:
     status: FilterStatus
     row_index: IntArray  # (n,): index into the obstacle arrays of each row
     h: FloatArray  # (n,) barrier value of each row
-    constraint: FloatArray  # (n,) Lg_h u - lower = h' + kappa(h) (rho-weighted); >= 0 holds
+    constraint: FloatArray  # (n,) Lg_h u - lower = h' + kappa(h) (rho-shared); >= 0 holds
     active: BoolArray  # (n,): the row binds: constraint == buffer if buffered, else constraint == 0
     inside: BoolArray  # (n,): already inside the safety radius
     slack: FloatArray  # (n,) violation allowed by the fallback QP (zeros when OK)

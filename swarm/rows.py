@@ -9,8 +9,23 @@ all rows; ``c''`` is the obstacle's. With ``h`` from :mod:`swarm.barriers`::
 
     Lf_h = <dh_dp, w> + <dh_dw, c'' + a0_own>,   Lg_h = A^T dh_dw
 
-and each row asks ``Lg_h u >= -(<dh_dw, c'' + a0_own> + rho (<dh_dp, w> + gamma h))``,
-``rho = 1`` except for neighbours (``swarm.filter``; docs/design.md).
+and each row asks ``Lg_h u >= -(<dh_dw, c'' + a0_own> + rho <dh_dp, w> + sigma gamma h)``,
+``rho = sigma = 1`` except for neighbours (``swarm.filter``; docs/design.md).
+
+**Responsibility share** (neighbour rows, ``rho`` in (0, 1]). An agent takes the share
+``rho`` of the pair's relative drift ``<dh_dp, w>`` and, inside the cone (``h < 0``), of
+the recovery ``gamma h`` (``sigma = rho``); outside it (``h > 0``) it keeps the whole
+allowance ``gamma h`` of its own row (``sigma = 1``). Two agents whose shares add up to 1
+then ask together, with ``h'`` the pair's true derivative under both commands,
+
+    h' + kappa(h) >= 0,   kappa(h) = 2 gamma h for h >= 0,  gamma h for h < 0,
+
+a CBF condition with the extended class-K function ``kappa`` (continuous, increasing,
+``kappa(0) = 0``), so ``h >= 0`` stays forward invariant as with any gain. Splitting the
+allowance too (``sigma = rho``) gave a sharing pair half the rate of an agent alone: crowds
+that share converged as if at half the gain (EXPERIMENTS.md section 4), while splitting the
+recovery keeps what each agent must do inside a cone as small as before. With ``rho = 1``
+each agent takes the whole condition, as if its neighbour did nothing.
 
 Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
 
@@ -30,7 +45,7 @@ rows) asks ``h' + g k h >= 0``; its buffered form asks
     h' + g k h >= g k_b v |dh/dw|,   v = min(buffer, BUFFER_PER_SPEED |w|),
                                       k_b = min(k, BUFFER_FAR_GAIN_MAX)                  (B)
 
-i.e. ``b - buffer`` in place of ``b`` with ``buffer = share g k_b v |dh/dw|``
+i.e. ``b - buffer`` in place of ``b`` with ``buffer = sigma g k_b v |dh/dw|``
 (``Rows.buffer``). h is homogeneous of degree 1 in w, so ``h / |dh/dw|`` is, to first order,
 how far [m/s] the relative velocity lies outside the cone; (B) makes it settle about
 ``v k_b / k`` outside rather than on the cone's boundary: ``v`` for ``k`` up to
@@ -293,7 +308,8 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     """All rows at once, row i for obstacle ``obs[sel[i]]`` (``obs`` an (n,)
     :data:`swarm.obstacles.OBSTACLE` array; a selection indexes it, no copy), under the
     settings ``params`` (a (1,) :data:`swarm.barriers.ROW_PARAMS` array: safety radius
-    ``r + r_own``, responsibility share ``rho`` for neighbour rows, 1 for the others),
+    ``r + r_own``, responsibility share ``rho`` for neighbour rows, 1 for the others; module
+    docstring, "Responsibility share"),
     for the own body centre ``xv_b`` and ``Aa`` = [A | a0_own] (:class:`OwnAffine`),
     stacked under the input rows ``C u <= d`` as one QP constraint set ``A u <= b_all``
     (barrier rows: ``G = -Lg_h``, ``b = -lower``), and the residuals ``b_all - A u_ref``
@@ -370,16 +386,17 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         for j in range(m):
             A[row, j] = -(dw[0] * Aa[0, j] + dw[1] * Aa[1, j] + dw[2] * Aa[2, j])
         Lf[i] = rel + own
-        share = par.rho if ob.is_nb else 1.0
+        share = par.rho if ob.is_nb else 1.0  # of the drift (module docstring, "Responsibility share")
+        share_h = 1.0 if co[H] > 0.0 else share  # of gamma h: the allowance is the agent's, a recovery shared
         gain = max(par.gamma, co[RATE])
         if par.buffer > 0.0 and not inside[i]:
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
-            tight[i] = share * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
+            tight[i] = share_h * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
         if ob.is_nb and live and co[H] > 0.0:
             k_far = far_gain(p, w, ob.r + r_own)
             gain *= k_far
             tight[i] *= min(k_far, BUFFER_FAR_GAIN_MAX)
-        b[row] = own + share * (rel + gain * co[H])
+        b[row] = own + share * rel + share_h * gain * co[H]
     if with_ref:
         for row in range(k_in + n):
             acc = b[row]

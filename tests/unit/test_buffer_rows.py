@@ -78,7 +78,7 @@ def test_the_buffer_is_its_definition_and_only_tightens(seed, n, buffer, rho, ga
         if bar.inside[i] or buffer == 0.0:
             assert rows.buffer[i] == 0.0
             continue
-        share = rho if nb[i] else 1.0
+        share = rho if nb[i] and bar.h[i] <= 0.0 else 1.0  # the allowance outside the cone is the agent's
         gain = max(gamma, bar.coef[i, RATE])  # the row's base gain
         if nb[i] and bar.h[i] > 0.0:  # times the far-neighbour factor, at most BUFFER_FAR_GAIN_MAX
             gain *= min(far_gain(bar.Y[i, 0], W[i], r_pair[i]), BUFFER_FAR_GAIN_MAX)

@@ -199,12 +199,23 @@ def test_bad_input_raises_a_specific_error(make):
 
 
 def test_reciprocal_rows_add_up_to_the_pair_condition():
-    """rho = 0.5: the two agents' rows sum to h' + gamma h >= 0 of the pair (DESIGN 5).
-    The paper's smoothed rows, whose formula this spells out."""
+    """rho = 0.5: the two agents' rows sum to the pair's h' + kappa(h) >= 0, kappa(h) =
+    2 gamma h outside the cone (each agent keeps its row's whole allowance) and gamma h
+    inside it (the recovery shared; swarm.rows, "Responsibility share"). The paper's
+    smoothed rows, whose formula this spells out, on both sides of the cone."""
     cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, live=False)
     filt = SafetyFilter(MODEL, cfg)
+    signs = set()
+    for v_b in ([-1.0, -0.3, -0.1], [-1.0, 1.5, 0.0]):  # head on, inside the cone; outside it
+        signs.add(_pair_sum_is_the_pair_condition(filt, cfg, np.array(v_b)))
+    assert signs == {-1.0, 1.0}
+
+
+def _pair_sum_is_the_pair_condition(filt: SafetyFilter, cfg: FilterConfig, v_b: np.ndarray) -> float:
+    """Checks the sum of the two rows for agent b flying ``v_b`` [m/s, world] at agent a
+    (flying +x at 1 m/s); returns the sign of h."""
     a, b = QuadState.hover([0, 0, 1]), QuadState.hover([2.0, 0.3, 1.1])
-    a.v_w, b.v_w = np.array([1.0, 0, 0]), np.array([-1.0, 0.1, 0])
+    a.v_w, b.v_w = np.array([1.0, 0, 0]), v_b
     r_nb = filt.r_own_m  # each agent of the pair as big as the filter keeps itself
     up = np.array([0.0, 0.0, MODEL.params.l_m])  # each reports its body centre (level: l above the centre)
     ra = filt.rows(a, ObstacleArrays.build(b.x_w + up, [r_nb], b.v_w, is_neighbour=[True]))
@@ -220,7 +231,9 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
     nw = math.sqrt(w @ w + cfg.eps_w_mps**2) - cfg.eps_w_mps
     dh_dp = w + nw / s * p
     dh_dw = p + s * w / math.sqrt(w @ w + cfg.eps_w_mps**2)
-    assert lhs == pytest.approx(dh_dp @ w + dh_dw @ acc + cfg.gamma * ra.h[0], rel=1e-9)
+    kappa = (2.0 if ra.h[0] > 0 else 1.0) * cfg.gamma * ra.h[0]
+    assert lhs == pytest.approx(dh_dp @ w + dh_dw @ acc + kappa, rel=1e-9)
+    return float(np.sign(ra.h[0]))
 
 
 def kkt_residual(filt: SafetyFilter, state, obs, u_ref, res) -> tuple[float, float]:

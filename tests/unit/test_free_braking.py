@@ -152,7 +152,7 @@ def test_the_filter_lets_a_drifting_agent_brake_as_its_reference_asks():
     """An agent drifting at 0.3 m/s away from three hovering neighbours 1.2 to 1.4 m off, at
     rho = 0.5, its reference braking at 2 m/s^2 (attitude level: the thrust vector [N,
     world]): with free braking the command is the reference; with the cone's rows the filter
-    keeps about a quarter of the braking."""
+    keeps less than half of the braking."""
     model = QuadModel()
     m, g = model.params.mass_kg, model.params.g_mps2
     u_ref = m * np.array([2.0, 0.0, g])
@@ -167,7 +167,7 @@ def test_the_filter_lets_a_drifting_agent_brake_as_its_reference_asks():
         assert res.status is FilterStatus.OK and (res.h > 0).all()
         braking[free] = res.u[0] / m  # m/s^2 along +x
     assert braking[True] == pytest.approx(2.0, rel=1e-6)
-    assert braking[False] < 0.3 * 2.0
+    assert braking[False] < 0.5 * 2.0
 
 
 @settings(max_examples=60, deadline=None)

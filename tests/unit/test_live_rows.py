@@ -326,8 +326,8 @@ def reference_far_gain(p, w, r):
     if dist <= FAR_GAIN_RADII * r:
         return 1.0
     closing = -(p @ w) / dist
-    time_to_contact_s = (dist - r) / closing if closing > 0 else np.inf
-    fade = np.clip(1.0 - FAR_GAIN_CONTACT_S / time_to_contact_s, 0.0, 1.0)
+    inverse_time_to_contact = max(closing, 0.0) / (dist - r)  # 1/s
+    fade = np.clip(1.0 - FAR_GAIN_CONTACT_S * inverse_time_to_contact, 0.0, 1.0)
     return 1.0 + (dist / (FAR_GAIN_RADII * r) - 1.0) * fade
 
 
@@ -372,7 +372,8 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
     b_nb, b_obs = rows.b
     own_term = b_obs - (rows.barrier.dh_dp[1] @ w + GAMMA * rows.h[1])  # <dh_dw, c'' + a0_own>
     scale = 1 + dist * np.linalg.norm(w)
-    assert abs(b_nb - (own_term + rho * (rows.barrier.dh_dp[0] @ w + GAMMA * k * rows.h[0]))) < 1e-9 * scale * (1 + k)
+    # the share rho of the drift; the allowance outside the cone is the agent's whole (swarm.rows)
+    assert abs(b_nb - (own_term + rho * rows.barrier.dh_dp[0] @ w + GAMMA * k * rows.h[0])) < 1e-9 * scale * (1 + k)
     # rho = 1: the relative acceleration the row admits, through the point mass's A
     if rho == 1.0:
         lower = -(b_nb - own_term)  # dh_dw . w' >= lower with w' = -(own acceleration) = a0_own + A u
@@ -383,6 +384,40 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
             - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, np.zeros(3))
         ) / (2 * d)
         assert fd + GAMMA * k * h >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + dist)
+
+
+def _own_part_lower(rows) -> tuple[np.ndarray, float]:
+    """(dh_dw, lower) of the neighbour row of :func:`_row_pair`'s rows, as a condition on
+    the agent's own part of the relative acceleration: ``<dh_dw, x> >= lower`` with
+    ``x = a0_own + A u`` (the agent's acceleration, negated)."""
+    b_nb, b_obs = rows.b
+    own_term = b_obs - (rows.barrier.dh_dp[1] @ rows.barrier.Y[1, 1] + GAMMA * rows.h[1])  # <dh_dw, a0_own>
+    return rows.barrier.dh_dw[0], -(b_nb - own_term)
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), rho=st.sampled_from([0.5, 0.25, 0.8]), acc_a=vec, acc_b=vec)
+def test_a_sharing_pair_keeps_the_pair_condition_with_the_doubled_allowance(p, w, r, rho, acc_a, acc_b):
+    """Two agents whose shares add up to 1 (rho and 1 - rho), outside their cone above the
+    blend speed, each flying any acceleration its own row admits: the pair's exact h
+    (unsmoothed, by a finite difference along the motion) satisfies h' + 2 gamma k h >= 0,
+    a CBF condition, so h >= 0 stays forward invariant (swarm.rows, "Responsibility
+    share"). Agent a sees b at (p, w); b sees a at (-p, -w)."""
+    assume(np.linalg.norm(p) >= r + 0.05 and np.linalg.norm(w) >= 1.01 * LIVE_W_HI_MPS)
+    h = exact_h(p, w, r, np.zeros(3))
+    assume(h > 1e-6)
+    n_a, lower_a = _own_part_lower(_row_pair(p, w, r, rho)[1])
+    n_b, lower_b = _own_part_lower(_row_pair(-p, -w, r, 1.0 - rho)[1])
+    np.testing.assert_allclose(n_b, -n_a, rtol=1e-9, atol=1e-12)  # h is even in (p, w)
+    x_a, x_b = satisfying(n_a, -lower_a, acc_a), satisfying(n_b, -lower_b, acc_b)
+    w_dot = x_a - x_b  # m/s^2: b's acceleration less a's (each x is its agent's, negated)
+    k = reference_far_gain(p, w, r)
+    d = 1e-6
+    fd = (
+        exact_h(p + d * w + 0.5 * d * d * w_dot, w + d * w_dot, r, np.zeros(3))
+        - exact_h(p - d * w + 0.5 * d * d * w_dot, w - d * w_dot, r, np.zeros(3))
+    ) / (2 * d)
+    assert fd + 2.0 * GAMMA * k * h >= -1e-5 * (1 + np.linalg.norm(w_dot)) * (1 + np.linalg.norm(p))
 
 
 def test_a_crowd_converging_from_rest_is_not_held_back_by_far_pairs():

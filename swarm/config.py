@@ -131,7 +131,7 @@ class TiebreakSettings(_Strict):
 
     kind: Literal["none", "right_hand"] = "right_hand"
     trigger_m: float = Field(1.2, gt=0)  # m: other agents closer than this, and in front, count
-    speed_mps: float = Field(0.3, gt=0)  # largest sideways velocity added to the reference
+    speed_mps: float = Field(0.5, gt=0)  # m/s: largest sideways bias; it turns the reference, never speeds it up
 
     @property
     def pair(self) -> tuple[float, float] | None:

@@ -1,5 +1,7 @@
 """The reference controller alone: hover and track, both command levels, 100-500 Hz."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -57,6 +59,21 @@ def test_tracks_a_path_at_the_target_speed(level, rate_hz):
     assert np.abs(speed[cruise] - 1.0).max() < 0.05
     assert np.abs(x[t < 2.8, 1]).max() < 0.05  # stays on the first segment
     assert np.linalg.norm(x[-1] - waypoints[-1]) < 0.05
+
+
+def test_the_tie_break_turns_the_commanded_velocity_and_never_speeds_it_up():
+    from swarm.control import right_hand_bias, turned
+
+    x, heading = np.zeros(3), np.array([0.8, 0.0, 0.0])  # m/s: cruising along +x
+    crowd = np.array([[0.2, 0.1, 0.0], [0.3, -0.1, 0.0], [0.2, 0.0, 0.1]])
+    bias = right_hand_bias(x, heading, crowd, 2.0, 0.5, cruise_mps=0.8)
+    v = turned(heading, bias)
+    assert np.linalg.norm(v) == pytest.approx(0.8)  # the target speed, not sqrt(0.8^2 + 0.5^2)
+    assert math.degrees(math.atan2(-v[1], v[0])) == pytest.approx(math.degrees(math.atan2(0.5, 0.8)))  # to the right
+    assert (turned(heading, np.zeros(3)) == heading).all()
+    slower = np.array([-0.3, 0.0, 0.0])  # a bias against the heading slows it, and stays so
+    assert (turned(heading, slower) == heading + slower).all()
+    assert not turned(np.zeros(3), np.zeros(3)).any()  # at rest (the bias is then zero too)
 
 
 def test_right_hand_bias_turns_right_of_the_heading_for_agents_ahead_only():

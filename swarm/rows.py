@@ -18,14 +18,16 @@ the recovery ``gamma h`` (``sigma = rho``); outside it (``h > 0``) it keeps the 
 allowance ``gamma h`` of its own row (``sigma = 1``). Two agents whose shares add up to 1
 then ask together, with ``h'`` the pair's true derivative under both commands,
 
-    h' + kappa(h) >= 0,   kappa(h) = 2 gamma h for h >= 0,  gamma h for h < 0,
+    h' + kappa(h) >= 0,   kappa(h) = 2 g h for h >= 0,  g h for h < 0,
 
-a CBF condition with the extended class-K function ``kappa`` (continuous, increasing,
-``kappa(0) = 0``), so ``h >= 0`` stays forward invariant as with any gain. Splitting the
-allowance too (``sigma = rho``) gave a sharing pair half the rate of an agent alone: crowds
-that share converged as if at half the gain (EXPERIMENTS.md section 4), while splitting the
-recovery keeps what each agent must do inside a cone as small as before. With ``rho = 1``
-each agent takes the whole condition, as if its neighbour did nothing.
+(``g`` the row's class-K gain: ``gamma`` times the far-neighbour gain outside the cone,
+``max(gamma, rate)`` inside it; below), a CBF condition with the extended class-K function
+``kappa`` (continuous, increasing, ``kappa(0) = 0``), so ``h >= 0`` stays forward invariant
+as with any gain. Splitting the allowance too (``sigma = rho``) gave a sharing pair half the
+rate of an agent alone: crowds that share converged as if at half the gain (EXPERIMENTS.md
+section 4), while splitting the recovery keeps what each agent must do inside a cone as
+small as before. With ``rho = 1`` each agent takes the whole condition, as if its neighbour
+did nothing.
 
 Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
 
@@ -38,7 +40,7 @@ body centre ``x + l R e3`` moving with the centre of mass (this level has no rot
 state), the point the roster reports for every other drone: a pair's two rows then see
 mirrored ``p`` and ``w``.
 
-**Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.05 m/s). A row with
+**Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.1 m/s). A row with
 class-K gain ``g k`` (``g = max(gamma, rate)``, ``k`` the far-neighbour factor, 1 for other
 rows) asks ``h' + g k h >= 0``; its buffered form asks
 

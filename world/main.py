@@ -332,11 +332,9 @@ class World:
             sl.onboard.yaw_sp_rad = sl.yaw_sp_rad
         min_pair_distance(np.zeros((2, 3)))  # (measure: the closest pair)
         fs = self.sim.read_states(self.flown)  # reading only: the drones do not move
-        if self.flown:  # _onboard_thrusts' kernel, with its argument layouts, changing no slot
-            att = list(range(len(self.flown)))
-            sp = np.zeros((len(att), 4))
-            gains = self._stacked_gains(tuple(self.flown))
-            onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1], np.zeros(len(att)), sp[:, 3], *gains)
+        if self.flown:  # _onboard_thrusts' call, with its argument layouts, changing no slot
+            n = len(self.flown)
+            self._onboard_call(fs, list(range(n)), tuple(self.flown), np.zeros((n, 4)), np.zeros(n))
         warm_up()
 
     def wait_for_everyone(self, expect: tuple[str, ...]) -> bool:
@@ -573,26 +571,21 @@ class World:
         flying their setpoints as the firmware does (``_setpoint``), in one compiled call."""
         slots, dt_s = self.slots, self.sim.dt_s
         att_names = tuple(self.flown[i] for i in att)
-        gains = self._stacked_gains(att_names)
         sp = np.array([_setpoint(slots[a], self.sim.t_s) for a in att_names])
         for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
             slots[a].yaw_sp_rad += yaw_rate * dt_s
-        return onboard_rotor_thrusts(
-            fs.q[att],
-            fs.Omega_b[att],
-            sp[:, 0],
-            sp[:, 1],
-            np.array([slots[a].yaw_sp_rad for a in att_names]),
-            sp[:, 3],
-            *gains,
-        )
+        return self._onboard_call(fs, att, att_names, sp, np.array([slots[a].yaw_sp_rad for a in att_names]))
 
-    def _stacked_gains(self, names: tuple[str, ...]) -> OnboardGains:
-        """The onboard gains of the drones ``names``, stacked for one compiled call (kept per set)."""
+    def _onboard_call(
+        self, fs: Any, att: list[int], names: tuple[str, ...], sp: np.ndarray, yaw_sp_rad: np.ndarray
+    ) -> np.ndarray:
+        """The one compiled call of the onboard controller for the drones ``names`` (indices
+        ``att`` into ``flown``): setpoints ``sp`` (k, 4) as ``_setpoint`` gives them (the yaw
+        rate column unused), yaw setpoints ``yaw_sp_rad`` (k,); their gains stacked once per set."""
         gains = self.onboard_gains.get(names)
         if gains is None:
             gains = self.onboard_gains[names] = OnboardGains.stack([self.slots[a].onboard.gains for a in names])
-        return gains
+        return onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1], yaw_sp_rad, sp[:, 3], *gains)
 
     def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
         """Count and publish the contacts that began in this substep."""

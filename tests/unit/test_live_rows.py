@@ -344,6 +344,15 @@ def _row_pair(p, w, r, rho):
     return own, assemble(BarrierKind.C3BF, own, both, r, gamma=GAMMA, rho=rho, live=True)
 
 
+def _own_part_lower(rows) -> tuple[np.ndarray, float]:
+    """(dh_dw, lower) of the neighbour row of :func:`_row_pair`'s rows, as a condition on
+    the agent's own part of the relative acceleration: ``<dh_dw, x> >= lower`` with
+    ``x = a0_own + A u`` (the agent's acceleration, negated)."""
+    b_nb, b_obs = rows.b
+    own_term = b_obs - (rows.barrier.dh_dp[1] @ rows.barrier.Y[1, 1] + GAMMA * rows.h[1])  # <dh_dw, a0_own>
+    return rows.barrier.dh_dw[0], -(b_nb - own_term)
+
+
 @settings(max_examples=400, deadline=None)
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), rho=st.sampled_from([1.0, 0.5]), acc=vec)
 def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p, w, r, rho, acc):
@@ -369,30 +378,19 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
     else:  # the factor's excess over 1 times 1 - FAR_GAIN_CONTACT_S / (time to contact)
         excess = dist / (FAR_GAIN_RADII * r) - 1.0
         assert k - 1.0 == pytest.approx(excess * (1.0 - FAR_GAIN_CONTACT_S * closing / (dist - r)), rel=1e-9)
-    b_nb, b_obs = rows.b
-    own_term = b_obs - (rows.barrier.dh_dp[1] @ w + GAMMA * rows.h[1])  # <dh_dw, c'' + a0_own>
+    n_w, lower = _own_part_lower(rows)  # dh_dw . w' >= lower with w' = -(own acceleration) = a0_own + A u
     scale = 1 + dist * np.linalg.norm(w)
     # the share rho of the drift; the allowance outside the cone is the agent's whole (swarm.rows)
-    assert abs(b_nb - (own_term + rho * rows.barrier.dh_dp[0] @ w + GAMMA * k * rows.h[0])) < 1e-9 * scale * (1 + k)
+    assert abs(-lower - (rho * rows.barrier.dh_dp[0] @ w + GAMMA * k * rows.h[0])) < 1e-9 * scale * (1 + k)
     # rho = 1: the relative acceleration the row admits, through the point mass's A
     if rho == 1.0:
-        lower = -(b_nb - own_term)  # dh_dw . w' >= lower with w' = -(own acceleration) = a0_own + A u
-        acc = satisfying(rows.barrier.dh_dw[0], -lower, acc)
+        acc = satisfying(n_w, -lower, acc)
         d = 1e-6
         fd = (
             exact_h(p + d * w + 0.5 * d * d * acc, w + d * acc, r, np.zeros(3))
             - exact_h(p - d * w + 0.5 * d * d * acc, w - d * acc, r, np.zeros(3))
         ) / (2 * d)
         assert fd + GAMMA * k * h >= -1e-5 * (1 + np.linalg.norm(acc)) * (1 + dist)
-
-
-def _own_part_lower(rows) -> tuple[np.ndarray, float]:
-    """(dh_dw, lower) of the neighbour row of :func:`_row_pair`'s rows, as a condition on
-    the agent's own part of the relative acceleration: ``<dh_dw, x> >= lower`` with
-    ``x = a0_own + A u`` (the agent's acceleration, negated)."""
-    b_nb, b_obs = rows.b
-    own_term = b_obs - (rows.barrier.dh_dp[1] @ rows.barrier.Y[1, 1] + GAMMA * rows.h[1])  # <dh_dw, a0_own>
-    return rows.barrier.dh_dw[0], -(b_nb - own_term)
 
 
 @settings(max_examples=400, deadline=None)

@@ -23,11 +23,13 @@ from typing import Any
 
 import numpy as np
 
+from swarm import statewire
 from swarm import transport as tp
 from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm.cells import Interest, cell_of
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
+from swarm.errors import DecodeError
 from swarm.filter import FilterStatus, SafetyFilter
 from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
@@ -67,7 +69,9 @@ class Agent:
         # neighbours by cells (swarm.cells): the world's own tick message for a simulated
         # drone (its measurement, the obstacles and the neighbours near it), cell subscriptions
         self.cells = cfg.uses_cells
-        self.ticked = self.cells and me.backend != "crazyflie"  # measured by tick messages, not the clock
+        self.bundled = cfg.uses_bundles  # the router's bundle of the states near it, once per tick
+        self.by_near = cfg.uses_ticks  # lockstep ticks use the neighbours the world names near this agent
+        self.ticked = self.by_near and me.backend != "crazyflie"  # measured by tick messages, not the clock
         self.interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
         self.near: dict[int, list[str]] = {}  # tick -> the neighbours the world names near this agent
         self.missed = 0  # near neighbours whose state was not there when used (lockstep: at the deadline)
@@ -222,7 +226,7 @@ class Agent:
         (lockstep: of tick k-1, and with cells those of the neighbours the world named)."""
         if self.from_world:
             return self.roster_rows(t, k if lockstep else None)
-        if not self.cells:
+        if not self.by_near:
             return self.table.arrays(t, k - 1 if lockstep else None)
         near = self.near.get(k, [])
         if lockstep:
@@ -372,7 +376,11 @@ class AgentProcess:
         self.session = session = tp.open_session(conf)
         self.counter = tp.Counter()
         self.meas_key, self.tick_key = keys.measurement(agent_id), keys.tick(agent_id)
-        neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
+        if agent.bundled:
+            neighbour_keys = [keys.bundle(agent_id)]
+        else:
+            neighbour_keys = [] if agent.from_world or agent.cells else [keys.state(n) for n in sorted(agent.others)]
+        self.bundle_key = keys.bundle(agent_id)
         self.real = agent.plan is not None  # measured by motion capture on its own key, not in the clock
         self.inbox = tp.Inbox(
             session,
@@ -436,8 +444,12 @@ class AgentProcess:
         self.msg_seen.setdefault(m.k, time.monotonic())
 
     def handle(self, sample: Any) -> None:
-        """One sample: a measurement, a neighbour's state, this agent's tick or the clock."""
+        """One sample: a measurement, a neighbour's state or their bundle, this agent's tick
+        or the clock."""
         agent, key = self.agent, str(sample.key_expr)
+        if key == self.bundle_key:
+            self._bundle(tp.payload(sample))
+            return
         m = tp.decode_sample(sample, self.run_id, self.counter)
         if m is None:
             return
@@ -460,6 +472,25 @@ class AgentProcess:
         else:
             self.counter.drop(f"unexpected {m.kind} on {key}")
 
+    def _bundle(self, data: bytes) -> None:
+        """The router's bundle of the states near this agent: checked as one array, each
+        bad record (or one from an agent it does not know, or from itself) dropped and
+        counted."""
+        counter = self.counter
+        counter.rx_bytes += len(data)
+        try:
+            b = statewire.read_bundle(data, self.run_id)
+        except DecodeError as exc:
+            counter.drop(str(exc))
+            return
+        if b.dst != self.id:
+            counter.drop("bundle: for another agent")
+            return
+        for reason, n in b.states.dropped.items():
+            counter.dropped += n
+            counter.reasons[reason] = counter.reasons.get(reason, 0) + n
+        self.agent.table.update_records(b.states.records, self.agent.others, counter)
+
     def _on_clock(self, m: Message) -> None:
         for name in self.agent.on_clock(m):
             self.neighbour_gone(name, "the world's live list")
@@ -476,7 +507,9 @@ class AgentProcess:
         # wake when what the oldest pending tick still needs can all be here (one wake for a
         # neighbour mesh's states, not one per state), or after wake_s
         need = max(1, agent.missing(min(m.k for m in pending))) if self.lockstep and pending else 1
-        if agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
+        if agent.bundled:  # one bundle brings every neighbour's state: wake on it or the tick
+            self.inbox.wait_for(1, time.monotonic() + wake_s)
+        elif agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
             self.inbox.wait_for(1, time.monotonic() + 0.001)
         else:
             self.inbox.wait_for(need, time.monotonic() + wake_s)

@@ -278,7 +278,7 @@ def router(config: str, run_id: str | None, port: int | None, secrets: Path | No
         click.echo(f"config error: {config}: network.topology is {cfg.topology}, not router", err=True)
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.ROUTER, secrets)
-    os._exit(router_main(run_name, conf))
+    os._exit(router_main(run_name, conf, cfg))
 
 
 @cli.command()

@@ -397,11 +397,15 @@ class NeighbourSettings(_Strict):
     decentralised path of docs/design.md, "Neighbours"). ``world``: agents use the roster of
     measured body centres the world sends with every clock tick, as a motion-capture system
     would broadcast them (one message a tick that grows with N)."""
-    interest: Literal["cells", "all"] = "cells"
-    """With ``source: agents``: ``cells``: states are published under the grid cell of the
-    agent's body centre and each agent subscribes to the cells within its interest radius
-    (``swarm.cells``), so it hears only the neighbours that can matter; ``all``: every agent
-    subscribes to every other agent's state (N - 1 deliveries per agent and tick)."""
+    interest: Literal["auto", "bundle", "cells", "all"] = "auto"
+    """With ``source: agents`` (``auto``: ``bundle`` where the run has a router, else
+    ``cells``): ``bundle``: each agent publishes its state on its own key
+    and the run's router sends it, once per tick, one message with the states of the
+    agents within its interest radius (``swarm.bundle``; needs ``network.topology:
+    router``); ``cells``: states are published under the grid cell of the agent's body
+    centre and each agent subscribes to the cells within its interest radius
+    (``swarm.cells``), one message per neighbour; ``all``: every agent subscribes to every
+    other agent's state (N - 1 deliveries per agent and tick)."""
     margin_m: float = Field(0.5, gt=0, le=10)
     """Interest radius = the agent's sensing radius + this [m]: what it and a neighbour can
     close between a state's time and its use. The world names, with each tick, the live
@@ -563,6 +567,15 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _bundles(self) -> ScenarioConfig:
+        if self.neighbours.source == "agents" and self.neighbours.interest == "bundle" and self.topology != "router":
+            raise ValueError(
+                f"neighbours.interest: bundle needs the run's router (network.topology: router or auto), "
+                f"not {self.topology}; use interest: cells or all"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _star(self) -> ScenarioConfig:
         if self.network.topology == "star":
             why = self._star_blocker()
@@ -593,7 +606,25 @@ class ScenarioConfig(_Strict):
     @property
     def uses_cells(self) -> bool:
         """Agents publish their states by cell and subscribe to the cells near them."""
-        return self.neighbours.source == "agents" and self.neighbours.interest == "cells"
+        return self.neighbours.source == "agents" and self.interest == "cells"
+
+    @property
+    def uses_bundles(self) -> bool:
+        """The router bundles the agents' states for each agent (``swarm.bundle``)."""
+        return self.neighbours.source == "agents" and self.interest == "bundle"
+
+    @property
+    def interest(self) -> Literal["bundle", "cells", "all"]:
+        """``neighbours.interest`` with ``auto`` resolved: bundles through a router, else cells."""
+        if self.neighbours.interest != "auto":
+            return self.neighbours.interest
+        return "bundle" if self.topology == "router" else "cells"
+
+    @property
+    def uses_ticks(self) -> bool:
+        """The world sends each simulated agent its own tick message (its measurement, the
+        obstacles and the neighbours near it) instead of the clock's roster."""
+        return self.uses_cells or self.uses_bundles
 
     def interest_radius_m(self, agent_id: str) -> float:
         """The radius [m] within which ``agent_id`` hears every neighbour (swarm.cells)."""

@@ -20,13 +20,15 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from swarm import statewire
 from swarm.errors import DecodeError
 from swarm.model import all_finite
 
-VERSION = 6  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 7  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
+# 7: the state as a fixed binary record, and the router's bundle of them (swarm.statewire)
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -117,6 +119,8 @@ class Message:
 
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
     """msgpack bytes of a message; vector fields (arrays or lists) become float64 binaries."""
+    if kind == "state":  # a fixed binary record (swarm.statewire), not msgpack
+        return statewire.encode_state(run, src, seq, t, k, body["x"], body["v"], body["r"], body.get("solo", False))
     schema = SCHEMAS.get(kind)
     if schema is None:
         raise ValueError(f"unknown message kind {kind!r}")
@@ -237,7 +241,10 @@ def decode(
     """Decode and check a message of this ``run`` (and one of ``kinds`` if given). With
     ``fields`` only those body fields are checked and kept (a receiver that reads only
     them: the world reads a command's level, input and status, not the filter's report,
-    which the recorder checks); the header is always checked."""
+    which the recorder checks); the header is always checked. A state is a
+    :mod:`swarm.statewire` record, checked whole."""
+    if payload[:3] == statewire.STATE_MAGIC:
+        return _state_message(payload, run, kinds)
     try:
         m = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several types on garbage
@@ -269,6 +276,14 @@ def decode(
                 f"clock: xvr of {body['xvr'].size} for {n} ids, meas of {body['meas'].size} for {n_meas} meas_ids"
             )
     return Message(kind, m["run"], m["src"], m["seq"], t, m["k"], body)
+
+
+def _state_message(payload: bytes, run: str, kinds: tuple[str, ...] | None) -> Message:
+    if kinds is not None and "state" not in kinds:
+        raise DecodeError("unexpected kind 'state'")
+    f = statewire.read_state(payload, run)
+    body = {"x": np.array(f[7:10]), "v": np.array(f[10:13]), "r": f[13], "solo": f[2] == 1}
+    return Message("state", run, f[14].rstrip(b"\0").decode(), f[3], f[6], f[5], body)
 
 
 def warm_up() -> None:

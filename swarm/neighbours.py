@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -77,6 +78,20 @@ class NeighbourTable:
         h[k] = Neighbour(t_s, k, x_w, v_w, radius_m, solo)
         if len(h) > self.HISTORY:
             del h[min(h)]
+
+    def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
+        """Every checked :data:`swarm.statewire.STATE` record of ``records`` whose sender is
+        one of ``known``; any other is dropped and counted on ``counter``
+        (:class:`swarm.transport.Counter`)."""
+        x, v = records["x"], records["v"]
+        t, k, r = records["t"].tolist(), records["k"].tolist(), records["r"].tolist()
+        solo = (records["flags"] & 1).tolist()
+        for i, src in enumerate(records["src"].tolist()):
+            name = src.decode()
+            if name not in known:
+                counter.drop("state: from an agent it does not know, or itself")
+                continue
+            self.update(name, t[i], k[i], x[i], v[i], r[i], solo[i] == 1)
 
     def mark_gone(self, name: str) -> None:
         self.gone.add(name)

@@ -65,6 +65,14 @@ class Keys:
     def state(self, agent_id: str) -> str:
         return f"{self.root}/agent/{agent_id}/state"
 
+    @property
+    def all_states(self) -> str:
+        return f"{self.root}/agent/*/state"
+
+    def bundle(self, agent_id: str) -> str:
+        """Router -> one agent (``neighbours.interest: bundle``): the states near it."""
+        return f"{self.root}/router/bundle/{agent_id}"
+
     def cell_state(self, cell: tuple[int, int, int], agent_id: str) -> str:
         """An agent's state, published under the cell of its body centre (swarm.cells)."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/{agent_id}"

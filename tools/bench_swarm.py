@@ -2,7 +2,7 @@
 
     python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 10]
         [--sources agents,world] [--topology auto|mesh|star|router] [--access-control on|off]
-        [--interest cells|all]
+        [--interest auto|bundle|cells|all]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
@@ -53,7 +53,7 @@ def bench_one(
     source: str = "agents",
     topology: str = "auto",
     access_control: bool = True,
-    interest: str = "cells",
+    interest: str = "auto",
 ) -> dict:
     settings = SwapSettings(
         rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds, mode=mode, neighbours=source
@@ -70,7 +70,7 @@ def run_row(
     out: Path,
     topology: str = "auto",
     access_control: bool = True,
-    interest: str = "cells",
+    interest: str = "auto",
 ) -> dict:
     """Run the scenario ``raw`` to its end and return the benchmark's line."""
     raw["stop_when_all_reached"] = False
@@ -100,7 +100,7 @@ def run_row(
         "neighbour_source": source,
         "topology": cfg.topology,
         "access_control": access_control,
-        "interest": cfg.neighbours.interest if source == "agents" else None,
+        "interest": cfg.interest if source == "agents" else None,
         "cpu_us_per_agent_tick": round(us, 1),
         "rx_bytes_per_agent_tick": round(rx, 1),
         "missed_neighbours": sum(a.get("missed_neighbours", 0) for a in agents),
@@ -126,9 +126,9 @@ def main() -> None:
     ap.add_argument("--sources", default="agents,world", help="neighbour sources (see NeighbourSettings)")
     ap.add_argument(
         "--interest",
-        default="cells",
-        choices=["cells", "all"],
-        help="agents source: subscribe by cells or to every agent (NeighbourSettings.interest)",
+        default="auto",
+        choices=["auto", "bundle", "cells", "all"],
+        help="agents source: the router's bundles, by cells, or every agent (NeighbourSettings.interest)",
     )
     ap.add_argument(
         "--topology",

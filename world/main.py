@@ -188,7 +188,7 @@ class World:
         self.l_m = np.array([self.slots[a].model.params.l_m for a in self.names])  # body-centre offsets [m]
         self.radius_m = np.array([self.slots[a].model.params.body_radius_m for a in self.names])  # bounding radii [m]
         self.goals = np.array([self.slots[a].goal for a in self.names])  # (n, 3) m, world
-        self.cells = cfg.uses_cells  # each simulated agent gets its own tick message (swarm.cells)
+        self.cells = cfg.uses_ticks  # each simulated agent gets its own tick message (swarm.cells)
         self.near_m = np.array([cfg.near_radius_m(a) for a in self.names]) if self.cells else np.zeros(0)  # m
         self.dt_ctrl = 1.0 / cfg.time.control_hz
         self.K = round(cfg.duration_s * cfg.time.control_hz)  # the last tick

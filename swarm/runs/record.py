@@ -216,6 +216,13 @@ def _schema_bytes(kind: str) -> bytes:
     return _SCHEMA_BYTES[kind]
 
 
+def recorded_keys(keys: tp.Keys) -> list[str]:
+    """What the recorder subscribes to: the world's clock, status, contacts, stalls and
+    real drones' measurements, and the agents' commands with their filter reports."""
+    world = f"{keys.root}/world"
+    return [keys.clock, keys.status, keys.collision, keys.stall, f"{world}/*/measurement", keys.all_commands]
+
+
 def main(run: str, out_dir: Path, conf, linger_s: float = 0.0, live_port: int | None = None) -> int:
     """Record until the world disappears, or ``linger_s`` + a short tail after it says
     done (``linger_s``: how long real drones may take to land after the end)."""
@@ -223,9 +230,10 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0, live_port: int | 
     stop = StopFlag()
     rec = Recorder(run, out_dir, live_port)
     session = tp.open_session(conf)
-    # a channel, not a callback: between batches Zenoh queues the samples itself, no Python
-    # runs per message
-    sub = tp.open_channel(session, keys.everything, QUEUE)
+    # channels, not callbacks: between batches Zenoh queues the samples itself, no Python
+    # runs per message. Not the agents' states, their bundles or the world's tick messages:
+    # the clock carries every drone's measured state and the obstacles already
+    subs = [tp.open_channel(session, key, QUEUE) for key in recorded_keys(keys)]
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
     rec.startup_cpu_s = time.process_time()
@@ -236,8 +244,9 @@ def main(run: str, out_dir: Path, conf, linger_s: float = 0.0, live_port: int | 
             # wake every BATCH_S, not for each message: a wake per command would take the
             # CPU from the agents just when they compute their next one
             time.sleep(BATCH_S)
-            for s in tp.drain(sub):
-                rec.handle(str(s.key_expr), tp.payload(s), time.time_ns())
+            for sub in subs:
+                for s in tp.drain(sub):
+                    rec.handle(str(s.key_expr), tp.payload(s), time.time_ns())
             if rec.done and done_at is None:
                 done_at = time.monotonic() + linger_s
             for name, up in tp.liveliness_events(live_sub):

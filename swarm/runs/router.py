@@ -106,5 +106,6 @@ def main(run: str, conf: Any, cfg: ScenarioConfig | None = None) -> int:
         relay.send()
     token.undeclare()
     if relay is not None:
-        print(f"router: sent {relay.sent} bundles; dropped {relay.counter.dropped} {relay.counter.reasons}", file=sys.stderr)
+        c = relay.counter
+        print(f"router: sent {relay.sent} bundles; dropped {c.dropped} {c.reasons}", file=sys.stderr)
     return 0

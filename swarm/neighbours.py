@@ -51,9 +51,120 @@ class Neighbour:
     solo: bool = False  # it said it is not doing its share of a pair's avoidance
 
 
+@dataclass
+class _Slots:
+    """The table's arrays: per neighbour slot ``i`` and history place ``j`` (a state of
+    tick k sits at ``j = k % HISTORY``)."""
+
+    k: IntArray  # (S, H) tick of the state, -1: none
+    t: FloatArray  # (S, H) sim time of the state [s]
+    x: FloatArray  # (S, H, 3) body centre [m, world]
+    v: FloatArray  # (S, H, 3) its velocity [m/s, world]
+    r: FloatArray  # (S, H) bounding radius [m]
+    solo: BoolArray  # (S, H) not doing its share
+    latest: IntArray  # (S,) newest tick held, -1: none
+    gone: BoolArray  # (S,) its liveliness is gone
+
+    @classmethod
+    def empty(cls, n: int, h: int) -> _Slots:
+        return cls(
+            np.full((n, h), -1, dtype=np.int64),
+            np.zeros((n, h)),
+            np.zeros((n, h, 3)),
+            np.zeros((n, h, 3)),
+            np.zeros((n, h)),
+            np.zeros((n, h), dtype=np.bool_),
+            np.full(n, -1, dtype=np.int64),
+            np.zeros(n, dtype=np.bool_),
+        )
+
+    def grown(self, n: int) -> _Slots:
+        """The same slots and ``n`` more, empty."""
+        more = _Slots.empty(n, self.k.shape[1])
+        return _Slots(*(np.concatenate([a, b]) for a, b in zip(self.fields(), more.fields(), strict=True)))
+
+    def fields(self) -> tuple[np.ndarray, ...]:
+        return (self.k, self.t, self.x, self.v, self.r, self.solo, self.latest, self.gone)
+
+
+@njit(cache=True)
+def _store(sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_latest, slots, t, k, x, v, r, flags):
+    """Write state ``n`` (tick k[n], time t[n], centre x[n], velocity v[n], radius r[n],
+    solo bit of flags[n]) into slot slots[n], unless that place holds a newer tick."""
+    h = sl_k.shape[1]
+    for n in range(slots.shape[0]):
+        i, kk = slots[n], k[n]
+        j = kk % h
+        if sl_k[i, j] > kk:
+            continue
+        sl_k[i, j] = kk
+        sl_t[i, j] = t[n]
+        for d in range(3):
+            sl_x[i, j, d] = x[n, d]
+            sl_v[i, j, d] = v[n, d]
+        sl_r[i, j] = r[n]
+        sl_solo[i, j] = (flags[n] & 1) == 1
+        if kk > sl_latest[i]:
+            sl_latest[i] = kk
+
+
+@njit(cache=True)
+def _newest(sl_k, i, k_max):
+    """History place of slot i's newest state with tick <= k_max, or -1."""
+    best, at = -1, -1
+    for j in range(sl_k.shape[1]):
+        kk = sl_k[i, j]
+        if kk >= 0 and kk <= k_max and kk > best:
+            best, at = kk, j
+    return at
+
+
+@njit(cache=True)
+def _rows(sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_gone, slots, k_max, t_now, lost, out, kept):
+    """The rows of ``slots`` at sim time ``t_now`` [s] (see NeighbourTable.arrays) into
+    ``out`` (OBSTACLE); kept[n]: slot n made a row. ``lost``: the table's
+    (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep them stopped 0.0).
+    Returns the number of rows."""
+    timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
+    m = 0
+    for n in range(slots.shape[0]):
+        i = slots[n]
+        kept[n] = False
+        j = _newest(sl_k, i, k_max)
+        if j < 0:
+            continue
+        age = max(0.0, t_now - sl_t[i, j])
+        ob = out[m]
+        if sl_gone[i] or age > hard_limit_s:
+            if drop:
+                continue
+            for d in range(3):
+                ob.c[d] = sl_x[i, j, d]
+                ob.cd[d] = 0.0
+            ob.r = sl_r[i, j]
+            ob.is_nb = False
+        else:
+            for d in range(3):
+                ob.c[d] = sl_x[i, j, d] + sl_v[i, j, d] * age
+                ob.cd[d] = sl_v[i, j, d]
+            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s)
+            ob.is_nb = not sl_solo[i, j]
+        for d in range(3):
+            ob.cdd[d] = 0.0
+            ob.axis[d] = 0.0
+        kept[n] = True
+        m += 1
+    return m
+
+
+_ANY_TICK = np.iinfo(np.int64).max
+
+
 class NeighbourTable:
     """Latest states per neighbour, with a short history by tick so that lockstep runs
-    can use exactly the state of tick k-1 whatever else has arrived meanwhile."""
+    can use exactly the state of tick k-1 whatever else has arrived meanwhile. Held in
+    arrays that compiled kernels write (:meth:`update_records`: all of a bundle at once)
+    and read (:meth:`arrays`)."""
 
     HISTORY = 8  # ticks of history kept per neighbour
 
@@ -65,89 +176,119 @@ class NeighbourTable:
         on_lost: str = "keep_stopped",
     ) -> None:
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
-        self.history: dict[str, dict[int, Neighbour]] = {}
+        self._lost = np.array([timeout_s, growth_mps, hard_limit_s, 1.0 if on_lost == "drop" else 0.0])
+        self.slot: dict[str, int] = {}  # name -> slot, in the order first heard
+        self.names: list[str] = []  # slot -> name
+        self.s = _Slots.empty(0, self.HISTORY)
         self.gone: set[str] = set()
         self.row_names: list[str] = []  # names of the rows the last arrays() built
+
+    @property
+    def history(self) -> list[str]:
+        """The neighbours held now (some state of them), in the order first heard."""
+        return [n for n, i in self.slot.items() if self.s.latest[i] >= 0]
+
+    def _slot(self, name: str) -> int:
+        i = self.slot.get(name)
+        if i is None:
+            if len(self.names) == self.s.k.shape[0]:
+                self.s = self.s.grown(max(4, len(self.names)))
+            i = self.slot[name] = len(self.names)
+            self.names.append(name)
+        return i
 
     def update(
         self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool = False
     ) -> None:
         if name in self.gone:
             return
-        h = self.history.setdefault(name, {})
-        h[k] = Neighbour(t_s, k, x_w, v_w, radius_m, solo)
-        if len(h) > self.HISTORY:
-            del h[min(h)]
+        i = self._slot(name)
+        s, j = self.s, k % self.HISTORY
+        if s.k[i, j] > k:
+            return
+        s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
+        s.latest[i] = max(s.latest[i], k)
 
     def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
         """Every checked :data:`swarm.statewire.STATE` record of ``records`` whose sender is
         one of ``known``; any other is dropped and counted on ``counter``
-        (:class:`swarm.transport.Counter`)."""
-        x, v = records["x"], records["v"]
-        t, k, r = records["t"].tolist(), records["k"].tolist(), records["r"].tolist()
-        solo = (records["flags"] & 1).tolist()
-        for i, src in enumerate(records["src"].tolist()):
+        (:class:`swarm.transport.Counter`). One compiled call writes them all."""
+        slots, keep = [], []
+        for n, src in enumerate(records["src"].tolist()):
             name = src.decode()
             if name not in known:
                 counter.drop("state: from an agent it does not know, or itself")
-                continue
-            self.update(name, t[i], k[i], x[i], v[i], r[i], solo[i] == 1)
+            elif name not in self.gone:
+                slots.append(self._slot(name))
+                keep.append(n)
+        if not slots:
+            return
+        rec = records if len(keep) == len(records) else records[keep]
+        s = self.s
+        _store(
+            s.k, s.t, s.x, s.v, s.r, s.solo, s.latest, np.array(slots, dtype=np.int64),
+            rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"],
+        )  # fmt: skip
 
     def mark_gone(self, name: str) -> None:
         self.gone.add(name)
+        i = self.slot.get(name)
+        if i is not None:
+            self.s.gone[i] = True
 
     def latest_k(self, name: str) -> int:
-        h = self.history.get(name)
-        return max(h) if h else -1
+        i = self.slot.get(name)
+        return -1 if i is None else int(self.s.latest[i])
 
     def state(self, name: str, k_max: int | None = None) -> Neighbour | None:
         """Newest state of ``name`` with tick <= ``k_max`` (any tick when None)."""
-        h = self.history.get(name)
-        if not h:
+        i = self.slot.get(name)
+        if i is None:
             return None
-        ks = [k for k in h if k_max is None or k <= k_max]
-        return h[max(ks)] if ks else None
+        s = self.s
+        j = _newest(s.k, i, _ANY_TICK if k_max is None else k_max)
+        if j < 0:
+            return None
+        return Neighbour(float(s.t[i, j]), int(s.k[i, j]), s.x[i, j].copy(), s.v[i, j].copy(), float(s.r[i, j]),
+                         bool(s.solo[i, j]))  # fmt: skip
 
     def forget_far(self, x_w: FloatArray, radius_m: float, t_now_s: float) -> None:
         """Forget the neighbours (not gone) last heard farther than ``radius_m`` [m] from
         ``x_w`` [m, world] and more than the timeout ago: they left the cells this agent
         listens to (``neighbours.interest: cells``), they are not lost."""
-        for name in [n for n in self.history if n not in self.gone]:
-            s = self.state(name)
-            if s is not None and t_now_s - s.t_s > self.timeout_s and math.dist(s.x_w, x_w) > radius_m:
-                del self.history[name]
+        s = self.s
+        held = (s.latest >= 0) & ~s.gone
+        if not held.any():
+            return
+        j = s.latest % self.HISTORY
+        rows = np.arange(len(j))
+        far = ((s.x[rows, j] - np.asarray(x_w)) ** 2).sum(axis=1) > radius_m * radius_m
+        old = t_now_s - s.t[rows, j] > self.timeout_s
+        for i in np.flatnonzero(held & far & old).tolist():
+            s.k[i] = -1
+            s.latest[i] = -1
 
-    def arrays(self, t_now_s: float, k_max: int | None = None, names: list[str] | None = None) -> ObstacleArrays:
-        """Neighbour rows at ``t_now_s`` [s], from states of tick <= ``k_max``; their
+    def arrays(self, t_now: float, k_max: int | None = None, names: list[str] | None = None) -> ObstacleArrays:
+        """Neighbour rows at ``t_now`` [s], from states of tick <= ``k_max``; their
         names are left in :attr:`row_names`. A neighbour that is gone, past the hard limit
         or ``solo`` is an obstacle row (``is_neighbour`` false): it is not doing its share,
         so this agent takes all of the pair. ``names``: only these neighbours (in this
         order), and the gone ones."""
-        self.row_names = []
-        if not self.history:
+        if names is None:
+            slots = list(range(len(self.names)))
+        else:
+            slots = list(dict.fromkeys([self.slot[n] for n in names if n in self.slot]))
+            slots += [self.slot[n] for n in self.gone if n in self.slot and self.slot[n] not in slots]
+        if not slots:
+            self.row_names = []
             return ObstacleArrays.empty()
-        c, cd, r, share = [], [], [], []
-        if names is not None:
-            names = [n for n in names if n in self.history] + [n for n in self.history if n in self.gone]
-        for name in self.history if names is None else dict.fromkeys(names):
-            n = self.state(name, k_max)
-            if n is None:
-                continue
-            age = max(0.0, t_now_s - n.t_s)
-            if name in self.gone or age > self.hard_limit_s:
-                if self.on_lost == "drop":
-                    continue
-                c.append(n.x_w)
-                cd.append(np.zeros(3))
-                r.append(n.radius_m)
-                share.append(False)
-                self.row_names.append(name)
-                continue
-            self.row_names.append(name)
-            c.append(n.x_w + n.v_w * age)
-            cd.append(n.v_w)
-            r.append(n.radius_m + self.growth_mps * max(0.0, age - self.timeout_s))
-            share.append(not n.solo)
-        if not c:
+        s = self.s
+        sel = np.array(slots, dtype=np.int64)
+        out = np.empty(len(slots), dtype=OBSTACLE)
+        kept = np.empty(len(slots), dtype=np.bool_)
+        k = _ANY_TICK if k_max is None else k_max
+        m = _rows(s.k, s.t, s.x, s.v, s.r, s.solo, s.gone, sel, k, t_now, self._lost, out, kept)
+        self.row_names = [self.names[i] for i, ok in zip(slots, kept.tolist(), strict=True) if ok]
+        if m == 0:
             return ObstacleArrays.empty()
-        return ObstacleArrays.build(np.array(c), np.array(r), np.array(cd), is_neighbour=np.array(share, bool))
+        return ObstacleArrays.of_records(out[:m])

@@ -1,5 +1,6 @@
-"""Agents' states through a real Zenoh router, each agent hearing only the cells near it
-(``network.topology: router``, ``neighbours.interest: cells``; swarm.cells).
+"""Agents' states through a real Zenoh router, each agent hearing only the states near it
+(``network.topology: router``; ``neighbours.interest: bundle``, the router's bundles,
+swarm.bundle, or ``cells``, swarm.cells).
 
 * a lockstep run through the router flies bit for bit what the same run flies when every
   agent hears every other (``interest: all``), so lockstep through the router repeats, and
@@ -18,6 +19,7 @@ import time
 
 import numpy as np
 
+from swarm import statewire
 from swarm import transport as tp
 from swarm.cells import cell_of
 from swarm.messages import encode
@@ -55,26 +57,30 @@ def _crossing(**over):
 
 
 def test_crossing_cell_borders_at_full_speed_misses_no_neighbour_and_flies_as_hearing_everyone(start_run):
-    cfg = _crossing()
-    assert cfg.topology == "router" and cfg.uses_cells
-    h, m, agents = _run(start_run, cfg, "cells")
-    assert m["collisions"] == 0 and m["all_reached_goal"], m
-    assert m["dropped_messages"] == 0 and m["late_ticks"] == 0
-    for a in agents.values():
-        assert a["missed_neighbours"] == 0, a
-        assert a["cells_declared"] > 100, a  # it followed its cells along the way (about 150 at the start)
+    """By cells and by the router's bundles the agents fly bit for bit what they fly when
+    every agent hears every other, and hear less."""
     everyone = _crossing(interest="all")
     _, m_all, agents_all = _run(start_run, everyone, "all")
-    a, b = trajectories(h.out), trajectories(h.out.parent / "all")
-    assert a.keys() == b.keys() == {x.id for x in cfg.agents}
-    for agent in a:  # the same rows, so the same flight, bit for bit: lockstep through the router repeats
-        assert a[agent].keys() == b[agent].keys()
-        for k in a[agent]:
-            np.testing.assert_array_equal(a[agent][k], b[agent][k])
-    # and the cells carried less: each agent heard fewer states than with everyone's
-    rx = np.mean([x["rx_bytes"] / x["ticks"] for x in agents.values()])
-    rx_all = np.mean([x["rx_bytes"] / x["ticks"] for x in agents_all.values()])
-    assert rx < rx_all, (rx, rx_all)
+    for interest in ("cells", "bundle"):
+        cfg = _crossing(interest=interest)
+        assert cfg.topology == "router" and cfg.interest == interest
+        h, m, agents = _run(start_run, cfg, interest)
+        assert m["collisions"] == 0 and m["all_reached_goal"], m
+        assert m["dropped_messages"] == 0 and m["late_ticks"] == 0
+        for a in agents.values():
+            assert a["missed_neighbours"] == 0 and a["dropped"] == 0, a
+            if interest == "cells":
+                assert a["cells_declared"] > 100, a  # it followed its cells along the way (about 150 at the start)
+        a, b = trajectories(h.out), trajectories(h.out.parent / "all")
+        assert a.keys() == b.keys() == {x.id for x in cfg.agents}
+        for agent in a:  # the same rows, so the same flight, bit for bit: lockstep through the router repeats
+            assert a[agent].keys() == b[agent].keys()
+            for k in a[agent]:
+                np.testing.assert_array_equal(a[agent][k], b[agent][k])
+        # and each agent heard fewer bytes than with everyone's states
+        rx = np.mean([x["rx_bytes"] / x["ticks"] for x in agents.values()])
+        rx_all = np.mean([x["rx_bytes"] / x["ticks"] for x in agents_all.values()])
+        assert rx < rx_all, (interest, rx, rx_all)
 
 
 def test_realtime_circle_8_through_the_router_flies_without_collision(start_run):
@@ -89,9 +95,9 @@ def test_realtime_circle_8_through_the_router_flies_without_collision(start_run)
 
 
 def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
-    """A session with cf2's credentials publishes cf1's state in cf1's cell, a command for
-    cf1, and the world's clock (all marked), and a probe under its own keys; another client
-    counts what the router forwards."""
+    """A session with cf2's credentials publishes cf1's state (on cf1's key and in cf1's
+    cell), a bundle for cf1, a command for cf1, and the world's clock (all marked), and a
+    probe under its own keys; another client counts what the router forwards."""
     cfg = scenario(
         "swap_2.yaml",
         name="routed",
@@ -108,8 +114,11 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
     heard = tp.open_channel(observer, f"{keys.root}/**", 1 << 16)
     cell = cell_of([0.0, 0.0, 1.0], h.cfg.cell_m)
     fake = encode("state", h.run, "cf1", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
+    fake2 = encode("state", h.run, "cf2", 7, 0.0, 0, x=[0.0, 0.0, 1.0], v=[0.0, 0.0, 0.0], r=0.07, solo=False)
     forgeries = {
         keys.cell_state(cell, "cf1"): fake,
+        keys.state("cf1"): fake,
+        keys.bundle("cf1"): statewire.encode_bundle(h.run, "cf1", 1, 0.0, 0, [fake2]),
         keys.command("cf1"): b"forged command",
         keys.clock: b"forged clock",
         keys.tick("cf1"): b"forged tick",
@@ -122,18 +131,23 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
             forger.put(key, data)
         forger.put(probe, b"probe")
     assert h.wait() == "completed"
-    counts = {"real cf1 states": 0, "forged": 0, "probes": 0}
+    counts = {"real cf1 states": 0, "forged": 0, "probes": 0, "bundles for cf1": 0}
     for smp in tp.drain(heard):
         data, key = tp.payload(smp), str(smp.key_expr)
         if data in forgeries.values():
             counts["forged"] += 1
         elif data == b"probe":
             counts["probes"] += 1
-        elif key.startswith(f"{keys.root}/cell/") and key.endswith("/cf1"):
+        elif key == keys.state("cf1"):
             counts["real cf1 states"] += 1
+        elif key == keys.bundle("cf1"):
+            counts["bundles for cf1"] += 1
     forger.close()
     observer.close()
-    assert counts["probes"] == 20 and counts["forged"] == 0 and counts["real cf1 states"] > 100, counts
+    assert counts["probes"] == 20 and counts["forged"] == 0, counts
+    assert counts["real cf1 states"] > 100 and counts["bundles for cf1"] > 100, counts
+    _, agents = summaries(h.out)
+    assert all(a["dropped"] == 0 for a in agents), agents  # no forgery reached an agent
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["all_reached_goal"]
 

@@ -5,7 +5,6 @@ is kept as a stopped obstacle at its last position or dropped, as configured."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 

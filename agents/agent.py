@@ -412,6 +412,8 @@ class AgentProcess:
         self.waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
         self.msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
         self.reported_gone: set[str] = set()
+        self.acted_k = -1  # lockstep: the newest tick acted on
+        self.bundle_k = -1  # the newest tick whose bundle arrived
 
     def connect_drone(self) -> bool:
         """A real drone: its link up (False: not reached in 15 s)."""
@@ -486,6 +488,7 @@ class AgentProcess:
         if b.dst != self.id:
             counter.drop("bundle: for another agent")
             return
+        self.bundle_k = max(self.bundle_k, b.k)
         for reason, n in b.states.dropped.items():
             counter.dropped += n
             counter.reasons[reason] = counter.reasons.get(reason, 0) + n
@@ -507,8 +510,8 @@ class AgentProcess:
         # wake when what the oldest pending tick still needs can all be here (one wake for a
         # neighbour mesh's states, not one per state), or after wake_s
         need = max(1, agent.missing(min(m.k for m in pending))) if self.lockstep and pending else 1
-        if agent.bundled:  # one bundle brings every neighbour's state: wake on it or the tick
-            self.inbox.wait_for(1, time.monotonic() + wake_s)
+        if agent.bundled:  # one bundle brings every neighbour's state
+            self.inbox.wait_for(self._bundled_need(), time.monotonic() + wake_s)
         elif agent.cells and pending:  # the tick is here, states are still coming: look again in 1 ms
             self.inbox.wait_for(1, time.monotonic() + 0.001)
         else:
@@ -534,6 +537,15 @@ class AgentProcess:
             return False
         return True
 
+    def _bundled_need(self) -> int:
+        """How many messages to wake for with bundles: in lockstep, the next tick and the
+        bundle of the tick before (the router sends each agent one bundle per tick, so the
+        two wake it once); in realtime, whichever comes (it acts on the newest)."""
+        if not self.lockstep or self.pending:
+            return 1
+        k_next = self.acted_k + 1
+        return 1 if k_next == 0 or self.bundle_k >= k_next - 1 else 2
+
     def next_message(self) -> Message | None:
         """The measurement to act on now: lockstep, the oldest once its tick is complete
         (or at the deadline); realtime, the newest."""
@@ -551,6 +563,7 @@ class AgentProcess:
             agent.missed += agent.missing(msg.k) if agent.ticked and msg.k in agent.near else 0
             self.counter.drop("lockstep: tick incomplete at the deadline")
         pending.remove(msg)
+        self.acted_k = max(self.acted_k, msg.k)
         self.waited_s += time.monotonic() - self.msg_seen.pop(msg.k, time.monotonic())
         return msg
 

@@ -450,6 +450,21 @@ def liveliness_subscriber(session: zenoh.Session, key: str) -> Any:
     return session.liveliness().declare_subscriber(key, zenoh.handlers.FifoChannel(1024), history=True)
 
 
+# Zenoh's runtimes (zenoh-runtime: app, acc, tx, rx, net; RON, read once per process at the
+# first session) all handed over to one worker thread: a run puts many processes on few
+# cores, where each extra thread a message crosses is one more wake-up
+ZENOH_RUNTIME = (
+    "(app: (worker_threads: 1), acc: (handover: app), tx: (handover: app), rx: (handover: app), net: (handover: app))"
+)
+
+
+def runtime_env() -> None:
+    """Set ``ZENOH_RUNTIME`` to :data:`ZENOH_RUNTIME` unless the user set it (an empty value,
+    which makes zenoh panic, counts as unset)."""
+    if not os.environ.get("ZENOH_RUNTIME"):
+        os.environ["ZENOH_RUNTIME"] = ZENOH_RUNTIME
+
+
 def open_session(conf: zenoh.Config) -> zenoh.Session:
     """Open a session whose own threads (receive, transmit, timers) run under Linux's
     ``SCHED_BATCH`` policy: a Zenoh thread that wakes then waits for the running thread's
@@ -461,6 +476,7 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
     this raised the ticks on time from 98.7 % to 99.3 % on average (better or equal in each
     pair) and lowered the agents' CPU by up to 15 % (README). The threads inherit the policy
     from the thread that starts them; where it cannot be set the session opens as usual."""
+    runtime_env()
     set_policy = getattr(os, "sched_setscheduler", None)
     if set_policy is None:
         return zenoh.open(conf)

@@ -21,6 +21,8 @@ import sys
 import time
 from typing import Any
 
+import numpy as np
+
 from swarm import statewire
 from swarm import transport as tp
 from swarm.bundle import Bundler
@@ -73,7 +75,7 @@ class BundleRelay:
         if sender is None or f[14].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
             self.counter.drop("state: sender is not its key's agent")
             return
-        self.bundler.add(sender, f[5], f[7:10], data, time.monotonic())
+        self.bundler.add(sender, f[5], np.array(f[7:10]), data, time.monotonic())
 
     def send(self) -> None:
         """Every bundle that is due now."""

@@ -174,7 +174,7 @@ def test_a_swap_through_the_router_with_the_agents_on_two_other_hosts(lan, tmp_p
     cfg = scenario(
         "swap_2.yaml", name="lan", network={"host": ROUTER_HOST, "port": PORT}, time={"start_timeout_s": 120.0}
     )
-    assert cfg.topology == "router" and cfg.uses_cells and cfg.network.access_control
+    assert cfg.topology == "router" and cfg.uses_bundles and cfg.network.access_control
     path = tmp_path / "lan.yaml"
     path.write_text(dump(cfg))
     out, keys = tmp_path / "run", tmp_path / "secrets"

@@ -74,6 +74,7 @@ class Agent:
         self.ticked = self.by_near and me.backend != "crazyflie"  # measured by tick messages, not the clock
         self.interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
         self.near: dict[int, list[str]] = {}  # tick -> the neighbours the world names near this agent
+        self.left: list[str] = []  # neighbours the ticks said were gone, not yet reported
         self.missed = 0  # near neighbours whose state was not there when used (lockstep: at the deadline)
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
@@ -108,9 +109,24 @@ class Agent:
         )
         warm_up()
         roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.ones(1, dtype=bool))
+        if self.bundled:
+            self._warm_up_bundles()
         self._warm_up_filter_paths()
         self.infeasible, self.min_h, self.reached = 0, math.inf, False
         self.plan = FlightPlan(me) if me.backend == "crazyflie" else None  # a real drone's phases
+
+    def _warm_up_bundles(self) -> None:
+        """Read a bundle of two states into a throwaway table and build its rows (by tick,
+        and by the names the world gives): their compiled checks and kernels load now. (Two:
+        the fields of one record are contiguous arrays, a type of their own to numba.)"""
+        z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
+        records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.1) for n in names]
+        b = statewire.read_bundle(statewire.encode_bundle("", self.me.id, 0, 0.0, 0, records), "")
+        table = NeighbourTable(self.table.timeout_s, self.table.growth_mps, self.table.hard_limit_s, self.table.on_lost)
+        table.update_records(b.states.records, set(names), tp.Counter())
+        table.arrays(0.0, 0, names)
+        table.arrays(0.0)
+        table.state(names[0])
 
     def _warm_up_filter_paths(self) -> None:
         """Load every compiled path of the filter now (the QP with active rows, the
@@ -185,9 +201,15 @@ class Agent:
         return [n for n in left if n in self.others]
 
     def on_tick(self, m: Message) -> Message | None:
-        """This agent's own tick message (neighbours by cells): keep the obstacles and the
-        near neighbours of tick k; its measurement, unless the run is over."""
+        """This agent's own tick message (neighbours by bundles or cells): keep the
+        obstacles and the near neighbours of tick k, and mark gone the neighbours the world
+        has seen go (in a star no agent hears another's liveliness); its measurement, unless
+        the run is over."""
         self.near[m.k] = m["near"]
+        for name in m["gone"]:
+            if name in self.others and name not in self.table.gone:
+                self.table.mark_gone(name)
+                self.left.append(name)
         _keep_newest(self.near, 5)
         if m.k >= self._newest_k:
             self._newest_k = m.k
@@ -465,6 +487,8 @@ class AgentProcess:
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
         elif m.kind == "tick" and key == self.tick_key:
             mine = agent.on_tick(m)
+            while agent.left:
+                self.neighbour_gone(agent.left.pop(), "the world's live list")
             if mine is not None:
                 self._measurement(mine)
             else:

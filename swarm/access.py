@@ -89,10 +89,11 @@ def acl(
     ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
     any linked session may.
 
-    ``router`` (``network.topology: router``): ``"router"`` for the run's router, which
-    accepts every link, so it knows every sender by its user name and accepts from each
-    only its own keys (as ``identified``); ``"client"`` for every other process, whose one
-    link is to the router: it accepts everything of the run the router forwards."""
+    ``router``: ``"router"`` for the run's router (``network.topology: router``) or a
+    star's bundle relay, which accepts every link it has, so it knows every sender by its
+    user name and accepts from each only its own keys (as ``identified``); ``"client"``
+    for every other process of ``network.topology: router``, whose one link is to the
+    router: it accepts everything of the run the router forwards."""
     root = f"swarm/{run}"
     listen = [
         "declare_subscriber",
@@ -130,12 +131,16 @@ def acl(
         )
         policies[0]["rules"].append("shared")
     elif identified or router == "router":
-        own |= {WORLD: [f"{root}/world/**", f"{root}/alive/world"], RECORDER: [f"{root}/alive/recorder"]}
+        own |= {
+            WORLD: [f"{root}/world/**", f"{root}/alive/world"],
+            RECORDER: [f"{root}/alive/recorder"],
+            ROUTER: [f"{root}/router/**", f"{root}/alive/router"],
+        }
         own |= {
             agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"] for a in agent_ids
         }
     else:
-        shared = [f"{root}/world/**", f"{root}/agent/*/state", f"{root}/cell/**", f"{root}/alive/*"]
+        shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*")]
         if not flies_commands:
             shared.append(f"{root}/agent/*/command")
         rules.append(

@@ -268,14 +268,17 @@ def world(
 @click.option("--port", type=int, help="the port to listen on (network.port)")
 @_SECRETS
 def router(config: str, run_id: str | None, port: int | None, secrets: Path | None) -> None:
-    """Start the run's Zenoh router (network.topology: router) alone."""
+    """Start the run's Zenoh router (network.topology: router) or a star's bundle relay alone."""
     _pin_cpu()
     from swarm import transport as tp
     from swarm.runs.router import main as router_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
-    if cfg.topology != "router":
-        click.echo(f"config error: {config}: network.topology is {cfg.topology}, not router", err=True)
+    if cfg.topology != "router" and not cfg.uses_bundles:
+        click.echo(
+            f"config error: {config}: network.topology is {cfg.topology}, not router, and no agent takes bundles",
+            err=True,
+        )
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.ROUTER, secrets)
     os._exit(router_main(run_name, conf, cfg))

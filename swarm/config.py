@@ -367,15 +367,19 @@ class NetworkSettings(_Strict):
     """Which processes link to which (``swarm.transport.process_config``). ``mesh``: every
     process listens and Zenoh's gossip links every pair, so any peer that joins sees all
     traffic. ``star``: only the hubs listen, the world on ``port``, the recorder on
-    ``port + 1``, the launcher on ``port + 2``; the others link to the hubs alone, with
-    Zenoh's low-latency transport (a ``put`` is written to the socket by the calling
-    thread). It needs ``neighbours.source: world`` (agents never hear each other) and peer
-    mode without extra endpoints; an outside peer sees only the hubs' messages.
+    ``port + 1``, the launcher on ``port + 2`` and, with ``neighbours.interest: bundle``,
+    the bundle relay (``swarm router`` as a peer) on ``port + 3``; the others link to the
+    hubs alone, with Zenoh's low-latency transport (a ``put`` is written to the socket by
+    the calling thread), so every message takes one link and no process routes. Agents
+    never hear each other directly: it needs ``neighbours.source: world``, or ``agents``
+    with ``interest: bundle`` (or ``auto``), and peer mode without extra endpoints; an
+    outside peer sees only the hubs' messages.
     ``router``: a Zenoh router (``swarm router``) listens on ``host:port`` and every
     other process is a client linked to it alone; the router forwards each message to
     the sessions subscribed to its key (and checks, per sender, what it may publish).
     ``auto``: star when those hold and ``host`` is loopback; else the router for
-    ``neighbours.source: agents``; else mesh."""
+    ``neighbours.source: agents``; else mesh. Traffic between hosts takes the router
+    (the netns test), where each link is one Zenoh client's."""
 
 
 class FailureSettings(_Strict):
@@ -398,11 +402,11 @@ class NeighbourSettings(_Strict):
     measured body centres the world sends with every clock tick, as a motion-capture system
     would broadcast them (one message a tick that grows with N)."""
     interest: Literal["auto", "bundle", "cells", "all"] = "auto"
-    """With ``source: agents`` (``auto``: ``bundle`` where the run has a router, else
+    """With ``source: agents`` (``auto``: ``bundle`` in a star or through a router, else
     ``cells``): ``bundle``: each agent publishes its state on its own key
-    and the run's router sends it, once per tick, one message with the states of the
-    agents within its interest radius (``swarm.bundle``; needs ``network.topology:
-    router``); ``cells``: states are published under the grid cell of the agent's body
+    and the run's bundle relay (``swarm router``) sends it, once per tick, one message with
+    the states of the agents within its interest radius (``swarm.bundle``; needs
+    ``network.topology: star`` or ``router``); ``cells``: states are published under the grid cell of the agent's body
     centre and each agent subscribes to the cells within its interest radius
     (``swarm.cells``), one message per neighbour; ``all``: every agent subscribes to every
     other agent's state (N - 1 deliveries per agent and tick)."""
@@ -568,10 +572,10 @@ class ScenarioConfig(_Strict):
 
     @model_validator(mode="after")
     def _bundles(self) -> ScenarioConfig:
-        if self.neighbours.source == "agents" and self.neighbours.interest == "bundle" and self.topology != "router":
+        if self.neighbours.source == "agents" and self.neighbours.interest == "bundle" and self.topology == "mesh":
             raise ValueError(
-                f"neighbours.interest: bundle needs the run's router (network.topology: router or auto), "
-                f"not {self.topology}; use interest: cells or all"
+                "neighbours.interest: bundle needs the run's bundle relay (network.topology: star, router or auto), "
+                "not mesh; use interest: cells or all"
             )
         return self
 
@@ -585,13 +589,25 @@ class ScenarioConfig(_Strict):
 
     def _star_blocker(self) -> str | None:
         """Why a star cannot link this scenario's processes, or None."""
-        if self.neighbours.source != "world":
-            return "links agents only to the world, recorder and launcher; neighbours.source: agents needs the mesh"
+        if self.neighbours.source == "agents" and self.neighbours.interest not in ("auto", "bundle"):
+            return (
+                "links agents only to the hubs; neighbours.source: agents needs interest: bundle (the relay's), "
+                "or the mesh for interest: cells or all"
+            )
         if self.network.mode != "peer" or self.network.connect:
             return "needs network.mode: peer and no network.connect endpoints"
-        if self.network.port > 65535 - 2:
-            return "needs network.port <= 65533 (the hubs listen on port, port + 1, port + 2)"
+        last = len(self.star_hubs) - 1
+        if self.network.port > 65535 - last:
+            return f"needs network.port <= {65535 - last} (the hubs listen on port to port + {last})"
         return None
+
+    @property
+    def star_hubs(self) -> tuple[str, ...]:
+        """The processes that listen in a star, hub i on ``network.port + i``: the world,
+        the recorder, the launcher, and with agents as the neighbour source the bundle relay
+        (``swarm.transport.links``)."""
+        hubs = ("world", "recorder", "launcher")
+        return (*hubs, "router") if self.neighbours.source == "agents" else hubs
 
     @property
     def topology(self) -> Literal["mesh", "star", "router"]:
@@ -610,7 +626,8 @@ class ScenarioConfig(_Strict):
 
     @property
     def uses_bundles(self) -> bool:
-        """The router bundles the agents' states for each agent (``swarm.bundle``)."""
+        """The bundle relay (``swarm router``) bundles the agents' states for each agent
+        (``swarm.bundle``)."""
         return self.neighbours.source == "agents" and self.interest == "bundle"
 
     @property
@@ -618,7 +635,7 @@ class ScenarioConfig(_Strict):
         """``neighbours.interest`` with ``auto`` resolved: bundles through a router, else cells."""
         if self.neighbours.interest != "auto":
             return self.neighbours.interest
-        return "bundle" if self.topology == "router" else "cells"
+        return "cells" if self.topology == "mesh" else "bundle"
 
     @property
     def uses_ticks(self) -> bool:

@@ -24,11 +24,12 @@ from swarm import statewire
 from swarm.errors import DecodeError
 from swarm.model import all_finite
 
-VERSION = 7  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 8  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
 # 7: the state as a fixed binary record, and the router's bundle of them (swarm.statewire)
+# 8: the tick names the agents the world has seen go ("gone")
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -56,8 +57,10 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
-    # uses: theirs of tick k-1), and whether the run is over. Its size does not grow with N.
-    "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "done": "b"},
+    # uses: theirs of tick k-1), the agents whose liveliness the world has seen go (in a star
+    # the agents hear no other agent's liveliness), and whether the run is over. Its size does
+    # not grow with N (but for the dead).
+    "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "gone": "ls", "done": "b"},
     "clock": {
         "live": "ls",
         "done": "b",
@@ -287,9 +290,12 @@ def _state_message(payload: bytes, run: str, kinds: tuple[str, ...] | None) -> M
 
 
 def warm_up() -> None:
-    """Decode one message now: the first decode loads the compiled finiteness check of the
-    vectors, which a process should pay before its first tick, not in it."""
-    decode(encode("state", "", "warm-up", 0, 0.0, 0, x=np.zeros(3), v=np.zeros(3), r=0.0, solo=False), "")
+    """Decode a message with vectors and a state now: the first decodes load the compiled
+    finiteness check of the vectors, which a process should pay before its first tick, not
+    in it."""
+    z = np.zeros(3)
+    decode(encode("measurement", "", "warm-up", 0, 0.0, 0, x=z, v=z, q=np.array([0, 0, 0, 1.0]), w=z), "")
+    decode(encode("state", "", "warm-up", 0, 0.0, 0, x=z, v=z, r=0.0, solo=False), "")
 
 
 def record_of(msg: Message) -> dict[str, Any]:

@@ -27,7 +27,7 @@ from numba import njit
 
 from swarm.errors import DecodeError
 
-VERSION = 7  # the message schema version (swarm.messages.VERSION) these records belong to
+VERSION = 8  # the message schema version (swarm.messages.VERSION) these records belong to
 STATE_MAGIC = b"C3S"
 BUNDLE_MAGIC = b"C3B"
 ID_BYTES = 32  # agent ids are at most 32 ASCII characters (swarm.config)

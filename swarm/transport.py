@@ -154,7 +154,13 @@ class Role(StrEnum):
 
 
 ROUTER_WAIT_S = 20.0  # how long a client tries to reach the router before its session fails to open
-HUBS = (Role.WORLD, Role.RECORDER, Role.LAUNCHER)  # a star's listeners, on port, port + 1, port + 2
+HUBS = (Role.WORLD, Role.RECORDER, Role.LAUNCHER, Role.ROUTER)  # a star's listeners, on port + 0..3
+
+
+def star_hubs(cfg: ScenarioConfig) -> tuple[Role, ...]:
+    """The hubs of ``cfg``'s star, hub i listening on ``network.port + i``
+    (``ScenarioConfig.star_hubs``: the bundle relay only with agents as the neighbour source)."""
+    return tuple(Role(h) for h in cfg.star_hubs)
 
 
 @dataclass(frozen=True)
@@ -195,8 +201,10 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         conf.insert_json5("transport/link/tls/verify_name_on_connect", "true")
         identified = files.own and tls.mutual
     router = None
-    if cfg.topology == "router":
-        router = "router" if acc.user == access.ROUTER else "client"
+    if acc.user == access.ROUTER:  # a router, or a star's relay: it accepts every link it has
+        router = "router"
+    elif cfg.topology == "router":
+        router = "client"
     rules = access.acl(
         acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified, router=router
     )
@@ -221,10 +229,13 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
     mesh: the world listens on ``host:port``; every other process connects to it (and to
     ``network.connect``) and listens on a free port, and gossip links every pair.
 
-    star: hub i of :data:`HUBS` listens on ``port + i`` and connects to the hubs after it
-    (``swarm run`` starts the launcher, then the recorder, then the world: each connects to
-    listeners already up); agents and observers connect to every hub and listen on nothing.
-    Gossip is off, so exactly these links exist, and they use the low-latency transport.
+    star: hub i of :func:`star_hubs` listens on ``port + i`` and connects to the hubs after
+    it (``swarm run`` starts the bundle relay, then the launcher, the recorder and the
+    world: each connects to listeners already up); agents and observers connect to every
+    hub and listen on nothing. Gossip is off, so exactly these links exist, and they use the
+    low-latency transport. No process forwards for another: each message takes the one
+    link from its publisher to each subscriber (an agent's state to the relay, the relay's
+    bundle to the agent, a command to the world and the recorder).
 
     router: the router (``swarm router``) listens on ``host:port``; every other process is
     a client connecting to it alone (low-latency transport on both ends).
@@ -238,26 +249,35 @@ def links(cfg: ScenarioConfig, role: Role) -> zenoh.Config:
         if role is Role.ROUTER:
             return session_config(mode="router", listen=[endpoint], connect=list(network.connect), lowlatency=True)
         conf = session_config(mode="client", connect=[endpoint], lowlatency=True)
-        if role is not Role.LAUNCHER:
-            return conf  # (started once the router is up: a failed link fails the open at once)
-        # swarm run's own session, opened while the router it has just started comes up: Zenoh
-        # retries the link for ROUTER_WAIT_S, then the open fails
-        conf.insert_json5("connect/timeout_ms", json.dumps({"client": int(ROUTER_WAIT_S * 1000)}))
-        conf.insert_json5(
-            "connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 1000, "period_increase_factor": 2})
-        )
+        if role is Role.LAUNCHER:
+            _wait_for_first(conf, "client")  # (the others start once the router is up)
         return conf
     if cfg.topology == "star":
-        ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(HUBS))]
-        if role in HUBS:
-            i = HUBS.index(role)
-            return session_config(listen=[ends[i]], connect=ends[i + 1 :], gossip=False, lowlatency=True)
+        hubs = star_hubs(cfg)
+        ends = [world_endpoint(network.host, network.port + i, proto) for i in range(len(hubs))]
+        if role in hubs:
+            i = hubs.index(role)
+            conf = session_config(listen=[ends[i]], connect=ends[i + 1 :], gossip=False, lowlatency=True)
+            if role is Role.LAUNCHER and Role.ROUTER in hubs:
+                _wait_for_first(conf, "peer")
+            return conf
         return session_config(listen=[], connect=ends, gossip=False, lowlatency=True)
     endpoint = world_endpoint(network.host, network.port, proto)
     if role is Role.WORLD:
         return session_config(mode="peer", listen=[endpoint], connect=list(network.connect))
     own = [f"{proto}/{network.host}:0"]
     return session_config(mode=network.mode, listen=own, connect=[endpoint, *network.connect])
+
+
+def _wait_for_first(conf: zenoh.Config, mode: str) -> None:
+    """``swarm run``'s own session, opened while the router (or the star's relay) it has
+    just started comes up: Zenoh retries its links for :data:`ROUTER_WAIT_S`, then the
+    open fails."""
+    conf.insert_json5("connect/timeout_ms", json.dumps({mode: int(ROUTER_WAIT_S * 1000)}))
+    conf.insert_json5("connect/exit_on_failure", json.dumps({mode: True}))
+    conf.insert_json5(
+        "connect/retry", json.dumps({"period_init_ms": 50, "period_max_ms": 1000, "period_increase_factor": 2})
+    )
 
 
 @dataclass

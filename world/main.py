@@ -441,6 +441,7 @@ class World:
             expected = np.array([slots[a].alive and not slots[a].dead for a in names])
             near = near_lists(view.x_b, expected, self.near_m)
             ds = view.ds
+            gone = [a for a in names if slots[a].dead]
             for aid in view.measured:
                 i = self.index[aid]
                 self._put(
@@ -454,6 +455,7 @@ class World:
                     w=ds.Omega_b[i],
                     near=[names[j] for j in near[i]],
                     items=view.items,
+                    gone=gone,
                     done=done,
                 )
 

@@ -153,7 +153,7 @@ class RunHandle:
         common = [str(cfg_path), "--run", h.run, *(["--secrets", str(h.secrets)] if h.secrets else [])]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}
         launcher_conf = tp.process_config(cfg, tp.Role.LAUNCHER, h.access(tp.Role.LAUNCHER))
-        if cfg.topology == "router":  # everyone links to the router: it comes first
+        if cfg.topology == "router" or cfg.uses_bundles:  # everyone links to the router (relay): it comes first
             h._spawn("router", ["-m", "swarm.cli", "router", *common])
             h._session = h._open_via_router(launcher_conf)
         else:
@@ -182,7 +182,8 @@ class RunHandle:
 
     def _open_via_router(self, conf: Any) -> Any:
         """The launcher's session, which opens once the router accepts it (Zenoh retries
-        the link for ``swarm.transport.ROUTER_WAIT_S``); else the router's cause."""
+        the link for ``swarm.transport.ROUTER_WAIT_S``); else the router's cause. (A star's
+        bundle relay is ``swarm router`` too.)"""
         try:
             return tp.open_session(conf)
         except Exception as exc:  # zenoh.ZError: unable to connect
@@ -296,7 +297,9 @@ class RunHandle:
             self.progress.t_s, self.progress.status = m.t, m.body
         ex = self.exited()
         if ex.get("router", 0) != 0:  # (it exits 0 only when stopped)
-            return self._cause("router", ex["router"]) + " (every link of the run went through it)"
+            routed = self.cfg.topology == "router"
+            what = "every link of the run went through it" if routed else "it bundled the neighbours"
+            return self._cause("router", ex["router"]) + f" ({what})"
         if "world" in ex:
             return "completed" if ex["world"] == 0 else self._cause("world", ex["world"])
         if "recorder" in ex:

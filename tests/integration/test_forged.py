@@ -46,7 +46,9 @@ ZERO_THRUST = dict(
 
 
 def test_forged_commands_are_dropped_and_the_victim_flies_on(start_run):
-    h = start_run(scenario("swap_2.yaml"), "forged")
+    # a mesh: the world accepts the launcher's link, so its access control lets the launcher's
+    # forgeries through to the world's own checks (in a star the world opens that link)
+    h = start_run(scenario("swap_2.yaml", network={"topology": "mesh"}), "forged")
     h.wait_sim_time(1.0)
     evil = h.session.declare_publisher(f"swarm/{h.run}/agent/evil/command")
     own = h.session.declare_publisher(f"swarm/{h.run}/agent/cf1/command")
@@ -218,7 +220,7 @@ def _forged_state_heard(start_run, name: str, tls: bool) -> tuple[int, int, int]
     cfg = scenario(
         "swap_2.yaml",
         name=name,
-        network={"tls": {"enabled": tls}},
+        network={"tls": {"enabled": tls}, "topology": "mesh"},  # (every pair linked: each checks the other)
         duration_s=8.0,
         stop_when_all_reached=False,
         time={"mode": "realtime", "late_command": "brake"},

@@ -18,6 +18,7 @@ import signal
 import time
 
 import numpy as np
+import pytest
 
 from swarm import statewire
 from swarm import transport as tp
@@ -38,7 +39,7 @@ def _run(start_run, cfg, name):
     return h, m, {a["id"]: a for a in agents}
 
 
-def _crossing(**over):
+def _crossing(network=None, **over):
     """Two columns of four drones flying through each other at 1.5 m/s along x, through
     1 m cells: each crosses about ten cell borders, meeting the other column on the way."""
     agents = []
@@ -46,13 +47,14 @@ def _crossing(**over):
         y = -1.5 + i
         agents.append({"id": f"e{i}", "start": [0.0, y, 1.0], "goal": [9.0, y + 0.3, 1.0]})
         agents.append({"id": f"w{i}", "start": [9.0, y + 0.3, 1.2], "goal": [0.0, y, 1.2]})
+    net = {"network": network} if network else {}
     return scenario(
         "swap_2.yaml",
         name="crossing",
         duration_s=14.0,
         agents=agents,
         defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
-        neighbours={"source": "agents", "cell_m": 1.0, **over},
+        **{"neighbours": {"source": "agents", "cell_m": 1.0, **over}, **net},
     )
 
 
@@ -61,10 +63,10 @@ def test_crossing_cell_borders_at_full_speed_misses_no_neighbour_and_flies_as_he
     every agent hears every other, and hear less."""
     everyone = _crossing(interest="all")
     _, m_all, agents_all = _run(start_run, everyone, "all")
-    for interest in ("cells", "bundle"):
-        cfg = _crossing(interest=interest)
-        assert cfg.topology == "router" and cfg.interest == interest
-        h, m, agents = _run(start_run, cfg, interest)
+    for interest, topology in (("cells", "router"), ("bundle", "star"), ("bundle", "router")):
+        cfg = _crossing(interest=interest, **({"network": {"topology": topology}} if topology == "router" else {}))
+        assert cfg.topology == topology and cfg.interest == interest
+        h, m, agents = _run(start_run, cfg, f"{interest}_{topology}")
         assert m["collisions"] == 0 and m["all_reached_goal"], m
         assert m["dropped_messages"] == 0 and m["late_ticks"] == 0
         for a in agents.values():
@@ -84,8 +86,13 @@ def test_crossing_cell_borders_at_full_speed_misses_no_neighbour_and_flies_as_he
 
 
 def test_realtime_circle_8_through_the_router_flies_without_collision(start_run):
-    cfg = scenario("circle_8.yaml", neighbours={"source": "agents"}, time={"mode": "realtime", "late_command": "brake"})
-    assert cfg.topology == "router"
+    cfg = scenario(
+        "circle_8.yaml",
+        neighbours={"source": "agents"},
+        network={"topology": "router"},
+        time={"mode": "realtime", "late_command": "brake"},
+    )
+    assert cfg.topology == "router" and cfg.uses_bundles
     h, m, agents = _run(start_run, cfg, "realtime")
     assert m["collisions"] == 0 and m["all_reached_goal"], m
     assert m["min_separation_m"] > 2 * 0.07
@@ -94,19 +101,22 @@ def test_realtime_circle_8_through_the_router_flies_without_collision(start_run)
         assert a["ticks"] >= 0.5 * world["ticks"], (a, world["ticks"])
 
 
-def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
+@pytest.mark.parametrize("topology", ["router", "star"])
+def test_the_router_accepts_from_each_client_only_its_own_keys(start_run, topology):
     """A session with cf2's credentials publishes cf1's state (on cf1's key and in cf1's
     cell), a bundle for cf1, a command for cf1, and the world's clock (all marked), and a
-    probe under its own keys; another client counts what the router forwards."""
+    probe under its own keys; another session counts what the router forwards (in a star,
+    what the hubs publish: no hub forwards), and no bundle holds the forged state."""
     cfg = scenario(
         "swap_2.yaml",
         name="routed",
         duration_s=8.0,
         stop_when_all_reached=False,
+        network={"topology": topology},
         time={"mode": "realtime", "late_command": "brake"},
     )
-    assert cfg.topology == "router"
-    h = start_run(cfg, "routed")
+    assert cfg.topology == topology and cfg.uses_bundles
+    h = start_run(cfg, f"routed_{topology}")
     h.wait_sim_time(0.3)
     keys = tp.Keys(h.run)
     forger = tp.open_session(tp.process_config(h.cfg, tp.Role.AGENT, h.access(tp.Role.AGENT, "cf2")))
@@ -124,14 +134,20 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
         keys.tick("cf1"): b"forged tick",
     }
     probe = keys.cell_state(cell, "cf2")
-    wait_linked(h, forger, heard, probe, "the router")  # (its probes under its own keys arrive)
+    if topology == "router":
+        wait_linked(h, forger, heard, probe, "the router")  # (its probes under its own keys arrive)
+    else:  # linked to the relay and the world once it hears what they publish
+        own = tp.open_channel(forger, keys.bundle("cf2"))
+        clock = tp.open_channel(forger, keys.clock)
+        for channel in (own, clock):
+            assert tp.wait_sample(channel, time.monotonic() + 30.0) is not None
     for _ in range(20):
         h.wait_sim_time(h.progress.t_s + 0.05)
         for key, data in forgeries.items():
             forger.put(key, data)
         forger.put(probe, b"probe")
     assert h.wait() == "completed"
-    counts = {"real cf1 states": 0, "forged": 0, "probes": 0, "bundles for cf1": 0}
+    counts = {"real cf1 states": 0, "forged": 0, "probes": 0, "bundles for cf1": 0, "cf1 states bundled": 0}
     for smp in tp.drain(heard):
         data, key = tp.payload(smp), str(smp.key_expr)
         if data in forgeries.values():
@@ -140,26 +156,43 @@ def test_the_router_accepts_from_each_client_only_its_own_keys(start_run):
             counts["probes"] += 1
         elif key == keys.state("cf1"):
             counts["real cf1 states"] += 1
-        elif key == keys.bundle("cf1"):
-            counts["bundles for cf1"] += 1
+        elif key.startswith(f"{keys.root}/router/bundle/"):
+            counts["bundles for cf1"] += key == keys.bundle("cf1")
+            records = statewire.read_bundle(data, h.run).states.records
+            senders = records["src"].tolist()
+            counts["cf1 states bundled"] += senders.count(b"cf1")
+            counts["forged"] += sum(r.tobytes() == fake for r in records)  # the relay took the forged state
     forger.close()
     observer.close()
-    assert counts["probes"] == 20 and counts["forged"] == 0, counts
-    assert counts["real cf1 states"] > 100 and counts["bundles for cf1"] > 100, counts
+    if topology == "router":  # the router forwards what it accepted; a star's hubs forward nothing
+        assert counts["probes"] == 20 and counts["real cf1 states"] > 100, counts
+    assert counts["forged"] == 0, counts
+    assert counts["bundles for cf1"] > 100 and counts["cf1 states bundled"] > 100, counts
     _, agents = summaries(h.out)
     assert all(a["dropped"] == 0 for a in agents), agents  # no forgery reached an agent
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["all_reached_goal"]
 
 
-def test_a_killed_router_stops_the_run_with_its_cause(start_run):
-    cfg = scenario("swap_2.yaml", name="router_kill", time={"mode": "realtime", "late_command": "brake"})
-    h = start_run(cfg, "router_kill")
+@pytest.mark.parametrize("topology", ["router", "star"])
+def test_a_killed_router_stops_the_run_with_its_cause(start_run, topology):
+    """Through a router the run has lost every link; in a star the agents their neighbours."""
+    cfg = scenario(
+        "swap_2.yaml",
+        name="router_kill",
+        network={"topology": topology},
+        time={"mode": "realtime", "late_command": "brake"},
+    )
+    assert cfg.uses_bundles
+    h = start_run(cfg, f"router_kill_{topology}")
     h.wait_sim_time(1.0)
     h.kill("router", signal.SIGKILL)
     t0 = time.monotonic()
     reason = h.wait(timeout_s=60.0)
     assert time.monotonic() - t0 < 30.0
-    assert reason.startswith("router killed by SIGKILL at t = ") and "every link of the run" in reason, reason
+    why = "every link of the run" if topology == "router" else "it bundled the neighbours"
+    assert reason.startswith("router killed by SIGKILL at t = ") and why in reason, reason
     m = json.loads((h.out / "metrics.json").read_text())
-    assert m["stop_reason"] == reason and m["complete"] is False
+    assert m["stop_reason"] == reason
+    if topology == "router":  # the recorder lost its link too
+        assert m["complete"] is False

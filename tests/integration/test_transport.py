@@ -108,8 +108,8 @@ def test_a_star_of_three_hubs_and_sixteen_agents_links_completely(tmp_path):
 
     cfg = load(Path(__file__).resolve().parents[2] / "configs" / "circle_8.yaml", {"network": {"port": free_port()}})
     agents = [f"a{i}" for i in range(16)]
-    hubs = [r.value for r in tp.HUBS]
     assert cfg.topology == "star"
+    hubs = [r.value for r in tp.star_hubs(cfg)]
     (tmp_path / "c.yaml").write_text(dump(cfg))
     peers = [(h, h, [x for x in hubs + agents if x != h]) for h in hubs] + [(a, "agent", hubs) for a in agents]
     procs = [

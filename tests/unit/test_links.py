@@ -25,14 +25,22 @@ def _net(**over: object):
 def test_auto_topology_is_a_star_only_where_one_can_carry_the_run_and_a_router_for_agents_states():
     world = {"source": "world"}
     assert _net(neighbours=world).topology == "star"  # loopback peers, neighbours from the world
-    assert _net().topology == "router"  # agents hear each other's states through a router
+    star = _net()  # agents hear each other's states in bundles from the star's relay
+    assert star.topology == "star" and star.uses_bundles and star.star_hubs[-1] == "router"
+    cells = _net(neighbours={"interest": "cells"})  # states by cell need links between agents
+    assert cells.topology == "router" and cells.uses_cells
     assert _net(network={"host": "192.168.1.5"}).topology == "router"
+    assert _net(network={"host": "192.168.1.5"}).uses_bundles
     assert _net(neighbours=world, network={"host": "192.168.1.5"}).topology == "mesh"  # other machines may join
     assert _net(neighbours=world, network={"connect": ["tcp/10.0.0.2:7447"]}).topology == "mesh"
     assert _net(neighbours=world, network={"mode": "client"}).topology == "mesh"
     assert _net(network={"topology": "mesh"}, neighbours=world).topology == "mesh"
     with pytest.raises(ConfigError, match=r"my.yaml: .*network.topology: star .*neighbours.source: agents"):
-        _net(network={"topology": "star"})
+        _net(network={"topology": "star"}, neighbours={"interest": "all"})
+    with pytest.raises(ConfigError, match=r"my.yaml: .*interest: bundle needs the run's bundle relay"):
+        _net(network={"topology": "mesh"}, neighbours={"interest": "bundle"})
+    with pytest.raises(ConfigError, match=r"network.topology: star needs network.port <= 65532"):
+        _net(network={"topology": "star", "port": 65533})  # four hubs with the relay
     with pytest.raises(ConfigError, match=r"network.topology: star needs network.mode: peer"):
         _net(network={"topology": "star", "mode": "client"}, neighbours=world)
     with pytest.raises(ConfigError, match=r"network.topology: star needs network.port <= 65533"):
@@ -76,6 +84,14 @@ def test_star_links_every_process_to_the_hubs_alone():
     assert links(tp.Role.LAUNCHER) == ([hub[2]], [])  # started first: it connects to nobody
     assert links(tp.Role.AGENT) == ([], hub)
     assert links(tp.Role.OBSERVER) == ([], hub)
+    cfg = _net(network={"port": 7000})  # agents' states: the bundle relay is the fourth hub, started first
+    hub.append("tcp/127.0.0.1:7003")
+    assert links(tp.Role.ROUTER) == ([hub[3]], [])
+    assert links(tp.Role.LAUNCHER) == ([hub[2]], hub[3:])
+    assert links(tp.Role.WORLD) == ([hub[0]], hub[1:])
+    assert links(tp.Role.AGENT) == ([], hub)
+    launcher = tp.process_config(cfg, tp.Role.LAUNCHER)  # it waits for the relay it has just started
+    assert get(launcher, "connect/exit_on_failure") == {"peer": True} and get(launcher, "connect/timeout_ms")
     mesh = tp.process_config(_net(network={"port": 7000, "topology": "mesh"}), tp.Role.AGENT)
     assert get(mesh, "connect/endpoints") == [hub[0]] and get(mesh, "transport/unicast/lowlatency") is False
 
@@ -86,6 +102,6 @@ def test_free_port_leaves_room_for_the_hubs():
     from swarm.runs.launch import free_port
 
     port = free_port()
-    for p in range(port, port + 3):
+    for p in range(port, port + 4):
         with socket.socket() as s:
             s.bind(("127.0.0.1", p))  # free

@@ -504,6 +504,7 @@ class AgentProcess:
         counted."""
         counter = self.counter
         counter.rx_bytes += len(data)
+        counter.rx_messages += 1
         try:
             b = statewire.read_bundle(data, self.run_id)
         except DecodeError as exc:
@@ -654,6 +655,7 @@ class AgentProcess:
             "startup_cpu_s": self.startup_cpu_s,
             "dropped": counter.dropped,
             "rx_bytes": counter.rx_bytes,
+            "rx_messages": counter.rx_messages,
             "missed_neighbours": agent.missed,
             "cells_declared": agent.interest.declared,
         }

@@ -287,6 +287,7 @@ class Counter:
     dropped: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
     rx_bytes: int = 0  # payload bytes of every sample decoded (kept or dropped)
+    rx_messages: int = 0  # samples decoded (kept or dropped)
 
     def drop(self, reason: str) -> None:
         self.dropped += 1
@@ -332,6 +333,7 @@ def decode_sample(
     drop and count it."""
     data = payload(sample)
     counter.rx_bytes += len(data)
+    counter.rx_messages += 1
     try:
         return decode(data, run, kinds, fields)
     except DecodeError as exc:

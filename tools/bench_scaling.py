@@ -1,14 +1,15 @@
 """Scaling at constant density: does an agent's cost stay flat as the swarm grows?
 
     python -m tools.bench_scaling [--agents 4,8,16,32,64] [--density 0.1] [--seconds 10]
-        [--interest cells|all] [--mode lockstep] [--plot docs/scaling.png] [--rows FILE]
+        [--interest bundle|cells|all] [--mode lockstep] [--plot docs/scaling.png] [--rows FILE]
 
 One JSON line per swarm size (the keys of ``tools.bench_swarm``, with ``density_per_m2``):
 ``n`` agents with random starts in a square whose side keeps ``n / side^2`` at
 ``--density`` (``swarm.scenario.random_swap``), each flying 4 m in a random direction
 (:func:`local_hops`), so the neighbours within an agent's interest radius stay about the
 same whatever ``n``; neighbours from the agents'
-own states (``neighbours.source: agents``) through the run's router, 100 Hz control,
+own states (``neighbours.source: agents``: the bundle relay's bundles by default, or by cells
+through the router, or every agent's), 100 Hz control,
 lockstep by default. ``--plot`` draws ``cpu_us_per_agent_tick`` and
 ``rx_bytes_per_agent_tick`` against ``n`` from the lines of ``--rows`` (a JSON-lines file,
 e.g. this tool's own output) or of this run.
@@ -82,7 +83,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend()
     density = rows[0].get("density_per_m2") if rows else None
-    fig.suptitle(f"neighbours.source: agents through a router, {density} agents/m^2, lockstep, 100 Hz")
+    fig.suptitle(f"neighbours.source: agents, {density} agents/m^2, lockstep, 100 Hz")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -95,7 +96,7 @@ def main() -> None:
     ap.add_argument("--density", type=float, default=0.1, help="agents per m^2")
     ap.add_argument("--seconds", type=float, default=10.0, help="sim time of each run")
     ap.add_argument("--mode", default="lockstep", choices=["lockstep", "realtime"])
-    ap.add_argument("--interest", default="cells", help="cells, all, or both: cells,all")
+    ap.add_argument("--interest", default="bundle", help="bundle, cells, all, or several: bundle,cells")
     ap.add_argument("--out", type=Path, default=Path("runs/bench_scaling"))
     ap.add_argument("--plot", type=Path, help="write the figure here (PNG)")
     ap.add_argument("--rows", type=Path, help="plot these JSON lines instead of running")

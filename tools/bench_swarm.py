@@ -2,7 +2,7 @@
 
     python -m tools.bench_swarm [--agents 2,4,8,16] [--modes lockstep,realtime] [--rate 100] [--seconds 10]
         [--sources agents,world] [--topology auto|mesh|star|router] [--access-control on|off]
-        [--interest auto|bundle|cells|all]
+        [--interest auto|bundle|cells|all] [--busy N]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
 (physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
@@ -11,18 +11,23 @@ One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz 
 averaged over agents, as a percentage of one core; ``world_cpu_percent`` likewise), ``p99_tick_latency_ms`` (world
 sends a measurement -> receives that tick's command), ``cpu_us_per_agent_tick`` (an
 agent's CPU per control tick [us], start-up excluded, averaged over agents),
-``rx_bytes_per_agent_tick`` (payload bytes an agent received per tick), ``missed_neighbours``
+``rx_bytes_per_agent_tick`` and ``rx_messages_per_agent_tick`` (payload bytes and messages an
+agent received per tick), ``missed_neighbours``
 (near neighbours whose state was not there when used, summed over agents),
 ``recorder_cpu_us_per_tick`` (the recorder's CPU per world tick [us], start-up excluded: the
 message channels, the Foxglove scene and the log), plus collisions, late ticks and the minimum
-separation. Each run's folder is kept under ``--out``.
+separation, and ``busy_processes`` (``--busy N``: N processes spin on the CPUs meanwhile, one
+pinned to each, an overloaded machine). Each run's folder is kept under ``--out``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -85,11 +90,16 @@ def run_row(
     wall = world["t_s"] / world["real_time_factor"] if world.get("real_time_factor") else float("nan")
     cpu = [(a["cpu_s"] - a["startup_cpu_s"]) / wall * 100 for a in agents] if agents else [float("nan")]
     per_tick = [
-        ((a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"], a.get("rx_bytes", 0) / a["ticks"])
+        (
+            (a["cpu_s"] - a["startup_cpu_s"]) * 1e6 / a["ticks"],
+            a.get("rx_bytes", 0) / a["ticks"],
+            a.get("rx_messages", 0) / a["ticks"],
+        )
         for a in agents
         if a.get("ticks")
     ]
-    us, rx = np.mean(per_tick, axis=0).tolist() if per_tick else (float("nan"), float("nan"))
+    nan = float("nan")
+    us, rx, msgs = np.mean(per_tick, axis=0).tolist() if per_tick else (nan, nan, nan)
     rec_path = h.out / "recorder.json"
     rec = json.loads(rec_path.read_text()) if rec_path.exists() else {}
     rec_us = ((rec["cpu_s"] - rec["startup_cpu_s"]) * 1e6 / rec["clocks"]) if rec.get("clocks") else float("nan")
@@ -103,6 +113,7 @@ def run_row(
         "interest": cfg.interest if source == "agents" else None,
         "cpu_us_per_agent_tick": round(us, 1),
         "rx_bytes_per_agent_tick": round(rx, 1),
+        "rx_messages_per_agent_tick": round(msgs, 2),
         "missed_neighbours": sum(a.get("missed_neighbours", 0) for a in agents),
         "real_time_factor": round(world.get("real_time_factor", float("nan")), 3),
         "on_time_fraction": round(world["on_time_fraction"], 4) if world.get("on_time_fraction") is not None else None,
@@ -143,7 +154,36 @@ def main() -> None:
         help="Zenoh authentication and access control (network.access_control)",
     )
     ap.add_argument("--out", type=Path, default=Path("runs/bench_swarm"))
+    ap.add_argument(
+        "--busy", type=int, default=0, help="overload: this many busy-looping processes, one pinned to each CPU"
+    )
     args = ap.parse_args()
+    with Busy(args.busy):
+        run_all(args)
+
+
+class Busy:
+    """``n`` processes that spin on the CPU, process i pinned to the i-th CPU this one may
+    use, for as long as the ``with`` block runs (an overloaded machine)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.procs: list[subprocess.Popen[bytes]] = []
+
+    def __enter__(self) -> Busy:
+        cpus = sorted(os.sched_getaffinity(0))
+        for i in range(self.n):
+            spin = f"import os; os.sched_setaffinity(0, {{{cpus[i % len(cpus)]}}})\nwhile True: pass"
+            self.procs.append(subprocess.Popen([sys.executable, "-c", spin], start_new_session=True))
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for p in self.procs:
+            p.kill()
+            p.wait()
+
+
+def run_all(args: argparse.Namespace) -> None:
     for n in (int(x) for x in args.agents.split(",")):
         for mode in args.modes.split(","):
             for source in args.sources.split(","):
@@ -158,6 +198,7 @@ def main() -> None:
                     args.access_control == "on",
                     args.interest,
                 )
+                row["busy_processes"] = args.busy
                 print(json.dumps(row), flush=True)
 
 

@@ -402,14 +402,15 @@ class NeighbourSettings(_Strict):
     measured body centres the world sends with every clock tick, as a motion-capture system
     would broadcast them (one message a tick that grows with N)."""
     interest: Literal["auto", "bundle", "cells", "all"] = "auto"
-    """With ``source: agents`` (``auto``: ``bundle`` in a star or through a router, else
-    ``cells``): ``bundle``: each agent publishes its state on its own key
-    and the run's bundle relay (``swarm router``) sends it, once per tick, one message with
-    the states of the agents within its interest radius (``swarm.bundle``; needs
-    ``network.topology: star`` or ``router``); ``cells``: states are published under the grid cell of the agent's body
-    centre and each agent subscribes to the cells within its interest radius
-    (``swarm.cells``), one message per neighbour; ``all``: every agent subscribes to every
-    other agent's state (N - 1 deliveries per agent and tick)."""
+    """With ``source: agents`` (``auto``: ``bundle`` in a star or through a router when every
+    drone is simulated, else ``cells``: docs/design.md, "Neighbours by bundles"): ``bundle``:
+    each agent publishes its state on its own key and the run's bundle relay (``swarm
+    router``) sends it, once per tick, one message with the states of the agents within its
+    interest radius (``swarm.bundle``; needs ``network.topology: star`` or ``router``);
+    ``cells``: states are published under the grid cell of the agent's body centre and each
+    agent subscribes to the cells within its interest radius (``swarm.cells``), one message
+    per neighbour; ``all``: every agent subscribes to every other agent's state (N - 1
+    deliveries per agent and tick)."""
     margin_m: float = Field(0.5, gt=0, le=10)
     """Interest radius = the agent's sensing radius + this [m]: what it and a neighbour can
     close between a state's time and its use. The world names, with each tick, the live
@@ -589,7 +590,7 @@ class ScenarioConfig(_Strict):
 
     def _star_blocker(self) -> str | None:
         """Why a star cannot link this scenario's processes, or None."""
-        if self.neighbours.source == "agents" and self.neighbours.interest not in ("auto", "bundle"):
+        if self.neighbours.source == "agents" and not self._wants_bundles:
             return (
                 "links agents only to the hubs; neighbours.source: agents needs interest: bundle (the relay's), "
                 "or the mesh for interest: cells or all"
@@ -600,6 +601,13 @@ class ScenarioConfig(_Strict):
         if self.network.port > 65535 - last:
             return f"needs network.port <= {65535 - last} (the hubs listen on port to port + {last})"
         return None
+
+    @property
+    def _wants_bundles(self) -> bool:
+        """``neighbours.interest`` is bundle, or auto in a swarm of simulated drones alone."""
+        if self.neighbours.interest == "auto":
+            return not any(a.backend == "crazyflie" for a in self.agents)
+        return self.neighbours.interest == "bundle"
 
     @property
     def star_hubs(self) -> tuple[str, ...]:
@@ -632,10 +640,11 @@ class ScenarioConfig(_Strict):
 
     @property
     def interest(self) -> Literal["bundle", "cells", "all"]:
-        """``neighbours.interest`` with ``auto`` resolved: bundles through a router, else cells."""
+        """``neighbours.interest`` with ``auto`` resolved: bundles in a swarm of simulated
+        drones (through a star or a router), else cells."""
         if self.neighbours.interest != "auto":
             return self.neighbours.interest
-        return "cells" if self.topology == "mesh" else "bundle"
+        return "bundle" if self._wants_bundles and self.topology != "mesh" else "cells"
 
     @property
     def uses_ticks(self) -> bool:

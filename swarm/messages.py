@@ -380,6 +380,7 @@ FIELD_DOCS: dict[str, str] = {
     "goal_reached": "the agent reached its goal",
     "dropped": "messages dropped so far",
     "near": "agents whose states this tick uses",
+    "gone": "agents whose liveliness the world has seen go",
     "items": "obstacles: id, shape, centre c [m, world], velocity cd [m/s, world], radius r [m], unit axis a",
     "done": "the run is over",
     "live": "agents the world expects answers from",

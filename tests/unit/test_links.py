@@ -31,6 +31,12 @@ def test_auto_topology_is_a_star_only_where_one_can_carry_the_run_and_a_router_f
     assert cells.topology == "router" and cells.uses_cells
     assert _net(network={"host": "192.168.1.5"}).topology == "router"
     assert _net(network={"host": "192.168.1.5"}).uses_bundles
+    from pathlib import Path
+
+    from swarm.config import load
+
+    mixed = load(Path(__file__).resolve().parents[2] / "configs" / "mixed_mock.yaml")  # real drones: by cells
+    assert mixed.topology == "router" and mixed.uses_cells
     assert _net(neighbours=world, network={"host": "192.168.1.5"}).topology == "mesh"  # other machines may join
     assert _net(neighbours=world, network={"connect": ["tcp/10.0.0.2:7447"]}).topology == "mesh"
     assert _net(neighbours=world, network={"mode": "client"}).topology == "mesh"

@@ -74,7 +74,6 @@ class Agent:
         self.ticked = self.by_near and me.backend != "crazyflie"  # measured by tick messages, not the clock
         self.interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
         self.near: dict[int, list[str]] = {}  # tick -> the neighbours the world names near this agent
-        self.left: list[str] = []  # neighbours the ticks said were gone, not yet reported
         self.missed = 0  # near neighbours whose state was not there when used (lockstep: at the deadline)
         self.roster: dict[int, tuple[float, ObstacleArrays]] = {}  # tick -> (t, rows), world source
         self.roster_ids: list[str] = []
@@ -200,24 +199,23 @@ class Agent:
         _keep_newest(self.clock_live, 5)
         return [n for n in left if n in self.others]
 
-    def on_tick(self, m: Message) -> Message | None:
+    def on_tick(self, m: Message) -> tuple[Message | None, list[str]]:
         """This agent's own tick message (neighbours by bundles or cells): keep the
         obstacles and the near neighbours of tick k, and mark gone the neighbours the world
-        has seen go (in a star no agent hears another's liveliness); its measurement, unless
-        the run is over."""
+        has seen go (in a star no agent hears another's liveliness). Returns its measurement
+        (None once the run is over) and the neighbours newly marked gone."""
         self.near[m.k] = m["near"]
-        for name in m["gone"]:
-            if name in self.others and name not in self.table.gone:
-                self.table.mark_gone(name)
-                self.left.append(name)
+        left = [n for n in m["gone"] if n in self.others and n not in self.table.gone]
+        for name in left:
+            self.table.mark_gone(name)
         _keep_newest(self.near, 5)
         if m.k >= self._newest_k:
             self._newest_k = m.k
             self.obstacles = items_to_arrays(m["items"])
             self.obstacle_ids = [i["id"] for i in m["items"]]
         if m["done"]:
-            return None
-        return Message("measurement", m.run, m.src, m.seq, m.t, m.k, {f: m[f] for f in ("x", "v", "q", "w")})
+            return None, left
+        return Message("measurement", m.run, m.src, m.seq, m.t, m.k, {f: m[f] for f in ("x", "v", "q", "w")}), left
 
     def roster_rows(self, t: float, k: int | None) -> ObstacleArrays:
         """Neighbour rows from the newest roster of tick <= k, extrapolated to ``t`` [s]."""
@@ -486,9 +484,9 @@ class AgentProcess:
         elif m.kind == "state" and m.src in agent.others and key == self._state_key(m):
             agent.table.update(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
         elif m.kind == "tick" and key == self.tick_key:
-            mine = agent.on_tick(m)
-            while agent.left:
-                self.neighbour_gone(agent.left.pop(), "the world's live list")
+            mine, left = agent.on_tick(m)
+            for name in left:
+                self.neighbour_gone(name, "the world's live list")
             if mine is not None:
                 self._measurement(mine)
             else:

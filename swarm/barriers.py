@@ -78,9 +78,8 @@ for every state, and at ``h = 0`` the row is unchanged (``h' >= 0``): the set ``
 stays forward invariant. What it gives up is the rate ``h' + gamma h >= 0`` for far pairs
 that would not meet within ``FAR_GAIN_CONTACT_S`` (half the extra gain at twice that time,
 all of it for a pair that is not closing); a pair that would meet within
-``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain.
-(Until 2026-12-03 the fade was in the closing speed alone, ``1 - v_c / 0.1 m/s``; the time
-to contact also frees far pairs that close at a walking pace: EXPERIMENTS.md section 4.)
+``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain
+(EXPERIMENTS.md section 4).
 
 **Horizon allowance** (live rows, opt-in: ``filter.horizon_s = tau``). The cone forbids a
 collision course however far away the contact is; ORCA truncates its velocity obstacles

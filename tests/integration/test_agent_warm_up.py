@@ -33,7 +33,7 @@ for k in (1, 2):
     body = dict(x=np.array([-1.0, 0, 1]), v=np.zeros(3), q=np.array([0, 0, 0, 1.0]), w=np.zeros(3))
     tick = decode(encode("tick", run, "world", k, 0.2 * k, k, near=["cf2", "cf3"], items=[], gone=[], done=False,
                          **body), run)
-    measurement = agent.on_tick(tick)
+    measurement, _ = agent.on_tick(tick)
     ready = agent.ready(k)  # (the states of tick k - 1 of the two the world names)
     state, command = agent.tick(measurement, lockstep=k == 1)  # realtime at 0.4 s: ages checked
 print(json.dumps(dict(

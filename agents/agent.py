@@ -290,7 +290,7 @@ class Agent:
             if status is not FilterStatus.OK:
                 self.infeasible += 1
             self.solo = status is not FilterStatus.OK
-            self.min_h = min(self.min_h, res.min_h)
+            self.min_h = min(self.min_h, res.min_cone_h)
             intervention, solve_us = res.intervention, res.solve_time_s * 1e6
         else:
             u, status, intervention, solve_us = u_ref, FilterStatus.OK, 0.0, 0.0

@@ -638,3 +638,30 @@ def evaluate_pw(
 ) -> BarrierRows:
     """:func:`evaluate` for separate ``p`` and ``w`` (n, 3)."""
     return evaluate(kind, np.stack([p, w], axis=1), r, axis_w, **kw)
+
+
+def cone_h(
+    p: FloatArray, w: FloatArray, r: FloatArray, axis_w: FloatArray | None = None
+) -> tuple[FloatArray, BoolArray]:
+    """The exact C3BF barrier ``h = <p, w> + |w| sqrt(|p|^2 - r^2)`` [m^2/s] of each row,
+    as the paper defines it, and whether the row is inside its safety radius.
+
+    ``p`` (n, 3) [m, world] obstacle centre minus body centre, ``w = p'`` (n, 3) [m/s,
+    world], ``r`` (n,) the full safety radius [m], ``axis_w`` (n, 3) unit cylinder axes
+    (zero rows for spheres; None: all spheres), projected out as the rows do. ``h < 0``
+    exactly when the relative motion, held straight, would come closer than ``r``. For a
+    row inside ``r`` (``|p| <= r``) the root is taken as 0, so there ``h = <p, w>`` (the
+    rate the gap opens at, times ``|p|``); such a row is a margin violation however its h
+    reads. Metrics take it from ground truth; it is not what a filter row holds (those
+    are lower bounds of it, or other barriers: the module docstring)."""
+    p = np.asarray(p, dtype=float)
+    w = np.asarray(w, dtype=float)
+    if axis_w is not None:
+        a = np.asarray(axis_w, dtype=float)
+        p = p - np.sum(p * a, axis=-1, keepdims=True) * a
+        w = w - np.sum(w * a, axis=-1, keepdims=True) * a
+    pp = np.sum(p * p, axis=-1)
+    r2 = np.asarray(r, dtype=float) ** 2
+    s = np.sqrt(np.maximum(pp - r2, 0.0))
+    h = np.sum(p * w, axis=-1) + np.linalg.norm(w, axis=-1) * s
+    return h, pp <= r2

@@ -200,7 +200,8 @@ def run(
         for aid, a in metrics["agents"].items():
             click.echo(
                 f"{aid:>26}: reached={a['reached_goal']} t_goal={a['time_to_goal_s']} "
-                f"path={a['path_length_m']:.2f} m min_h={a['min_h']} infeasible={a['infeasible_ticks']}"
+                f"path={a['path_length_m']:.2f} m min_h={a['min_h']} min_row_h={a['min_row_h']} "
+                f"infeasible={a['infeasible_ticks']}"
             )
     click.echo(f"run folder: {out}")
     sys.exit(code)

@@ -129,8 +129,9 @@ class SwarmLog:
 
     @property
     def infeasible_ticks(self) -> int:
-        """Agent ticks whose filter needed slack (or failed): ticks without the guarantee."""
-        return sum(s is FilterStatus.INFEASIBLE or s is FilterStatus.FAILED for row in self.status for s in row)
+        """Agent ticks whose filter call was not a clean solve (every status but OK: slack,
+        escape rows, a failed solve), as the agents and ``swarm.metrics`` count them."""
+        return sum(s is not FilterStatus.OK for row in self.status for s in row)
 
     @property
     def all_reached(self) -> bool:
@@ -249,8 +250,9 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
 class SwarmOutcome:
     """How a :func:`simulate_swarm` run went, by the runtime's metric definitions."""
 
-    collisions: int  # agent pairs whose airframes touched, plus agent-obstacle contacts
-    deadlocked: int  # agents stalled short of the goal (swarm.metrics.deadlock_start)
+    collisions: int  # contacts: agent pairs whose airframes touched, plus agent-obstacle contacts
+    margin_violations: int  # pairs and agent-obstacles ever closer than the safety radius (body radii + margin)
+    deadlocked: int  # agents that never reached the goal and stalled short of it (swarm.metrics.deadlock_at)
     reached: int  # agents that reached their goal
     agents: int
     infeasible_ticks: int
@@ -262,20 +264,24 @@ class SwarmOutcome:
 
 
 def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
-    """Collisions, deadlocks, arrivals and time ratios of a run of ``cfg``."""
-    from swarm.metrics import deadlock_start
+    """Contacts, margin violations, deadlocks, arrivals and time ratios of a run of ``cfg``."""
+    from swarm.metrics import deadlock_at
 
     body = np.array([a.airframe.params().body_radius_m for a in cfg.agents])
+    margin = np.array([a.filter.margin_m for a in cfg.agents])
     x = log.x_b_w  # (T, N, 3)
     n = x.shape[1]
-    contacts = 0
+    contacts = violations = 0
     for i in range(n):
         for j in range(i + 1, n):
-            contacts += bool((np.linalg.norm(x[:, i] - x[:, j], axis=1) < body[i] + body[j]).any())
+            d = np.linalg.norm(x[:, i] - x[:, j], axis=1)
+            contacts += bool((d < body[i] + body[j]).any())
+            violations += bool((d < body[i] + body[j] + max(margin[i], margin[j])).any())
     obs = items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
     for i in range(n) if len(obs) else ():
         clear = np.array([surface_clearance(x[k, i][None], obstacles_at(obs, t))[0] for k, t in enumerate(log.t_s)])
         contacts += int(((clear < body[i]).sum(axis=0) > 0).sum())
+        violations += int(((clear < body[i] + margin[i]).sum(axis=0) > 0).sum())
     dl = cfg.deadlock
     deadlocked = 0
     ratios = []
@@ -283,8 +289,7 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         goal = np.asarray(a.final_goal, dtype=float)
         t_goal = log.time_to_goal_s[i]
         if (
-            t_goal is None
-            and deadlock_start(
+            deadlock_at(
                 log.t_s, x[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s
             )
             is not None
@@ -294,4 +299,4 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         if t_goal is not None and straight > 0:
             ratios.append(t_goal / straight)
     reached = sum(t is not None for t in log.time_to_goal_s)
-    return SwarmOutcome(contacts, deadlocked, reached, n, log.infeasible_ticks, ratios)
+    return SwarmOutcome(contacts, violations, deadlocked, reached, n, log.infeasible_ticks, ratios)

@@ -539,6 +539,33 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _sensing(self) -> ScenarioConfig:
+        """Each filtered agent's sensing radius must show it a neighbour early enough to
+        cancel their closing speed before the safety radius (docs/design.md, "What the rows
+        guarantee"): ``R - r >= v_c^2 / (2 a) + v_c / control_hz``, with ``v_c`` the two
+        agents' speeds added (head on), ``a = g tan(max tilt)`` the agent's own braking
+        alone (the other may not brake) and one tick for its state to arrive."""
+        if len(self.agents) < 2:
+            return self
+        speed = [max(a.speed_mps, math.hypot(*a.start_velocity)) for a in self.agents]
+        for i, a in enumerate(self.agents):
+            if not a.filter.enabled:
+                continue
+            par = a.airframe.params()
+            j = max((j for j in range(len(self.agents)) if j != i), key=lambda j: speed[j])
+            other = self.agents[j].airframe.params().body_radius_m
+            r = par.body_radius_m + other + a.filter.margin_m
+            v_c = speed[i] + speed[j]
+            need = v_c**2 / (2 * par.g_mps2 * math.tan(par.max_tilt_rad)) + v_c / self.time.control_hz
+            if a.filter.sensing_radius_m - r < need:
+                raise ValueError(
+                    f"agents.{i}.filter.sensing_radius_m: {a.filter.sensing_radius_m} m cannot see "
+                    f"{self.agents[j].id} in time: closing at {v_c:.2f} m/s a pair needs {need + r:.3f} m "
+                    f"({need:.3f} m to brake and one tick, plus the safety radius {r:.3f} m)"
+                )
+        return self
+
+    @model_validator(mode="after")
     def _real_drones(self) -> ScenarioConfig:
         real = [a.id for a in self.agents if a.backend == "crazyflie"]
         if real and self.mocap is None:

@@ -332,6 +332,12 @@ class FilterResult:
         return min(self.h.tolist(), default=math.inf)
 
     @property
+    def min_cone_h(self) -> float:
+        """Smallest h [m^2/s] of the rows outside their safety radius (an escape row's
+        value is a speed [m/s], not a barrier of this kind: left out); inf without any."""
+        return min(self.h[~self.inside].tolist(), default=math.inf)
+
+    @property
     def intervention(self) -> float:
         """``|u - u_ref|`` in input units."""
         return math.dist(self.u.tolist(), self.u_ref.tolist())

@@ -1,8 +1,9 @@
 """The Foxglove layout of a run (foxglove-sdk's ``foxglove.layouts``; no I/O).
 
 A 3-D view of ``/scene`` and ``/tf`` (the world frame fixed), and per drone the plots a
-user of a safety filter looks at first: the smallest barrier value ``min_h`` of its rows
-so far in the run [m^2/s] and the filter's intervention ``|u - u_ref|`` [N], the filter status over time,
+user of a safety filter looks at first: the smallest value ``min_h`` of its filter's rows
+so far in the run [m^2/s] (lower bounds of the exact barrier, escape rows left out) and the
+filter's intervention ``|u - u_ref|`` [N], the filter status over time,
 and the processes' log. ``docs/foxglove_layout.json`` is this layout for
 ``configs/swap_2.yaml`` (drones cf1 and cf2); every run folder gets its own
 ``foxglove_layout.json`` for its drones. Import it in Foxglove (Layouts, Import from file).
@@ -47,7 +48,7 @@ def run_layout(agent_ids: Sequence[str]) -> fl.Layout:
     plots = fl.SplitContainer(
         direction="column",
         items=[
-            fl.SplitItem(content=_plot("smallest h", "min_h", agent_ids, "m^2/s")),
+            fl.SplitItem(content=_plot("smallest row h", "min_h", agent_ids, "m^2/s")),
             fl.SplitItem(content=_plot("filter intervention", "intervention", agent_ids, "N")),
             fl.SplitItem(content=status),
         ],

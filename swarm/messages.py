@@ -375,7 +375,8 @@ FIELD_DOCS: dict[str, str] = {
     "solve_us": "filter call time [us]",
     "row_ids": "obstacle or agent id of each barrier row",
     "h_rows": "barrier value h of each row [m^2/s]",
-    "min_h": "smallest h of any row so far this run [m^2/s] (1e9: none yet); this tick's are h_rows",
+    "min_h": "smallest h of the filter's rows so far this run, escape rows left out [m^2/s] (1e9: none yet); "
+    "this tick's are h_rows",
     "infeasible": "infeasible ticks so far",
     "goal_reached": "the agent reached its goal",
     "dropped": "messages dropped so far",

@@ -1,7 +1,23 @@
 """Run metrics from recorded messages (pure: lists of message dicts in, a dict out).
 
 Distances are between body centres (``x + l R e3``), as the barriers use them;
-obstacle clearance is to the obstacle surface (cylinders as infinite)."""
+obstacle clearance is to the obstacle surface (cylinders as infinite).
+
+Safety figures, all from the measured (ground-truth) states:
+
+* ``collisions``: contacts, bodies touching (the world's contact test, at the body radii);
+* ``margin_violations``: pairs and agent-obstacles that came closer than the safety
+  radius the filter keeps (body radii plus the margin), with the deepest slip;
+* ``min_h``: the exact C3BF barrier (:func:`swarm.barriers.cone_h`) of every pair and
+  agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
+  sensing radius), its smallest value and the ticks it was negative; the ticks a
+  neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
+  counted apart. The rows' own values (lower bounds of h, and other barriers) are
+  ``min_row_h``, as each agent reported them, escape rows left out;
+* ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
+* ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
+  stalled short of it; the same definition for every method.
+"""
 
 from __future__ import annotations
 
@@ -11,13 +27,17 @@ from typing import Any
 
 import numpy as np
 
+from swarm.barriers import cone_h
 from swarm.config import ScenarioConfig
 from swarm.messages import measurement_agent
-from swarm.rotation import quat_to_R
+from swarm.model import body_centre
+from swarm.obstacles import ObstacleArrays
 from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
 
 SUMMARY_KEYS = (
     "collisions",
+    "margin_violations",
+    "min_h",
     "min_separation_m",
     "min_obstacle_clearance_m",
     "all_reached_goal",
@@ -76,6 +96,97 @@ def deadlock_start(
     return None
 
 
+def deadlock_at(
+    t_s: np.ndarray,
+    x_w: np.ndarray,
+    v_w: np.ndarray,
+    goal_w: np.ndarray,
+    tolerance_m: float,
+    *,
+    speed_mps: float = 0.05,
+    hold_s: float = 2.0,
+) -> float | None:
+    """When [s] an agent that never came within ``tolerance_m`` of its goal became
+    deadlocked (:func:`deadlock_start`), or None: the one deadlock definition of every
+    method's figures (a stall that the agent later got out of to its goal is a yield)."""
+    if len(x_w) and bool((np.linalg.norm(x_w - goal_w, axis=1) <= tolerance_m).any()):
+        return None
+    return deadlock_start(t_s, x_w, v_w, goal_w, tolerance_m, speed_mps=speed_mps, hold_s=hold_s)
+
+
+class _Barriers:
+    """The exact-barrier and margin figures of a run, tick by tick from measured states
+    (see the module docstring). ``add`` takes one tick; :meth:`agent` and the attributes
+    give the figures."""
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        self.ids = [a.id for a in cfg.agents]
+        self.body_m = np.array([a.airframe.params().body_radius_m for a in cfg.agents])  # (n,) m
+        self.margin_m = np.array([a.filter.margin_m for a in cfg.agents])  # (n,) m
+        self.sensing_m = np.array([a.filter.sensing_radius_m for a in cfg.agents])  # (n,) m
+        n = len(self.ids)
+        self.min_h = np.full(n, math.inf)  # (n,) m^2/s: smallest exact h of a row the agent had
+        self.negative = np.zeros(n, dtype=int)  # (n,) ticks with a row's exact h < 0
+        self.unseen = np.zeros(n, dtype=int)  # (n,) ticks with an unseen neighbour's exact h < 0
+        self.violation_ticks = 0  # pair- or agent-obstacle-ticks inside the safety radius
+        self.violations: set[str] = set()  # "a|b" of each pair or agent-obstacle that ever was
+        self.depth_m = 0.0  # deepest slip inside a safety radius [m]
+
+    def add(self, present: list[int], x_w: np.ndarray, c_w: np.ndarray, cd_w: np.ndarray, obs: ObstacleArrays,
+            obstacle_ids: list[str]) -> None:  # fmt: skip
+        """One tick: agents ``present`` (indices) with centres of mass ``x_w``, body centres
+        ``c_w`` and their velocities ``cd_w`` (m, 3) [m, m/s, world], obstacles ``obs``."""
+        idx = np.asarray(present, dtype=int)
+        m = len(idx)
+        own_m = self.body_m[idx] + self.margin_m[idx]  # (m,) m: what each agent adds to a radius
+        h_all = np.full((m, 0), math.inf)
+        seen_all = np.zeros((m, 0), dtype=bool)
+        if m > 1:
+            p = c_w[None, :, :] - c_w[:, None, :]  # (m, m, 3): [i, j] = c_j - c_i
+            w = cd_w[None, :, :] - cd_w[:, None, :]
+            r = self.body_m[idx][:, None] + self.body_m[idx][None, :]
+            r = r + np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
+            h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))
+            h, inside = h.reshape(m, m), inside.reshape(m, m)
+            np.fill_diagonal(h, math.inf)
+            np.fill_diagonal(inside, False)
+            seen = np.linalg.norm(c_w[None, :, :] - x_w[:, None, :], axis=2) <= self.sensing_m[idx][:, None]
+            np.fill_diagonal(seen, False)
+            self.unseen[idx] += ((h < 0) & ~seen).any(axis=1)
+            for i, j in zip(*np.nonzero(np.triu(inside)), strict=True):
+                self._violation(self.ids[idx[i]], self.ids[idx[j]], float(r[i, j] - np.linalg.norm(p[i, j])))
+            h_all, seen_all = h, seen
+        if len(obs):
+            o = len(obs)
+            p = obs.c_w[None, :, :] - c_w[:, None, :]  # (m, o, 3)
+            w = obs.c_dot_w[None, :, :] - cd_w[:, None, :]
+            r = obs.radius_m[None, :] + own_m[:, None]
+            axis = np.broadcast_to(obs.axis_w[None, :, :], (m, o, 3))
+            h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1), axis.reshape(-1, 3))
+            h, inside = h.reshape(m, o), inside.reshape(m, o)
+            for i, j in zip(*np.nonzero(inside), strict=True):
+                gap = float(surface_clearance(c_w[i][None, :], ObstacleArrays.of_records(obs.rec[[j]]))[0, 0])
+                self._violation(self.ids[idx[i]], obstacle_ids[j], float(own_m[i] - gap))
+            h_all = np.concatenate([h_all, h], axis=1)
+            seen_all = np.concatenate([seen_all, np.ones((m, o), dtype=bool)], axis=1)
+        if h_all.shape[1]:
+            h_seen = np.where(seen_all, h_all, math.inf)
+            self.min_h[idx] = np.minimum(self.min_h[idx], h_seen.min(axis=1))
+            self.negative[idx] += (h_seen < 0).any(axis=1)
+
+    def _violation(self, a: str, b: str, depth_m: float) -> None:
+        self.violation_ticks += 1
+        self.violations.add(f"{a}|{b}")
+        self.depth_m = max(self.depth_m, depth_m)
+
+    def agent(self, i: int) -> dict[str, Any]:
+        return {
+            "min_h": _finite_or_none(float(self.min_h[i])),
+            "negative_h_ticks": int(self.negative[i]),
+            "unseen_negative_h_ticks": int(self.unseen[i]),
+        }
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
@@ -84,10 +195,10 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     """Metrics of one run. ``records`` are decoded messages (``swarm.messages.to_json``)."""
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
-    by_tick: dict[int, dict[str, np.ndarray]] = defaultdict(dict)
+    by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
     obstacles_at: dict[int, Any] = {}
     last_report: dict[str, dict[str, Any]] = {}
-    min_h: dict[str, float] = defaultdict(lambda: math.inf)
+    min_row_h: dict[str, float] = defaultdict(lambda: math.inf)
     solve_us: dict[str, list[float]] = defaultdict(list)
     statuses: list[dict[str, Any]] = []
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
@@ -97,14 +208,16 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         kind = r["kind"]
         if kind == "measurement":
             aid = measurement_agent(r)
-            x, q = np.asarray(r["x"]), np.asarray(r["q"])
-            meas[aid].append((r["t"], r["k"], x, np.asarray(r["v"])))
-            by_tick[r["k"]][aid] = x + l_m.get(aid, 0.0) * quat_to_R(q)[:, 2]
+            x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
+            meas[aid].append((r["t"], r["k"], x, v))
+            q, w = np.asarray(r["q"], dtype=float), np.asarray(r.get("w", (0.0, 0.0, 0.0)), dtype=float)
+            c, cd, _ = body_centre(x, v, q, w, l_m.get(aid, 0.0))  # (no body rate recorded: taken as 0)
+            by_tick[r["k"]][aid] = (x, c, cd)
         elif kind == "obstacles":
             obstacles_at[r["k"]] = r["items"]
         elif kind == "command":
             last_report[r["src"]] = r
-            min_h[r["src"]] = min(min_h[r["src"]], r["min_h"])
+            min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
         elif kind == "status":
             statuses.append(r)
@@ -114,11 +227,20 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             stalls.append({"t_s": r["t"], "k": r["k"], "agents": r["agents"], "wait_s": r["wait_s"]})
 
     min_sep, min_clear = math.inf, math.inf
-    for k, bodies in by_tick.items():
-        pts = np.array(list(bodies.values()))
-        min_sep = min(min_sep, min_pair_distance(pts))
-        if obstacles_at.get(k):
-            min_clear = min(min_clear, float(surface_clearance(pts, items_to_arrays(obstacles_at[k])).min()))
+    bar = _Barriers(cfg)
+    index = {aid: i for i, aid in enumerate(bar.ids)}
+    items: list[dict[str, Any]] = []
+    for k in sorted(by_tick):
+        bodies = {aid: b for aid, b in by_tick[k].items() if aid in index}
+        items = obstacles_at.get(k, items)
+        obs = items_to_arrays(items)
+        if not bodies:
+            continue
+        x, c, cd = (np.array([b[f] for b in bodies.values()]) for f in range(3))
+        min_sep = min(min_sep, min_pair_distance(c))
+        if len(obs):
+            min_clear = min(min_clear, float(surface_clearance(c, obs).min()))
+        bar.add([index[aid] for aid in bodies], x, c, cd, obs, [str(i.get("id", j)) for j, i in enumerate(items)])
 
     agents: dict[str, Any] = {}
     for a in cfg.agents:
@@ -129,7 +251,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         ts = np.array([e[0] for e in m])
         motion = _motion(ts, vs, np.asarray(a.path(), dtype=float))
         dl = cfg.deadlock
-        stuck = deadlock_start(ts, xs, vs, goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s)
+        stuck = deadlock_at(ts, xs, vs, goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s)
         us = np.asarray(solve_us.get(a.id, []))
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
@@ -140,7 +262,8 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))) if len(xs) > 1 else 0.0,
             "straight_line_m": float(np.linalg.norm(goal - np.asarray(a.start))),
             "max_path_deviation_m": path_deviation(xs, np.asarray(a.path(), dtype=float)),
-            "min_h": _finite_or_none(min_h[a.id]),
+            **bar.agent(index[a.id]),
+            "min_row_h": _finite_or_none(min_row_h[a.id]),
             "infeasible_ticks": int(st.get("infeasible", 0)),
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
@@ -155,8 +278,15 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     return {
         "scenario": cfg.name,
         "mode": cfg.time.mode.value,
-        "collisions": len(collisions),
+        "collisions": len(collisions),  # contacts: bodies touching (the world's contact test)
         "collision_pairs": sorted({f"{c['a']}|{c['b']}" for c in collisions}),
+        "margin_violations": len(bar.violations),  # pairs and agent-obstacles ever inside the safety radius
+        "margin_violation_pairs": sorted(bar.violations),
+        "margin_violation_ticks": bar.violation_ticks,
+        "max_margin_depth_m": bar.depth_m,  # deepest slip inside a safety radius (0: none)
+        "min_h": _finite_or_none(min((float(v) for v in bar.min_h), default=math.inf)),
+        "negative_h_ticks": int(bar.negative.sum()),  # agent ticks with a row's exact h < 0
+        "unseen_negative_h_ticks": int(bar.unseen.sum()),  # agent ticks on course with an unseen neighbour
         "dead_agent_contacts": len(dead_contacts),  # a dead agent's drone touched something (apart from collisions)
         "dead_agent_contact_pairs": sorted({f"{c['a']}|{c['b']}" for c in dead_contacts}),
         "stalls": len(stalls),  # lockstep ticks that waited longer than time.stall_warn_fraction of the timeout

@@ -50,7 +50,7 @@ def _polygon(centre: list[float], radius_m: float, sides: int = 24) -> list[tupl
 
 
 NOT_MEASURED = {
-    "min_h": "ORCA has no barrier function",
+    "min_row_h": "ORCA has no barrier rows (its min_h, the exact C3BF barrier from the measured states, is)",
     "infeasible_ticks": "ORCA's linear program always returns a velocity (its fallback minimises the violation)",
     "real_time_factor": "ORCA steps in one process, against no clock",
 }
@@ -221,7 +221,7 @@ def run_orca(
     # what ORCA does not have is left empty, with the reason, not recorded as a measurement
     metrics["real_time_factor"] = None
     for a in metrics["agents"].values():
-        a["min_h"] = a["infeasible_ticks"] = None
+        a["min_row_h"] = a["infeasible_ticks"] = None
     metrics["not_measured"] = NOT_MEASURED
     metrics["method"] = "orca"
     metrics["complete"] = True

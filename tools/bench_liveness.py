@@ -4,8 +4,10 @@ ORCA on the same scenes. Prints one JSON line per scene family point.
 Each point flies its scenes in one process (``swarm.closed_loop.simulate_swarm``: the
 agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the world's
 roster of body centres each tick) for every seed, and reports the success rate (every
-agent at its goal, no contact), collisions (pairs and obstacle contacts), deadlocked
-agents, infeasible agent ticks (ticks without the guarantee), and the mean and worst time
+agent at its goal, no contact), collisions (contacts: pairs and obstacle contacts), margin
+violations (pairs and agent-obstacles ever inside the safety radius, body radii plus the
+margin), deadlocked agents (``swarm.metrics.deadlock_at``, the same rule for ORCA), infeasible
+agent ticks (every filter status but OK), and the mean and worst time
 to goal over the straight-line time (distance / target speed). ORCA (``swarm.orca``: RVO2
 on planar scenes, RVO2-3D on the sphere swaps) runs the same scene at rho = 1, with its
 figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho = 0.5.
@@ -21,7 +23,7 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --gamma 1       # the paper's gain, as hand-written configs fly
     python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
-Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, deadlocks,
+Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations, deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
 contact_s, free_braking, gamma, sensing_radius_m (null: the default).
 """
@@ -123,6 +125,7 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
     return {
         "success": o.success,
         "collisions": o.collisions,
+        "margin_violations": o.margin_violations,
         "deadlocks": o.deadlocked,
         "infeasible": o.infeasible_ticks,
         "ratios": o.time_ratios,
@@ -145,6 +148,7 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
     return {
         "success": bool(m["all_reached_goal"]) and m["collisions"] == 0,
         "collisions": m["collisions"],
+        "margin_violations": m["margin_violations"],
         "deadlocks": len(m["deadlocked_agents"]),
         "infeasible": None,
         "ratios": ratios,
@@ -164,6 +168,7 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "runs": len(runs),
         "success_rate": sum(r["success"] for r in runs) / len(runs),
         "collisions": sum(r["collisions"] for r in runs),
+        "margin_violations": sum(r["margin_violations"] for r in runs),
         "deadlocks": sum(r["deadlocks"] for r in runs),
         "infeasible_ticks": None if None in infeasible else sum(infeasible),
         "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,

@@ -121,6 +121,8 @@ def run_row(
         "p99_tick_latency_ms": round(world["p99_tick_latency_ms"], 2) if world.get("p99_tick_latency_ms") else None,
         "late_ticks": world.get("late"),
         "collisions": metrics.get("collisions"),
+        "margin_violations": metrics.get("margin_violations"),
+        "min_h": metrics.get("min_h"),
         "min_separation_m": metrics.get("min_separation_m"),
         "world_cpu_percent": round((world.get("cpu_s", 0) - world.get("startup_cpu_s", 0)) / wall * 100, 1),
         "recorder_cpu_us_per_tick": round(rec_us, 1),

@@ -12,7 +12,10 @@ and the settings that made it, ``stamp.json`` per part):
   ``tools.bench_scaling``, with ``docs/scaling.png``): timings, so a rerun gives other
   figures within the machine's noise.
 
-    python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...]
+    python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...] [--allow-dirty]
+
+Each part's stamp names the commit the code ran from, taken when the tool starts; it refuses
+to run from a tree with uncommitted code unless ``--allow-dirty`` (the stamp then says so).
 
 Tables in the documents that quote a data file say so (``<!-- data: FILE -->`` above them);
 ``tests/unit/test_docs_figures.py`` checks that every number in such a table is in its file.
@@ -49,9 +52,9 @@ SWEEPS = {
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def stamp(part: str, **settings: object) -> None:
-    """``docs/experiments/<part>.stamp.json``: the commit (and whether the tree had changes)
-    and the settings a part's data were made with."""
+def source_state() -> dict[str, object]:
+    """The commit the code runs from and whether the code's tree had uncommitted changes,
+    taken before a part starts (a commit made while it runs does not relabel its data)."""
     git = ["git", "-C", str(ROOT)]
     commit = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     dirty = bool(
@@ -59,13 +62,17 @@ def stamp(part: str, **settings: object) -> None:
             [*git, "status", "--porcelain", "--", "swarm", "agents", "world", "tools"], capture_output=True, text=True
         ).stdout.strip()
     )
-    info = {
-        "part": part,
-        "commit": commit,
-        "uncommitted_changes": dirty,
-        "made": time.strftime("%Y-%m-%d %H:%M"),
-        **settings,
-    }
+    return {"commit": commit, "uncommitted_changes": dirty, "started": time.strftime("%Y-%m-%d %H:%M")}
+
+
+SOURCE: dict[str, object] = {}
+"""What :func:`source_state` said when this run of the tool started (set by ``__main__``)."""
+
+
+def stamp(part: str, **settings: object) -> None:
+    """``docs/experiments/<part>.stamp.json``: the commit the part's data were made from
+    (taken when the tool started), when it ended, and the settings."""
+    info = {"part": part, **(SOURCE or source_state()), "made": time.strftime("%Y-%m-%d %H:%M"), **settings}
     (DOCS / f"{part}.stamp.json").write_text(json.dumps(info, indent=2) + "\n")
 
 
@@ -464,7 +471,14 @@ if __name__ == "__main__":
     ap.add_argument("--out", type=Path, default=Path("runs/experiments"))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--only", choices=sorted(PARTS), action="append", help="default: every part")
+    ap.add_argument(
+        "--allow-dirty", action="store_true", help="run from uncommitted code (its stamps say so); refused otherwise"
+    )
     args = ap.parse_args()
+    SOURCE.update(source_state())
+    if SOURCE["uncommitted_changes"] and not args.allow_dirty:
+        sys.exit("tools.experiments: swarm/, agents/, world/ or tools/ has uncommitted changes; commit them first "
+                 "(the data are stamped with the commit) or pass --allow-dirty")  # fmt: skip
     DOCS.mkdir(parents=True, exist_ok=True)
     for part in args.only or list(PARTS):
         PARTS[part](args.out, args.jobs)

@@ -21,10 +21,12 @@ from swarm.runs.sweep import summarise
 
 COLUMNS = (
     ("filter", "filter"),
-    ("collisions", "collisions"),
+    ("collisions", "contacts"),
+    ("margin_violations", "inside the safety radius"),
     ("min_clearance_m", "closest to an obstacle surface [m]"),
     ("min_separation_m", "closest between agents [m]"),
-    ("min_h", "min h"),
+    ("min_h", "min exact h [m^2/s]"),
+    ("negative_h_ticks", "ticks with h < 0"),
     ("max_time_to_goal_s", "time to goal [s] (latest)"),
     ("max_path_deviation_m", "largest path deviation [m]"),
     ("infeasible_ticks", "infeasible ticks"),

@@ -288,13 +288,15 @@ class Report:
             lines.append(f"| {k} | {metrics.get(k)} |")
         lines += [
             "",
-            "| agent | reached goal | time to goal [s] | path [m] | straight line [m] | min h | infeasible ticks |",
-            "|---|---|---|---|---|---|---|",
+            "| agent | reached goal | time to goal [s] | path [m] | straight line [m] | min exact h | ticks h < 0 "
+            "| min row h | infeasible ticks |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for a, m in metrics.get("agents", {}).items():
             lines.append(
                 f"| {a} | {m['reached_goal']} | {m['time_to_goal_s']} | {m['path_length_m']:.2f} | "
-                f"{m['straight_line_m']:.2f} | {m['min_h']} | {m['infeasible_ticks']} |"
+                f"{m['straight_line_m']:.2f} | {m['min_h']} | {m['negative_h_ticks']} | {m['min_row_h']} | "
+                f"{m['infeasible_ticks']} |"
             )
         lines.append("")
         for png in ("trajectory_3d", "views", "clearance", "h", "speed", "intervention"):

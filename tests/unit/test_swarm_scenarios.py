@@ -91,8 +91,10 @@ def test_orca_flies_the_same_four_agent_circle(tmp_path):
     assert m["min_separation_m"] >= 2 * 0.07  # discs never overlap
     assert (tmp_path / "orca" / "metrics.json").exists()
     # what ORCA has not got is empty, with its reason, not a constant recorded as a measurement
-    assert m["real_time_factor"] is None and set(m["not_measured"]) == {"min_h", "infeasible_ticks", "real_time_factor"}
-    assert all(a["min_h"] is None and a["infeasible_ticks"] is None for a in m["agents"].values())
+    not_measured = {"min_row_h", "infeasible_ticks", "real_time_factor"}
+    assert m["real_time_factor"] is None and set(m["not_measured"]) == not_measured
+    assert m["min_h"] is not None and m["margin_violations"] == 0  # the exact barrier is measured for ORCA too
+    assert all(a["min_row_h"] is None and a["infeasible_ticks"] is None for a in m["agents"].values())
     assert m["stop_reason"] == "every agent at its goal" and m["complete"] is True
     exact = run_orca(resolve(circle_swap(4, 2.0)), tmp_path / "orca_exact")
     assert exact["deadlocked_agents"]  # the exactly symmetric swap is ORCA's classic deadlock

@@ -24,7 +24,8 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations, deadlocks,
-infeasible_ticks, mean_time_ratio, worst_time_ratio, orca, horizon_s, buffer_mps,
+infeasible_ticks, mean_time_ratio, worst_time_ratio, per_run (each seed's success, collisions,
+margin_violations, deadlocks, infeasible ticks and time ratios), orca, horizon_s, buffer_mps,
 contact_s, free_braking, gamma, sensing_radius_m (null: the default).
 """
 
@@ -162,6 +163,8 @@ def _run(args: tuple[dict, bool]) -> tuple[dict[str, Any], dict[str, Any] | None
 
 
 def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The figures of one point over its runs, with each run's own (``per_run``: every mean
+    and count can be recomputed from them)."""
     ratios = [r for run in runs for r in run["ratios"]]
     infeasible = [run["infeasible"] for run in runs]
     return {
@@ -173,6 +176,7 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "infeasible_ticks": None if None in infeasible else sum(infeasible),
         "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,
         "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
+        "per_run": runs,
     }
 
 

@@ -230,9 +230,9 @@ def _paper_table(path: Path) -> str:
 def _liveness_table(path: Path) -> str:
     """EXPERIMENTS.md section 4's table, one row per line of ``tools.bench_liveness``."""
     out = [
-        "| family | scene | rho | start | runs | success | collisions | deadlocks | infeasible ticks | "
-        "mean / worst time ratio | ORCA: success, deadlocks, mean ratio |",
-        "|" + "---|" * 11,
+        "| family | scene | rho | start | runs | success | contacts | inside the safety radius | deadlocks | "
+        "infeasible ticks | mean / worst time ratio | ORCA: success, deadlocks, inside the safety radius, mean ratio |",
+        "|" + "---|" * 12,
     ]
     for r in _jsonl(path):
         start = "random field" if r["family"] == "sphere_field" else ("exact" if r["exact"] else "perturbed")
@@ -243,7 +243,7 @@ def _liveness_table(path: Path) -> str:
             "-"
             if o is None
             else (
-                f"{o['success_rate']:.2f}, {o['deadlocks']}, "
+                f"{o['success_rate']:.2f}, {o['deadlocks']}, {o.get('margin_violations', '-')}, "
                 + ("-" if o["mean_time_ratio"] is None else f"{o['mean_time_ratio']:.2f}")
             )
         )
@@ -255,6 +255,7 @@ def _liveness_table(path: Path) -> str:
             str(r["runs"]),
             f"{r['success_rate']:.2f}",
             str(r["collisions"]),
+            str(r.get("margin_violations", "-")),
             str(r["deadlocks"]),
             str(r["infeasible_ticks"]),
             ratio,

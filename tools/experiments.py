@@ -208,8 +208,9 @@ def _paper_table(path: Path) -> str:
         return "-" if v is None else format(v, fmt)
 
     head = (
-        "| scenario | C3BF collisions | C3BF closest to an obstacle [m] | C3BF closest between agents [m] | "
-        "C3BF time to goal [s] | C3BF infeasible ticks | HO-CBF collisions | HO-CBF closest to an obstacle [m] | "
+        "| scenario | C3BF contacts / inside the safety radius | C3BF closest to an obstacle [m] | "
+        "C3BF closest between agents [m] | C3BF time to goal [s] | C3BF infeasible ticks | "
+        "HO-CBF contacts / inside the safety radius | HO-CBF closest to an obstacle [m] | "
         "HO-CBF closest between agents [m] | HO-CBF time to goal [s] | HO-CBF infeasible ticks |"
     )
     out = [head, "|" + "---|" * 11]
@@ -217,7 +218,7 @@ def _paper_table(path: Path) -> str:
         cells = [name]
         for r in sorted(data[name], key=lambda r: r["filter"]):  # c3bf, hocbf
             cells += [
-                str(r["collisions"]),
+                f"{r['collisions']} / {r.get('margin_violations', '-')}",
                 num(r["min_clearance_m"], ".3f"),
                 num(r["min_separation_m"], ".3f"),
                 num(r["max_time_to_goal_s"], ".2f"),
@@ -282,7 +283,7 @@ def _sweep_table(path: Path) -> str:
             [
                 *axes,
                 "success",
-                "collisions",
+                "contacts / inside the safety radius",
                 "closest to the obstacle [m]",
                 "time to goal [s]",
                 "largest path deviation [m]",
@@ -295,7 +296,7 @@ def _sweep_table(path: Path) -> str:
     for r in rows:
         cells = [r[a] for a in axes] + [
             "yes" if r["success"] == "1" else "no",
-            r["collisions"],
+            f"{r['collisions']} / {r.get('margin_violations') or '-'}",
             num(r["min_clearance_m"], ".3f"),
             num(r["time_to_goal_s"], ".2f"),
             num(r["max_path_deviation_m"], ".2f"),

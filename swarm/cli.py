@@ -22,6 +22,7 @@ from typing import Any
 import click
 
 from swarm.config import ConfigError, ScenarioConfig, dump, load
+from swarm.errors import InputError
 
 
 def _overrides(mode: str | None, port: int | None = None) -> dict[str, Any]:
@@ -424,9 +425,20 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     "sensing_radius_m, horizon_s, buffer_mps, contact_s, tiebreak, seed, obstacle_speed, approach_angle_deg; "
     "for generated scenarios also agents, radius, perturb_m, density",
 )
-@click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time")
+@click.option("--jobs", type=int, default=os.cpu_count() or 1, show_default=True, help="runs at a time (local)")
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/sweep-<name>-<time>)")
-def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> None:
+@click.option(
+    "--engine",
+    type=click.Choice(["local", "ray"]),
+    default="local",
+    show_default=True,
+    help="local: a pool on this machine; ray: each run a Ray task (docs/cluster.md)",
+)
+@click.option("--address", help="--engine ray: the Ray cluster's address (default: a local cluster)")
+@click.option("--resume", is_flag=True, help="fly only the points of --out that have no row yet")
+def sweep(
+    config: str, axes: tuple[str, ...], jobs: int, out: Path | None, engine: str, address: str | None, resume: bool
+) -> None:
     """Run a grid of variants of CONFIG (a file, or circle, sphere or random for generated
     swaps); write results.csv and one plot per metric."""
     from swarm.runs import sweep as sw
@@ -439,18 +451,26 @@ def sweep(config: str, axes: tuple[str, ...], jobs: int, out: Path | None) -> No
             base, name = cfg.model_dump(mode="json"), cfg.name
         grid_axes = sw.parse_axes(list(axes))
         total = len(sw.grid(grid_axes))
+        if resume and out is None:
+            raise ConfigError("--resume: name the sweep's folder with --out")
         out = out or Path("runs") / f"sweep-{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-        done = [0]
+        counts = {"done": 0, "failed": 0}
 
         def echo(row: dict[str, Any]) -> None:
-            done[0] += 1
+            counts["done"] += 1
+            counts["failed"] += bool(row.get("error"))
+            head = f"[{counts['done']}/{total}, {counts['failed']} failed] {row['run']}"
+            if row.get("error"):
+                click.echo(f"{head}: failed: {row['error']}")
+                return
             click.echo(
-                f"[{done[0]}/{total}] {row['run']}: success={row['success']} collisions={row['collisions']} "
-                f"deadlock={row['deadlock']} time_to_goal_s={row['time_to_goal_s']}"
+                f"{head}: success={row['success']} collisions={row['collisions']} "
+                f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
+                f"time_to_goal_s={row['time_to_goal_s']}"
             )
 
-        sw.sweep(base, grid_axes, out, jobs=jobs, on_done=echo)
-    except ConfigError as exc:
+        sw.sweep(base, grid_axes, out, jobs=jobs, on_done=echo, engine=engine, address=address, resume=resume)
+    except (ConfigError, InputError) as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
     click.echo(f"saved: {out / 'results.csv'} and plots in {out}")

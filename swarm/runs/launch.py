@@ -28,6 +28,7 @@ from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
 from swarm.layout import run_layout_json
 from swarm.messages import DecodeError, decode
+from swarm.runs.reaper import GROUPS_FILE
 
 
 def free_port(host: str = "127.0.0.1", span: int = len(tp.HUBS)) -> int:
@@ -268,9 +269,11 @@ class RunHandle:
         env.pop(CPU_ENV, None)
         if cpu is not None:
             env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (swarm.cli)
-        self.procs[name] = subprocess.Popen(
+        self.procs[name] = p = subprocess.Popen(
             [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
         )
+        with (self.out / GROUPS_FILE).open("a") as f:  # each child leads its group (swarm.runs.reaper)
+            f.write(f"{p.pid}\n")
 
     @property
     def session(self) -> Any:

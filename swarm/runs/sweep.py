@@ -34,7 +34,8 @@ import json
 import math
 from collections import defaultdict
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -294,6 +295,30 @@ def run_point(cfg: ScenarioConfig, method: str, out: Path) -> dict[str, Any]:
     return summarise(json.loads((out / "metrics.json").read_text()))
 
 
+ROW_FILE = "row.json"
+"""Each finished point's results row, in its run folder (what ``--resume`` keeps)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One grid point to fly: its row's first columns, its config and where it runs."""
+
+    index: int
+    head: dict[str, Any]  # the row's first columns: run (the folder's name) and the point's knobs
+    cfg: ScenarioConfig
+    method: str  # "swarm" or "orca"
+    folder: Path
+
+
+def fly(job: Job) -> dict[str, Any]:
+    """The results row of one point; a run that raised is a row that says why (``error``),
+    never a lost sweep."""
+    try:
+        return {**job.head, **run_point(job.cfg, job.method, job.folder), "error": ""}
+    except Exception as exc:  # a crash of this run: its row, the others go on
+        return {**job.head, "success": 0, "error": f"{type(exc).__name__}: {exc}"}
+
+
 def sweep(
     base: Raw,
     axes: dict[str, list[str]],
@@ -302,27 +327,55 @@ def sweep(
     jobs: int = 1,
     knobs: dict[str, Knob] | None = None,
     on_done: Callable[[dict[str, Any]], None] | None = None,
+    engine: str = "local",
+    address: str | None = None,
+    resume: bool = False,
 ) -> list[dict[str, Any]]:
-    """Run every grid point; write ``results.csv`` and the plots; return the rows."""
+    """Run every grid point; write ``results.csv`` and the plots; return the rows.
+
+    ``engine``: ``local`` (``jobs`` runs at a time on this machine) or ``ray`` (each run a
+    Ray task, on the cluster at ``address`` or a local one: :mod:`swarm.runs.ray_engine`).
+    Each point's row is written to its folder (``row.json``) and ``results.csv`` is
+    rewritten as each run finishes, so an interrupted sweep keeps what it finished; with
+    ``resume`` the points that have a row are not run again."""
+    if engine not in ("local", "ray"):
+        raise ConfigError(f"--engine: {engine!r} is not local or ray")
     points = grid(axes)
+    out = out.resolve()  # (a Ray worker runs in a folder of its own)
     built = [build(base, p, knobs) for p in points]  # every point validated before any run
-    if jobs > 1:  # runs side by side: no two worlds pinned to one CPU
+    if jobs > 1 or engine == "ray":  # runs side by side: no two worlds pinned to one CPU
         built = [(unpinned(cfg), method) for cfg, method in built]
     out.mkdir(parents=True, exist_ok=True)
+    rows: dict[int, dict[str, Any]] = {}
+    todo: list[Job] = []
+    for i, (point, (cfg, method)) in enumerate(zip(points, built, strict=True)):
+        folder = out / point_name(i, point)
+        if resume and (folder / ROW_FILE).exists():
+            rows[i] = json.loads((folder / ROW_FILE).read_text())
+            continue
+        todo.append(Job(i, {"run": folder.name, **point}, cfg, method, folder))
 
-    def one(i: int) -> dict[str, Any]:
-        folder = out / point_name(i, points[i])
-        metrics = run_point(*built[i], folder)
-        row = {"run": folder.name, **points[i], **metrics}
+    def finished(job: Job, row: dict[str, Any]) -> None:
+        job.folder.mkdir(parents=True, exist_ok=True)
+        (job.folder / ROW_FILE).write_text(json.dumps(row, indent=2))
+        rows[job.index] = row
+        write_csv([rows[i] for i in sorted(rows)], out / "results.csv")
         if on_done:
             on_done(row)
-        return row
 
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        rows = list(pool.map(one, range(len(points))))
-    write_csv(rows, out / "results.csv")
-    plot(rows, list(axes), out)
-    return rows
+    if engine == "ray":
+        from swarm.runs import ray_engine
+
+        ray_engine.run(todo, finished, address=address)
+    else:
+        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            futures = {pool.submit(fly, job): job for job in todo}
+            for f in as_completed(futures):
+                finished(futures[f], f.result())
+    ordered = [rows[i] for i in sorted(rows)]
+    write_csv(ordered, out / "results.csv")
+    plot([r for r in ordered if not r.get("error")], list(axes), out)
+    return ordered
 
 
 def write_csv(rows: list[dict[str, Any]], path: Path) -> None:

@@ -89,3 +89,22 @@ def test_plots_run_against_the_axis_that_varies():
         (("filter", "hocbf"), ("obstacle_speed", "1")),
     ]
     assert table[(("filter", "c3bf"), ("obstacle_speed", "1"))][2.0]["time_to_goal_s"] == 10.0
+
+
+def test_the_ray_engine_without_ray_names_the_extra(monkeypatch):
+    import sys
+
+    from swarm.errors import InputError
+    from swarm.runs.ray_engine import import_ray
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    with pytest.raises(InputError, match=r"pip install -e '\.\[cluster\]'"):
+        import_ray()
+
+
+def test_an_unknown_engine_is_refused_before_any_run(tmp_path):
+    from swarm.config import ConfigError
+    from swarm.runs.sweep import sweep
+
+    with pytest.raises(ConfigError, match="--engine"):
+        sweep({}, {}, tmp_path, engine="slurm")

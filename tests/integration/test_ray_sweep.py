@@ -1,0 +1,148 @@
+"""``swarm sweep --engine ray`` on a local Ray cluster that the tests start (``ray start
+--head`` in a temporary folder): the same results as the local pool, a run whose Ray
+worker is killed leaves no process behind and is flown again, a failed run is a row, and
+``--resume`` flies only the points without a row."""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from swarm.config import load
+from swarm.runs.reaper import process_groups
+from swarm.runs.sweep import parse_axes, sweep
+
+pytestmark = pytest.mark.integration
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+TIMING = {"solve_us_mean", "attempts", "error"}  # columns that differ between two flights of a point
+
+
+def _ray_or_skip() -> None:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        if os.environ.get("C3SWARM_CI"):
+            raise
+        pytest.skip("ray is not installed (pip install -e '.[cluster]')")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def ray_cluster() -> Iterator[str]:
+    """A one-node Ray cluster (4 logical CPUs) in a temporary folder; its address."""
+    _ray_or_skip()
+    ray_bin = str(Path(sys.executable).with_name("ray"))
+    temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # (Ray's socket paths must stay short)
+    port = _free_port()
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+    subprocess.run(
+        [ray_bin, "start", "--head", "--num-cpus", "4", "--port", str(port), "--temp-dir", temp,
+         "--include-dashboard", "false", "--disable-usage-stats"],
+        check=True, capture_output=True, env=env, timeout=180,
+    )  # fmt: skip
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        import ray
+
+        ray.shutdown()
+        subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env, timeout=120)
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def _base(duration_s: float = 3.0) -> dict:
+    raw = load(CONFIGS / "sweeps" / "head_on.yaml").model_dump(mode="json")
+    raw["duration_s"] = duration_s
+    return raw
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return [{k: v for k, v in r.items() if k not in TIMING} for r in csv.DictReader(f)]
+
+
+def test_a_ray_sweep_gives_the_local_pool_s_table(ray_cluster, tmp_path):
+    axes = parse_axes(["filter=c3bf,hocbf", "obstacle_speed=0.5,1"])
+    sweep(_base(), axes, tmp_path / "local", jobs=2)
+    rows = sweep(_base(), axes, tmp_path / "ray", engine="ray", address=ray_cluster)
+    assert [r["attempts"] for r in rows] == [1, 1, 1, 1] and not any(r["error"] for r in rows)
+    assert _rows(tmp_path / "ray" / "results.csv") == _rows(tmp_path / "local" / "results.csv")
+
+
+def _alive(group: int) -> bool:
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def _wait_for(check, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_cluster, tmp_path):
+    out = tmp_path / "sweep"
+    axes = parse_axes(["obstacle_speed=0.5,1,2"])
+    first = out / "p000_obstacle_speed-0.5"
+    killed: dict[str, object] = {}
+
+    def kill_first_worker() -> None:
+        # once the first point's world and agent are up, kill its Ray worker outright
+        _wait_for(lambda: len(process_groups(first)) >= 3 and (first / "worker.pid").exists(), 120, "the run")
+        killed["groups"] = process_groups(first)
+        os.kill(int((first / "worker.pid").read_text()), signal.SIGKILL)
+
+    t = threading.Thread(target=kill_first_worker, daemon=True)
+    t.start()
+    rows = sweep(_base(6.0), axes, out, engine="ray", address=ray_cluster)
+    t.join(5)
+    groups = killed["groups"]
+    assert isinstance(groups, list) and groups
+    _wait_for(lambda: not any(_alive(g) for g in groups), 15, "the killed run's processes to end")
+    assert (out / "p000_obstacle_speed-0.5.attempt1").is_dir()  # what the first attempt left is kept
+    assert rows[0]["attempts"] == 2 and rows[0]["error"] == ""  # flown again, in full
+    assert [r["attempts"] for r in rows[1:]] == [1, 1] and all(r["collisions"] == 0 for r in rows)
+
+
+def test_resume_flies_only_the_points_without_a_row(tmp_path):
+    out = tmp_path / "sweep"
+    axes = parse_axes(["obstacle_speed=0.5,1"])
+    sweep(_base(), axes, out)
+    (out / "p001_obstacle_speed-1" / "row.json").unlink()  # as if the sweep had stopped before it ended
+    flown: list[str] = []
+    rows = sweep(_base(), axes, out, resume=True, on_done=lambda r: flown.append(r["run"]))
+    assert flown == ["p001_obstacle_speed-1"]
+    assert [r["run"] for r in rows] == ["p000_obstacle_speed-0.5", "p001_obstacle_speed-1"]
+    assert len(_rows(out / "results.csv")) == 2
+
+
+def test_a_run_that_fails_is_a_row_with_its_reason(tmp_path):
+    raw = _base()
+    raw["obstacles"] = [{"id": "ball", "shape": "sphere", "center": [4.0, 0.0, 1.0], "radius_m": 0.3}]
+    raw["agents"][0]["goal"] = [8.0, 0.0, 2.0]  # a 3-D scene with an obstacle: ORCA cannot fly it
+    rows = sweep(raw, parse_axes(["filter=orca,c3bf"]), tmp_path / "sweep")
+    assert rows[0]["success"] == 0 and "ConfigError" in rows[0]["error"]
+    assert rows[1]["error"] == "" and rows[1]["collisions"] == 0  # the other point still flew

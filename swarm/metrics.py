@@ -132,8 +132,15 @@ class _Barriers:
         self.violations: set[str] = set()  # "a|b" of each pair or agent-obstacle that ever was
         self.depth_m = 0.0  # deepest slip inside a safety radius [m]
 
-    def add(self, present: list[int], x_w: np.ndarray, c_w: np.ndarray, cd_w: np.ndarray, obs: ObstacleArrays,
-            obstacle_ids: list[str]) -> None:  # fmt: skip
+    def add(
+        self,
+        present: list[int],
+        x_w: np.ndarray,
+        c_w: np.ndarray,
+        cd_w: np.ndarray,
+        obs: ObstacleArrays,
+        obstacle_ids: list[str],
+    ) -> None:
         """One tick: agents ``present`` (indices) with centres of mass ``x_w``, body centres
         ``c_w`` and their velocities ``cd_w`` (m, 3) [m, m/s, world], obstacles ``obs``."""
         idx = np.asarray(present, dtype=int)

@@ -126,6 +126,8 @@ class SwarmLog:
     min_separation_m: float  # closest pair of body centres over the run
     min_clearance_m: float  # closest body centre to an obstacle surface (inf: no obstacles)
     time_to_goal_s: list[float | None]  # per agent: first time within the tolerance of the goal
+    x_w: FloatArray | None = None  # (T, N, 3) m, world: centres of mass, at the tick (None: not logged)
+    v_b_w: FloatArray | None = None  # (T, N, 3) m/s, world: body-centre velocities, at the tick
 
     @property
     def infeasible_ticks(self) -> int:
@@ -185,12 +187,13 @@ def simulate_swarm(
     ok = np.ones(n, dtype=bool)  # each agent's last filter call was a clean solve (it does its share)
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
-    log_t, log_x, log_v, log_s = [], [], [], []
+    log_t, log_x, log_v, log_s, log_com, log_vb = [], [], [], [], [], []
     min_sep, min_clear = math.inf, math.inf
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
         obs = obstacles_at(obstacles, t)
         xb, vb = _body_rows(states, p.l_m)
+        x_com = np.array([s.x_w for s in states])
         if n > 1:
             min_sep = min(min_sep, min_pair_distance(xb))
         if len(obs):
@@ -221,11 +224,23 @@ def simulate_swarm(
                 t_goal[i] = t + 1.0 / control_hz
         log_t.append(t)
         log_x.append(xb)
+        log_vb.append(vb)
+        log_com.append(x_com)
         log_v.append(np.array([s.v_w for s in states]))
         log_s.append(statuses)
         if all(tg is not None for tg in t_goal):
             break
-    return SwarmLog(np.array(log_t), np.array(log_x), np.array(log_v), log_s, min_sep, min_clear, t_goal)
+    return SwarmLog(
+        np.array(log_t),
+        np.array(log_x),
+        np.array(log_v),
+        log_s,
+        min_sep,
+        min_clear,
+        t_goal,
+        np.array(log_com),
+        np.array(log_vb),
+    )
 
 
 def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArrays]:
@@ -257,6 +272,8 @@ class SwarmOutcome:
     agents: int
     infeasible_ticks: int
     time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
+    min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.metrics)
+    negative_h_ticks: int = 0  # agent ticks with such an h below 0
 
     @property
     def success(self) -> bool:
@@ -264,24 +281,28 @@ class SwarmOutcome:
 
 
 def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
-    """Contacts, margin violations, deadlocks, arrivals and time ratios of a run of ``cfg``."""
-    from swarm.metrics import deadlock_at
+    """Contacts, the safety figures of ``swarm.metrics`` (margin violations, the exact
+    barrier), deadlocks, arrivals and time ratios of a run of ``cfg``."""
+    from swarm.metrics import SafetyFigures, deadlock_at
 
     body = np.array([a.airframe.params().body_radius_m for a in cfg.agents])
-    margin = np.array([a.filter.margin_m for a in cfg.agents])
     x = log.x_b_w  # (T, N, 3)
     n = x.shape[1]
-    contacts = violations = 0
+    contacts = 0
     for i in range(n):
         for j in range(i + 1, n):
-            d = np.linalg.norm(x[:, i] - x[:, j], axis=1)
-            contacts += bool((d < body[i] + body[j]).any())
-            violations += bool((d < body[i] + body[j] + max(margin[i], margin[j])).any())
+            contacts += bool((np.linalg.norm(x[:, i] - x[:, j], axis=1) < body[i] + body[j]).any())
     obs = items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
     for i in range(n) if len(obs) else ():
         clear = np.array([surface_clearance(x[k, i][None], obstacles_at(obs, t))[0] for k, t in enumerate(log.t_s)])
         contacts += int(((clear < body[i]).sum(axis=0) > 0).sum())
-        violations += int(((clear < body[i] + margin[i]).sum(axis=0) > 0).sum())
+    figures = SafetyFigures(cfg)
+    com = log.x_w if log.x_w is not None else x
+    v_b = log.v_b_w if log.v_b_w is not None else log.v_w
+    obstacle_ids = [o.id for o in cfg.obstacles]
+    for k, t in enumerate(log.t_s):
+        figures.add(list(range(n)), com[k], x[k], v_b[k], obstacles_at(obs, t), obstacle_ids)
+    min_h = float(figures.min_h.min()) if n else math.inf
     dl = cfg.deadlock
     deadlocked = 0
     ratios = []
@@ -299,4 +320,14 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         if t_goal is not None and straight > 0:
             ratios.append(t_goal / straight)
     reached = sum(t is not None for t in log.time_to_goal_s)
-    return SwarmOutcome(contacts, violations, deadlocked, reached, n, log.infeasible_ticks, ratios)
+    return SwarmOutcome(
+        contacts,
+        len(figures.violations),
+        deadlocked,
+        reached,
+        n,
+        log.infeasible_ticks,
+        ratios,
+        min_h if math.isfinite(min_h) else None,
+        int(figures.negative.sum()),
+    )

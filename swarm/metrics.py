@@ -114,10 +114,10 @@ def deadlock_at(
     return deadlock_start(t_s, x_w, v_w, goal_w, tolerance_m, speed_mps=speed_mps, hold_s=hold_s)
 
 
-class _Barriers:
+class SafetyFigures:
     """The exact-barrier and margin figures of a run, tick by tick from measured states
-    (see the module docstring). ``add`` takes one tick; :meth:`agent` and the attributes
-    give the figures."""
+    (see the module docstring), for the runtime's metrics and ``simulate_swarm``'s outcome
+    alike. ``add`` takes one tick; :meth:`agent` and the attributes give the figures."""
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         self.ids = [a.id for a in cfg.agents]
@@ -234,7 +234,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             stalls.append({"t_s": r["t"], "k": r["k"], "agents": r["agents"], "wait_s": r["wait_s"]})
 
     min_sep, min_clear = math.inf, math.inf
-    bar = _Barriers(cfg)
+    bar = SafetyFigures(cfg)
     index = {aid: i for i, aid in enumerate(bar.ids)}
     items: list[dict[str, Any]] = []
     for k in sorted(by_tick):

@@ -23,7 +23,8 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --gamma 1       # the paper's gain, as hand-written configs fly
     python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
-Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations, deadlocks,
+Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations,
+min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.metrics``), deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, per_run (each seed's success, collisions,
 margin_violations, deadlocks, infeasible ticks and time ratios), orca, horizon_s, buffer_mps,
 contact_s, free_braking, gamma, sensing_radius_m (null: the default).
@@ -127,6 +128,8 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         "success": o.success,
         "collisions": o.collisions,
         "margin_violations": o.margin_violations,
+        "min_h": o.min_h,
+        "negative_h_ticks": o.negative_h_ticks,
         "deadlocks": o.deadlocked,
         "infeasible": o.infeasible_ticks,
         "ratios": o.time_ratios,
@@ -150,6 +153,8 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
         "success": bool(m["all_reached_goal"]) and m["collisions"] == 0,
         "collisions": m["collisions"],
         "margin_violations": m["margin_violations"],
+        "min_h": m["min_h"],
+        "negative_h_ticks": m["negative_h_ticks"],
         "deadlocks": len(m["deadlocked_agents"]),
         "infeasible": None,
         "ratios": ratios,
@@ -172,6 +177,8 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "success_rate": sum(r["success"] for r in runs) / len(runs),
         "collisions": sum(r["collisions"] for r in runs),
         "margin_violations": sum(r["margin_violations"] for r in runs),
+        "min_h": min((r["min_h"] for r in runs if r["min_h"] is not None), default=None),
+        "negative_h_ticks": sum(r["negative_h_ticks"] for r in runs),
         "deadlocks": sum(r["deadlocks"] for r in runs),
         "infeasible_ticks": None if None in infeasible else sum(infeasible),
         "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,

@@ -231,9 +231,10 @@ def _paper_table(path: Path) -> str:
 def _liveness_table(path: Path) -> str:
     """EXPERIMENTS.md section 4's table, one row per line of ``tools.bench_liveness``."""
     out = [
-        "| family | scene | rho | start | runs | success | contacts | inside the safety radius | deadlocks | "
-        "infeasible ticks | mean / worst time ratio | ORCA: success, deadlocks, inside the safety radius, mean ratio |",
-        "|" + "---|" * 12,
+        "| family | scene | rho | start | runs | success | contacts | inside the safety radius | min exact h | "
+        "deadlocks | infeasible ticks | mean / worst time ratio | "
+        "ORCA: success, deadlocks, inside the safety radius, mean ratio |",
+        "|" + "---|" * 13,
     ]
     for r in _jsonl(path):
         start = "random field" if r["family"] == "sphere_field" else ("exact" if r["exact"] else "perturbed")
@@ -257,6 +258,7 @@ def _liveness_table(path: Path) -> str:
             f"{r['success_rate']:.2f}",
             str(r["collisions"]),
             str(r.get("margin_violations", "-")),
+            "-" if r.get("min_h") is None else f"{r['min_h']:.3f}",
             str(r["deadlocks"]),
             str(r["infeasible_ticks"]),
             ratio,

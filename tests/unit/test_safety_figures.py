@@ -155,3 +155,20 @@ def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
     status = [[S.OK, S.COLLISION], [S.INFEASIBLE, S.OK], [S.FAILED, S.OK]]
     log = SwarmLog(np.zeros(3), np.zeros((3, 2, 3)), np.zeros((3, 2, 3)), status, 1.0, math.inf, [None, None])
     assert log.infeasible_ticks == 3  # escape rows (COLLISION) count: the guarantee did not hold there either
+
+
+def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
+    from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
+    from swarm.model import QuadModel
+    from swarm.scenario import SwapSettings, circle_swap
+
+    cfg = resolve(circle_swap(2, 1.0, SwapSettings(duration_s=3.0)))
+    agents, obs = scenario_swarm(cfg)
+    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0)
+    o = outcome(cfg, log)
+    r = 2 * 0.07 + cfg.agents[0].filter.margin_m
+    p = log.x_b_w[:, 1] - log.x_b_w[:, 0]
+    h, _ = cone_h(p, log.v_b_w[:, 1] - log.v_b_w[:, 0], np.full(len(p), r))
+    assert o.min_h == pytest.approx(float(h.min()))  # both in sensing range throughout (2 m apart at most)
+    assert o.negative_h_ticks == 2 * int((h < 0).sum())  # each agent's tick counts
+    assert o.margin_violations == int(bool((np.linalg.norm(p, axis=1) < r).any()))

@@ -7,7 +7,8 @@ how long the fault took to be seen, and what the run did.
 
 Keys (stable): case, mode, detected_ms (fault to the first sign the system saw it: the
 world's log line, the launcher's stop; null where nothing is to be seen), outcome (one
-line), stop_reason, complete, collisions, dead_agent_contacts, stalls, lost_agents,
+line), stop_reason, complete, collisions (contacts), margin_violations (pairs and agent-obstacles
+inside the safety radius), dead_agent_contacts, stalls, lost_agents,
 reached (agents at their goal), sent (forgeries sent; null for other cases) and
 victim_unaffected (forgeries: lockstep, the victim's path is the one of a run without the
 attack to the bit; realtime, it reached its goal without contact).
@@ -90,6 +91,7 @@ def _summary(
         "stop_reason": m.get("stop_reason"),
         "complete": m.get("complete"),
         "collisions": m.get("collisions"),
+        "margin_violations": m.get("margin_violations"),
         "dead_agent_contacts": m.get("dead_agent_contacts"),
         "stalls": m.get("stalls"),
         "lost_agents": m.get("lost_agents"),
@@ -250,6 +252,7 @@ def bad_config(out: Path, mode: str) -> dict[str, Any]:
         "stop_reason": None,
         "complete": None,
         "collisions": None,
+        "margin_violations": None,
         "dead_agent_contacts": None,
         "stalls": None,
         "lost_agents": None,
@@ -284,7 +287,8 @@ if __name__ == "__main__":
 def table(rows: list[dict[str, Any]]) -> str:
     """The markdown table of a run of this benchmark (docs/benchmarks.md quotes it)."""
     out = [
-        "| case | mode | detected [ms] | outcome | stop reason | complete | collisions | at their goal |",
+        "| case | mode | detected [ms] | outcome | stop reason | complete | contacts / inside the safety radius "
+        "| at their goal |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -299,7 +303,7 @@ def table(rows: list[dict[str, Any]]) -> str:
             r["outcome"] + extra,
             r["stop_reason"] or "-",
             "-" if r["complete"] is None else str(r["complete"]),
-            "-" if r["collisions"] is None else str(r["collisions"]),
+            "-" if r["collisions"] is None else f"{r['collisions']} / {r.get('margin_violations', '-')}",
             reached,
         ]
         out.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")

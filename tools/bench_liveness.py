@@ -15,6 +15,7 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness                 # every family (about 15 min on 2 cores)
     python -m tools.bench_liveness --quick         # one seed, smaller swarms
     python -m tools.bench_liveness --family circle --jobs 2
+    python -m tools.bench_liveness --engine ray --address HEAD:6379   # each scene a Ray task
 
     python -m tools.bench_liveness --horizon-s 2   # with the live rows' horizon allowance
     python -m tools.bench_liveness --buffer-mps 0  # without the live rows' velocity buffer
@@ -187,6 +188,34 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+class _Pool:
+    """Where the scenes fly: ``local``, a process pool of ``jobs``; ``ray``, one Ray task per
+    scene (one CPU each) on the cluster at ``address`` or a local one (swarm.runs.ray_engine)."""
+
+    def __init__(self, engine: str, jobs: int, address: str | None) -> None:
+        self.engine, self.jobs, self.address = engine, jobs, address
+
+    def __enter__(self) -> _Pool:
+        if self.engine == "ray":
+            from swarm.runs.ray_engine import import_ray
+
+            self.ray = import_ray()
+            self.ray.init(address=self.address, ignore_reinit_error=True, include_dashboard=False, log_to_driver=False)
+            self.task = self.ray.remote(num_cpus=1, max_retries=1)(_run)
+        else:
+            self.pool = ProcessPoolExecutor(max_workers=self.jobs)
+        return self
+
+    def map(self, args: list[tuple[dict, bool]]) -> list[tuple[dict[str, Any], dict[str, Any] | None]]:
+        if self.engine == "ray":
+            return list(self.ray.get([self.task.remote(a) for a in args]))
+        return list(self.pool.map(_run, args))
+
+    def __exit__(self, *exc: object) -> None:
+        if self.engine != "ray":
+            self.pool.shutdown()
+
+
 def main(
     quick: bool = False,
     seeds: int = 3,
@@ -199,6 +228,8 @@ def main(
     free_braking: bool | None = None,
     gamma: float | None = None,
     sensing_radius_m: float | None = None,
+    engine: str = "local",
+    address: str | None = None,
 ) -> None:
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     knobs = {
@@ -209,10 +240,10 @@ def main(
         "gamma": gamma,
         "sensing_radius_m": sensing_radius_m,
     }
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with _Pool(engine, jobs, address) as pool:
         for p in todo:
             raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
-            results = list(pool.map(_run, [(raw, orca and p.rho == 1.0) for raw in raws]))
+            results = pool.map([(raw, orca and p.rho == 1.0) for raw in raws])
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _ in results])
             orca_runs = [o for _, o in results if o is not None]
@@ -236,6 +267,8 @@ if __name__ == "__main__":
     ap.add_argument(
         "--sensing-radius-m", type=float, help="filter.sensing_radius_m of every agent (default: the config's)"
     )
+    ap.add_argument("--engine", choices=["local", "ray"], default="local", help="ray: each scene a Ray task")
+    ap.add_argument("--address", help="--engine ray: the Ray cluster's address (default: a local cluster)")
     a = ap.parse_args()
     main(
         a.quick,
@@ -249,4 +282,6 @@ if __name__ == "__main__":
         free_braking=False if a.no_free_braking else None,
         gamma=a.gamma,
         sensing_radius_m=a.sensing_radius_m,
+        engine=a.engine,
+        address=a.address,
     )

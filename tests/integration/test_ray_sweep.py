@@ -6,6 +6,7 @@ worker is killed leaves no process behind and is flown again, a failed run is a 
 from __future__ import annotations
 
 import csv
+import json
 import os
 import shutil
 import signal
@@ -146,3 +147,15 @@ def test_a_run_that_fails_is_a_row_with_its_reason(tmp_path):
     rows = sweep(raw, parse_axes(["filter=orca,c3bf"]), tmp_path / "sweep")
     assert rows[0]["success"] == 0 and "ConfigError" in rows[0]["error"]
     assert rows[1]["error"] == "" and rows[1]["collisions"] == 0  # the other point still flew
+
+
+def test_the_liveness_benchmark_on_ray_prints_the_local_pool_s_lines(ray_cluster, capsys):
+    from tools import bench_liveness
+
+    def lines(**kw) -> list[dict]:
+        bench_liveness.main(quick=True, family="formation", jobs=1, orca=False, **kw)
+        return [json.loads(s) for s in capsys.readouterr().out.splitlines() if s.startswith("{")]
+
+    local = lines()
+    on_ray = lines(engine="ray", address=ray_cluster)
+    assert len(local) == 2 and on_ray == local  # rho 1 and 0.5, every figure to the bit

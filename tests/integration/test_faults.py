@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from swarm.metrics import compute
 from swarm.runs.runfiles import read_config, read_recording
 
@@ -138,8 +140,22 @@ def _stopped_for(h, name: str, wall_s: float) -> None:
         h.kill(name, signal.SIGCONT)
 
 
-def test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing(start_run):
-    cfg = scenario("swap_2.yaml", name="pause", duration_s=8.0, agents=THREE)
+@pytest.mark.parametrize(
+    "topology",
+    [
+        "router",
+        pytest.param(
+            "star",
+            marks=pytest.mark.xfail(
+                strict=False,
+                reason="open defect: in a star a recorder stopped for 1 s loses the rest of the run's "
+                "records in some runs (about 2 in 5 on a 2-core machine)",
+            ),
+        ),
+    ],
+)
+def test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing(start_run, topology):
+    cfg = scenario("swap_2.yaml", name="pause", duration_s=8.0, agents=THREE, network={"topology": topology})
     clean = start_run(cfg, "clean")
     assert clean.wait() == "completed"
     ref = _metrics(clean.out)

@@ -10,6 +10,7 @@ import importlib.util
 import json
 import os
 import secrets
+import select
 import shutil
 import signal
 import socket
@@ -106,6 +107,23 @@ def _alive(group: int) -> bool:
     return True
 
 
+def _wait_ended(leaders: list[int], timeout_s: float) -> None:
+    """Block until every group leader has exited (a pidfd each, readable at its exit), then
+    check that nothing is left in their groups."""
+    deadline = time.monotonic() + timeout_s
+    for pid in leaders:
+        try:
+            fd = os.pidfd_open(pid)
+        except ProcessLookupError:
+            continue
+        try:
+            ready, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
+            assert ready, f"process {pid} of the killed run still runs after {timeout_s} s"
+        finally:
+            os.close(fd)
+    assert not any(_alive(g) for g in leaders)
+
+
 def _wait_for(check, timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while not check():
@@ -132,7 +150,7 @@ def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_clus
     t.join(5)
     groups = killed["groups"]
     assert isinstance(groups, list) and groups
-    _wait_for(lambda: not any(_alive(g) for g in groups), 15, "the killed run's processes to end")
+    _wait_ended(groups, 15)
     assert (out / "p000_obstacle_speed-0.5.attempt1").is_dir()  # what the first attempt left is kept
     assert rows[0]["attempts"] == 2 and rows[0]["error"] == ""  # flown again, in full
     assert [r["attempts"] for r in rows[1:]] == [1, 1] and all(r["collisions"] == 0 for r in rows)

@@ -14,6 +14,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -414,6 +415,56 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     click.echo(f"saved: {out / 'compare.md'}")
 
 
+class _SweepProgress:
+    """A sweep's progress: a rich bar of the runs done, failed and running, and a line per
+    finished run (its outcome, or why it failed)."""
+
+    def __init__(self, total: int, done: int) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(
+            TextColumn("[bold]sweep"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[failed]} failed, {task.fields[running]} running"),
+            TimeElapsedColumn(),
+        )
+        self.task = self.bar.add_task("sweep", total=total, completed=done, failed=0, running=0)
+        self.total, self.finished, self.failed, self.running = total, done, 0, 0
+        self.lock = threading.Lock()  # runs start and end on the pool's threads
+
+    def __enter__(self) -> _SweepProgress:
+        self.bar.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.bar.stop()
+
+    def started(self, head: dict[str, Any]) -> None:
+        with self.lock:
+            self.running += 1
+            self.bar.update(self.task, running=self.running)
+
+    def done(self, row: dict[str, Any]) -> None:
+        with self.lock:
+            self.finished += 1
+            self.failed += bool(row.get("error"))
+            self.running = max(0, self.running - 1)
+            self.bar.update(self.task, completed=self.finished, failed=self.failed, running=self.running)
+            head = f"[{self.finished}/{self.total}, {self.failed} failed] {row['run']}"
+            if row.get("error"):
+                self.bar.console.print(f"{head}: failed: {row['error']}", markup=False, highlight=False, soft_wrap=True)
+                return
+            self.bar.console.print(
+                f"{head}: success={row['success']} collisions={row['collisions']} "
+                f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
+                f"time_to_goal_s={row['time_to_goal_s']}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )
+
+
 @cli.command()
 @click.argument("config")
 @click.option(
@@ -454,22 +505,18 @@ def sweep(
         if resume and out is None:
             raise ConfigError("--resume: name the sweep's folder with --out")
         out = out or Path("runs") / f"sweep-{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-        counts = {"done": 0, "failed": 0}
-
-        def echo(row: dict[str, Any]) -> None:
-            counts["done"] += 1
-            counts["failed"] += bool(row.get("error"))
-            head = f"[{counts['done']}/{total}, {counts['failed']} failed] {row['run']}"
-            if row.get("error"):
-                click.echo(f"{head}: failed: {row['error']}")
-                return
-            click.echo(
-                f"{head}: success={row['success']} collisions={row['collisions']} "
-                f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
-                f"time_to_goal_s={row['time_to_goal_s']}"
+        with _SweepProgress(total, sw.finished_rows(out) if resume else 0) as progress:
+            sw.sweep(
+                base,
+                grid_axes,
+                out,
+                jobs=jobs,
+                on_start=progress.started,
+                on_done=progress.done,
+                engine=engine,
+                address=address,
+                resume=resume,
             )
-
-        sw.sweep(base, grid_axes, out, jobs=jobs, on_done=echo, engine=engine, address=address, resume=resume)
     except (ConfigError, InputError) as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)

@@ -13,6 +13,11 @@ and the settings that made it, ``stamp.json`` per part):
   figures within the machine's noise.
 
     python -m tools.experiments [--out runs/experiments] [--jobs 2] [--only PART ...] [--allow-dirty]
+    python -m tools.experiments --only sweeps --only liveness --engine ray [--address HEAD:6379]
+
+``--engine ray`` flies the sweeps' runs and the liveness benchmark's scenes as Ray tasks (on
+the cluster at ``--address``, or a local one; ``docs/cluster.md``); the other parts are
+single scenarios or timings of this machine and run here whatever the engine.
 
 Each part's stamp names the commit the code ran from, taken when the tool starts; it refuses
 to run from a tree with uncommitted code unless ``--allow-dirty`` (the stamp then says so).
@@ -30,6 +35,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.config import load
@@ -69,6 +75,25 @@ SOURCE: dict[str, object] = {}
 """What :func:`source_state` said when this run of the tool started (set by ``__main__``)."""
 
 
+@dataclass(frozen=True)
+class Engine:
+    """Where the sweeps' runs and the liveness scenes fly: ``local`` (a pool of ``--jobs``)
+    or ``ray`` (the cluster at ``address``, or a local one)."""
+
+    name: str = "local"
+    address: str | None = None
+
+    def flags(self) -> list[str]:
+        """The same choice as a benchmark's command-line flags."""
+        if self.name != "ray":
+            return []
+        return ["--engine", "ray", *(["--address", self.address] if self.address else [])]
+
+
+ENGINE = Engine()
+"""The engine this run of the tool was given (set by ``__main__``)."""
+
+
 def stamp(part: str, **settings: object) -> None:
     """``docs/experiments/<part>.stamp.json``: the commit the part's data were made from
     (taken when the tool started), when it ended, and the settings."""
@@ -94,8 +119,8 @@ def _tool_lines(module: str, args: list[str], dest: Path) -> None:
 
 def liveness(out: Path, jobs: int) -> None:
     args = ["--seeds", "2", "--jobs", str(jobs)]
-    _tool_lines("tools.bench_liveness", args, DOCS / "liveness.jsonl")
-    stamp("liveness", command=["python", "-m", "tools.bench_liveness", *args])
+    _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / "liveness.jsonl")
+    stamp("liveness", command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
 
 
 def faults(out: Path, jobs: int) -> None:
@@ -178,12 +203,12 @@ def paper(out: Path, jobs: int) -> None:
 def sweeps(out: Path, jobs: int) -> None:
     base = load(CONFIGS / "sweeps" / "head_on.yaml").model_dump(mode="json")
     for name, specs in SWEEPS.items():
-        sweep(base, parse_axes(specs), out / f"sweep_{name}", jobs=jobs)
+        sweep(base, parse_axes(specs), out / f"sweep_{name}", jobs=jobs, engine=ENGINE.name, address=ENGINE.address)
         dest = DOCS / f"sweep_{name}"
         dest.mkdir(parents=True, exist_ok=True)
         for f in [*(out / f"sweep_{name}").glob("*.png"), out / f"sweep_{name}" / "results.csv"]:
             shutil.copy(f, dest / f.name)
-    stamp("sweeps", config="configs/sweeps/head_on.yaml", axes=SWEEPS)
+    stamp("sweeps", config="configs/sweeps/head_on.yaml", axes=SWEEPS, engine=ENGINE.name)
 
 
 def _jsonl(path: Path) -> list[dict]:
@@ -476,9 +501,17 @@ if __name__ == "__main__":
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--only", choices=sorted(PARTS), action="append", help="default: every part")
     ap.add_argument(
+        "--engine",
+        choices=["local", "ray"],
+        default="local",
+        help="ray: the sweeps' runs and liveness scenes as Ray tasks",
+    )
+    ap.add_argument("--address", help="--engine ray: the Ray cluster's address (default: a local cluster)")
+    ap.add_argument(
         "--allow-dirty", action="store_true", help="run from uncommitted code (its stamps say so); refused otherwise"
     )
     args = ap.parse_args()
+    ENGINE = Engine(args.engine, args.address)
     SOURCE.update(source_state())
     if SOURCE["uncommitted_changes"] and not args.allow_dirty:
         sys.exit("tools.experiments: swarm/, agents/, world/ or tools/ has uncommitted changes; commit them first "

@@ -26,6 +26,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -78,19 +79,41 @@ def fly_task(job: Job) -> dict[str, Any]:
     return {**row, "attempts": attempt}
 
 
-def run(jobs: list[Job], finished: Callable[[Job, dict[str, Any]], None], address: str | None = None) -> None:
+def _started(job: Job, since: float) -> bool:
+    """Whether a worker has begun ``job`` (its folder's worker pid written after ``since``,
+    a ``time.time()``; run folders are on a file system the driver sees, as ``--out`` must be)."""
+    try:
+        return (job.folder / WORKER_PID_FILE).stat().st_mtime >= since
+    except OSError:
+        return False
+
+
+def run(
+    jobs: list[Job],
+    finished: Callable[[Job, dict[str, Any]], None],
+    address: str | None = None,
+    started: Callable[[dict[str, Any]], None] | None = None,
+) -> None:
     """Fly ``jobs`` on Ray (the cluster at ``address``, or a local one) and hand each row
-    to ``finished`` as its run ends."""
+    to ``finished`` as its run ends; ``started`` hears each point's first columns once a
+    worker has begun it (seen by its run folder, every half second)."""
     ray = import_ray()
     if not jobs:
         return
     ray.init(address=address, ignore_reinit_error=True, include_dashboard=False, log_to_driver=False)
     largest = max((n["Resources"].get("CPU", 0.0) for n in ray.nodes() if n.get("Alive")), default=1.0)
     task = ray.remote(max_retries=1, retry_exceptions=False)(fly_task)
+    since = time.time()
     pending = {task.options(num_cpus=min(float(cpus_needed(job.cfg)), largest)).remote(job): job for job in jobs}
+    waiting = {job.index: job for job in jobs}  # not yet begun by a worker
     try:
         while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
+            ended = {pending[ref].index for ref in done}
+            for job in [j for j in waiting.values() if j.index in ended or _started(j, since)]:
+                del waiting[job.index]
+                if started:
+                    started(job.head)
             for ref in done:
                 job = pending.pop(ref)
                 try:

@@ -319,6 +319,13 @@ def fly(job: Job) -> dict[str, Any]:
         return {**job.head, "success": 0, "error": f"{type(exc).__name__}: {exc}"}
 
 
+def fly_reporting(job: Job, on_start: Callable[[dict[str, Any]], None] | None) -> dict[str, Any]:
+    """:func:`fly`, first telling ``on_start`` the point's first columns."""
+    if on_start:
+        on_start(job.head)
+    return fly(job)
+
+
 def sweep(
     base: Raw,
     axes: dict[str, list[str]],
@@ -327,6 +334,7 @@ def sweep(
     jobs: int = 1,
     knobs: dict[str, Knob] | None = None,
     on_done: Callable[[dict[str, Any]], None] | None = None,
+    on_start: Callable[[dict[str, Any]], None] | None = None,
     engine: str = "local",
     address: str | None = None,
     resume: bool = False,
@@ -337,7 +345,8 @@ def sweep(
     Ray task, on the cluster at ``address`` or a local one: :mod:`swarm.runs.ray_engine`).
     Each point's row is written to its folder (``row.json``) and ``results.csv`` is
     rewritten as each run finishes, so an interrupted sweep keeps what it finished; with
-    ``resume`` the points that have a row are not run again."""
+    ``resume`` the points that have a row are not run again. ``on_start`` hears each point's
+    first columns as its run starts, ``on_done`` its row as it ends (progress)."""
     if engine not in ("local", "ray"):
         raise ConfigError(f"--engine: {engine!r} is not local or ray")
     points = grid(axes)
@@ -366,16 +375,21 @@ def sweep(
     if engine == "ray":
         from swarm.runs import ray_engine
 
-        ray_engine.run(todo, finished, address=address)
+        ray_engine.run(todo, finished, address=address, started=on_start)
     else:
         with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-            futures = {pool.submit(fly, job): job for job in todo}
+            futures = {pool.submit(fly_reporting, job, on_start): job for job in todo}
             for f in as_completed(futures):
                 finished(futures[f], f.result())
     ordered = [rows[i] for i in sorted(rows)]
     write_csv(ordered, out / "results.csv")
     plot([r for r in ordered if not r.get("error")], list(axes), out)
     return ordered
+
+
+def finished_rows(out: Path) -> int:
+    """How many points of the sweep in ``out`` have a row already (what ``--resume`` keeps)."""
+    return sum(1 for _ in out.glob(f"*/{ROW_FILE}")) if out.is_dir() else 0
 
 
 def write_csv(rows: list[dict[str, Any]], path: Path) -> None:

@@ -94,8 +94,20 @@ def _rows(path: Path) -> list[dict[str, str]]:
 def test_a_ray_sweep_gives_the_local_pool_s_table(ray_cluster, tmp_path):
     axes = parse_axes(["filter=c3bf,hocbf", "obstacle_speed=0.5,1"])
     sweep(_base(), axes, tmp_path / "local", jobs=2)
-    rows = sweep(_base(), axes, tmp_path / "ray", engine="ray", address=ray_cluster)
+    events: list[tuple[str, str]] = []  # progress: each point heard to start, then to end
+    rows = sweep(
+        _base(),
+        axes,
+        tmp_path / "ray",
+        engine="ray",
+        address=ray_cluster,
+        on_start=lambda h: events.append(("start", h["run"])),
+        on_done=lambda r: events.append(("done", r["run"])),
+    )
     assert [r["attempts"] for r in rows] == [1, 1, 1, 1] and not any(r["error"] for r in rows)
+    for r in rows:
+        assert events.count(("start", r["run"])) == 1
+        assert events.index(("start", r["run"])) < events.index(("done", r["run"]))
     assert _rows(tmp_path / "ray" / "results.csv") == _rows(tmp_path / "local" / "results.csv")
 
 
@@ -162,8 +174,16 @@ def test_resume_flies_only_the_points_without_a_row(tmp_path):
     sweep(_base(), axes, out)
     (out / "p001_obstacle_speed-1" / "row.json").unlink()  # as if the sweep had stopped before it ended
     flown: list[str] = []
-    rows = sweep(_base(), axes, out, resume=True, on_done=lambda r: flown.append(r["run"]))
-    assert flown == ["p001_obstacle_speed-1"]
+    started: list[str] = []
+    rows = sweep(
+        _base(),
+        axes,
+        out,
+        resume=True,
+        on_start=lambda h: started.append(h["run"]),
+        on_done=lambda r: flown.append(r["run"]),
+    )
+    assert flown == started == ["p001_obstacle_speed-1"]
     assert [r["run"] for r in rows] == ["p000_obstacle_speed-0.5", "p001_obstacle_speed-1"]
     assert len(_rows(out / "results.csv")) == 2
 

@@ -371,6 +371,10 @@ def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert sorted(r["filter"] for r in rows) == ["c3bf", "hocbf"]
+    # progress: a line per finished run, then the bar's last state (both done, none failed or running)
+    lines = res.stdout.splitlines()
+    assert sum(ln.startswith(("[1/2, 0 failed] p00", "[2/2, 0 failed] p00")) for ln in lines) == 2, res.stdout
+    assert any("2/2" in ln and "0 failed, 0 running" in ln for ln in lines), res.stdout
     c3bf = next(r for r in rows if r["filter"] == "c3bf")
     assert c3bf["success"] == "1" and c3bf["collisions"] == "0"
     for r in rows:  # each row is its own run, with its own metrics

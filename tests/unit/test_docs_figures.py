@@ -19,3 +19,31 @@ def test_every_generated_table_is_quoted_and_stamped():
     for part in ("compare", "faults"):
         stamp = json.loads((DOCS / f"{part}.stamp.json").read_text())
         assert len(stamp["commit"]) == 40, stamp
+
+
+def test_experiments_hand_the_engine_to_the_sweeps_and_the_liveness_benchmark(monkeypatch, tmp_path):
+    """``tools.experiments --engine ray --address A``: the sweeps fly on Ray at A, the liveness
+    benchmark is told the same flags, and the stamps say which engine made the data."""
+    import tools.experiments as ex
+
+    calls: list[tuple[str, object]] = []
+    monkeypatch.setattr(ex, "ENGINE", ex.Engine("ray", "10.0.0.1:6379"))
+    monkeypatch.setattr(ex, "DOCS", tmp_path / "docs")
+    monkeypatch.setattr(ex, "_tool_lines", lambda module, args, dest: calls.append((module, args)))
+    monkeypatch.setattr(ex, "stamp", lambda part, **settings: calls.append((part, settings["engine"])))
+
+    def sweep(base, axes, out, **kw):
+        calls.append(("sweep", (kw["engine"], kw["address"])))
+        out.mkdir(parents=True)
+        (out / "results.csv").write_text("run\n")
+
+    monkeypatch.setattr(ex, "sweep", sweep)
+    ex.liveness(tmp_path / "runs", 2)
+    ex.sweeps(tmp_path / "runs", 2)
+    assert calls[0] == (
+        "tools.bench_liveness",
+        ["--seeds", "2", "--jobs", "2", "--engine", "ray", "--address", "10.0.0.1:6379"],
+    )
+    assert calls[1] == ("liveness", "ray")
+    assert calls[2:] == [("sweep", ("ray", "10.0.0.1:6379"))] * len(ex.SWEEPS) + [("sweeps", "ray")]
+    assert ex.Engine().flags() == [] and ex.Engine("ray").flags() == ["--engine", "ray"]

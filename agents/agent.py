@@ -23,19 +23,19 @@ from typing import Any
 
 import numpy as np
 
-from swarm import statewire
-from swarm import transport as tp
 from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
-from swarm.cells import Interest, cell_of
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
 from swarm.errors import DecodeError
-from swarm.filter import FilterStatus, SafetyFilter
-from swarm.messages import Message, clock_measurement, encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
-from swarm.neighbours import NeighbourTable, roster_arrays
-from swarm.obstacles import ObstacleArrays
-from swarm.scenario import items_to_arrays
+from swarm.net import statewire
+from swarm.net import transport as tp
+from swarm.net.cells import Interest, cell_of
+from swarm.net.messages import Message, clock_measurement, encode, warm_up
+from swarm.net.neighbours import NeighbourTable, roster_arrays
+from swarm.offline.scenario import items_to_arrays
+from swarm.safety.filter import FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 from swarm.shutdown import StopFlag
 
 
@@ -66,7 +66,7 @@ class Agent:
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.obstacles = ObstacleArrays.empty()
         self.from_world = cfg.neighbours.source == "world"
-        # neighbours by cells (swarm.cells): the world's own tick message for a simulated
+        # neighbours by cells (swarm.net.cells): the world's own tick message for a simulated
         # drone (its measurement, the obstacles and the neighbours near it), cell subscriptions
         self.cells = cfg.uses_cells
         self.bundled = cfg.uses_bundles  # the router's bundle of the states near it, once per tick
@@ -306,7 +306,7 @@ class Agent:
 
 def follow_cells(interest: Interest, subs: tp.Channels, keys: tp.Keys, x_b_w: np.ndarray) -> None:
     """Subscribe to the cells near the body centre ``x_b_w`` [m, world] and drop the ones
-    left behind (``swarm.cells.Interest``: nothing while within the hysteresis)."""
+    left behind (``swarm.net.cells.Interest``: nothing while within the hysteresis)."""
     add, drop = interest.update(x_b_w.tolist())
     for c in sorted(add):
         subs.add(keys.cell(c))

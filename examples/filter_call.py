@@ -5,9 +5,9 @@ python examples/filter_call.py
 
 import numpy as np
 
-from swarm.filter import FilterConfig, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState
-from swarm.obstacles import ObstacleArrays
+from swarm.safety.filter import FilterConfig, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 
 def main() -> None:

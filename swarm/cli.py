@@ -194,7 +194,7 @@ def run(
         secrets=secrets,
         live_port=live_port,
     )
-    from swarm.metrics import SUMMARY_KEYS
+    from swarm.offline.metrics import SUMMARY_KEYS
 
     if metrics.get("agents"):
         for k in SUMMARY_KEYS:
@@ -217,8 +217,8 @@ def _process_args(config: str, run_id: str | None, port: int | None, mode: str |
 def _zenoh_config(cfg: ScenarioConfig, run: str, role: Any, secrets: Path | None, agent_id: str | None = None) -> Any:
     """The process's Zenoh config with the run's credentials; exit 2 when access control
     is on and they are missing or unreadable."""
-    from swarm import transport as tp
-    from swarm.access import SecretsError
+    from swarm.net import transport as tp
+    from swarm.net.access import SecretsError
 
     if not cfg.network.access_control:
         return tp.process_config(cfg, role)
@@ -257,7 +257,7 @@ def world(
 ) -> None:
     """Start the world process alone (runs spread over machines)."""
     _pin_cpu()
-    from swarm import transport as tp
+    from swarm.net import transport as tp
     from swarm.world.main import main as world_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
@@ -273,7 +273,7 @@ def world(
 def router(config: str, run_id: str | None, port: int | None, secrets: Path | None) -> None:
     """Start the run's Zenoh router (network.topology: router) or a star's bundle relay alone."""
     _pin_cpu()
-    from swarm import transport as tp
+    from swarm.net import transport as tp
     from swarm.runs.router import main as router_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -299,8 +299,8 @@ def agent(
 ) -> None:
     """Start one agent process alone."""
     _pin_cpu()
-    from swarm import transport as tp
     from swarm.agents.agent import main as agent_main
+    from swarm.net import transport as tp
 
     cfg, run_name = _process_args(config, run_id, port, mode)
     try:
@@ -324,7 +324,7 @@ def record(
 ) -> None:
     """Start the recorder alone."""
     _pin_cpu()
-    from swarm import transport as tp
+    from swarm.net import transport as tp
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -562,8 +562,8 @@ def scenario(
     import yaml
 
     from swarm.config import resolve
+    from swarm.offline.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
     from swarm.runs.sweep import default_radius
-    from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 
     settings = SwapSettings(
         speed_mps=speed, perturb_m=perturb, rotation_rad=math.radians(rotate_deg), seed=seed, mode=mode

@@ -18,11 +18,11 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from swarm.barriers import BarrierKind
 from swarm.crazyflie_fw import pwm_per_newton
 from swarm.errors import ConfigError
-from swarm.filter import FilterConfig
 from swarm.model import CommandLevel, Layout, QuadParams
+from swarm.safety.barriers import BarrierKind
+from swarm.safety.filter import FilterConfig
 
 SCHEMA_VERSION = 1
 
@@ -75,15 +75,15 @@ class FilterSettings(_Strict):
     floor_z_m: float | None = Field(
         0.25, allow_inf_nan=False
     )  # m, world: the centre of mass stays above (HO-CBF row); null: no floor
-    # C3BF: live rows at low relative speed (swarm.barriers); false: the paper's rows, which freeze at rest
+    # C3BF: live rows at low relative speed (swarm.safety.barriers); false: the paper's rows, which freeze at rest
     live: bool = True
-    # s: live rows' horizon allowance (swarm.barriers, EXPERIMENTS.md section 4); null: the cone alone
+    # s: live rows' horizon allowance (docs/design.md, "The barrier math"); null: the cone alone
     horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
-    # m/s: live rows' velocity buffer (swarm.rows, EXPERIMENTS.md section 4); 0: the rows alone
+    # m/s: live rows' velocity buffer (docs/design.md, "The barrier math"); 0: the rows alone
     buffer_mps: float = Field(0.1, ge=0, allow_inf_nan=False)
-    # s: live neighbour rows' contact horizon (swarm.barriers, EXPERIMENTS.md section 4); 0: the cone alone
+    # s: live neighbour rows' contact horizon (docs/design.md, "The barrier math"); 0: the cone alone
     contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
-    # live neighbour rows leave the braking of a relative velocity free (swarm.barriers, "Free braking")
+    # live neighbour rows leave the braking of a relative velocity free (swarm.safety.barriers, "Free braking")
     free_braking: bool = True
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
@@ -296,8 +296,8 @@ class TimeSettings(_Strict):
     land_timeout_s: float = Field(15.0, gt=0, le=600)  # after the end: how long real drones get to land
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the
     # last, agents round-robin). With more processes than cores, a process that stays on
-    # one core keeps its caches and is not moved around by the scheduler: at 16 agents on
-    # 2 cores realtime went from 95-96.5 to 99.6-99.8 % of ticks on time (docs/design.md, "One CPU per process")
+    # one core keeps its caches and is not moved around by the scheduler, so more realtime
+    # ticks are on time (docs/design.md, "One CPU per process")
     pin_cpus: bool = True
 
     @model_validator(mode="after")
@@ -325,7 +325,7 @@ class TlsSettings(_Strict):
     """Zenoh's TLS transport: links encrypted, each side proving who it is by certificate
     (``mutual``: the connecting side too). With no files given, ``swarm run`` (or ``swarm
     secrets``, to copy to other machines) makes a certificate authority and one certificate
-    per process for ``network.host`` (``swarm.access.make_tls``): with ``mutual`` on, both
+    per process for ``network.host`` (``swarm.net.access.make_tls``): with ``mutual`` on, both
     ends of every link then know the other's name, and every message is checked against
     its sender's own keys. Files given: every process uses them."""
 
@@ -359,12 +359,12 @@ class NetworkSettings(_Strict):
     port: int = Field(0, ge=0, le=65535)
     connect: list[str] = []  # extra endpoints (a router, other machines)
     # each run's processes authenticate with credentials of their own (Zenoh usrpwd) and may
-    # publish only under their own keys (Zenoh access control; swarm.access); false: anyone
+    # publish only under their own keys (Zenoh access control; swarm.net.access); false: anyone
     # who reaches the ports may join the run
     access_control: bool = True
     tls: TlsSettings = TlsSettings()
     topology: Literal["auto", "mesh", "star", "router"] = "auto"
-    """Which processes link to which (``swarm.transport.process_config``). ``mesh``: every
+    """Which processes link to which (``swarm.net.transport.process_config``). ``mesh``: every
     process listens and Zenoh's gossip links every pair, so any peer that joins sees all
     traffic. ``star``: only the hubs listen, the world on ``port``, the recorder on
     ``port + 1``, the launcher on ``port + 2`` and, with ``neighbours.interest: bundle``,
@@ -406,9 +406,9 @@ class NeighbourSettings(_Strict):
     drone is simulated, else ``cells``: docs/design.md, "Neighbours by bundles"): ``bundle``:
     each agent publishes its state on its own key and the run's bundle relay (``swarm
     router``) sends it, once per tick, one message with the states of the agents within its
-    interest radius (``swarm.bundle``; needs ``network.topology: star`` or ``router``);
+    interest radius (``swarm.net.bundle``; needs ``network.topology: star`` or ``router``);
     ``cells``: states are published under the grid cell of the agent's body centre and each
-    agent subscribes to the cells within its interest radius (``swarm.cells``), one message
+    agent subscribes to the cells within its interest radius (``swarm.net.cells``), one message
     per neighbour; ``all``: every agent subscribes to every other agent's state (N - 1
     deliveries per agent and tick)."""
     margin_m: float = Field(0.5, gt=0, le=10)
@@ -417,13 +417,13 @@ class NeighbourSettings(_Strict):
     agents within the sensing radius + half of it (the ones a lockstep tick waits for)."""
     hysteresis_m: float = Field(0.5, gt=0, le=10)
     """Cells are declared for the interest radius + this [m], and declared again after a
-    quarter of it of the agent's own motion (``swarm.cells.Interest``)."""
+    quarter of it of the agent's own motion (``swarm.net.cells.Interest``)."""
     cell_m: float | None = Field(None, gt=0, le=1000)
     """Side of a cell [m]; None: half the largest interest radius of the scenario."""
 
 
 class DeadlockSettings(_Strict):
-    """When the metrics call an agent deadlocked (``swarm.metrics.deadlock_start``)."""
+    """When the metrics call an agent deadlocked (``swarm.offline.metrics.deadlock_start``)."""
 
     speed_mps: float = Field(0.05, gt=0)  # slower than this ...
     hold_s: float = Field(2.0, gt=0)  # ... for this long, outside the goal tolerance
@@ -446,7 +446,7 @@ class MocapSettings(_Strict):
 
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
-MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.cells): each is a Zenoh subscriber
+MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each is a Zenoh subscriber
 AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
@@ -542,7 +542,7 @@ class ScenarioConfig(_Strict):
     def _sensing(self) -> ScenarioConfig:
         """Each filtered agent's sensing radius must show it a neighbour early enough to
         cancel their closing speed before the safety radius (docs/design.md, "What the rows
-        guarantee"): ``R - r >= v_c^2 / (2 a) + v_c / control_hz``, with ``v_c`` the two
+        guarantee", under "The barrier math"): ``R - r >= v_c^2 / (2 a) + v_c / control_hz``, with ``v_c`` the two
         agents' speeds added (head on), ``a = g tan(max tilt)`` the agent's own braking
         alone (the other may not brake) and one tick for its state to arrive."""
         if len(self.agents) < 2:
@@ -640,7 +640,7 @@ class ScenarioConfig(_Strict):
     def star_hubs(self) -> tuple[str, ...]:
         """The processes that listen in a star, hub i on ``network.port + i``: the world,
         the recorder, the launcher, and with agents as the neighbour source the bundle relay
-        (``swarm.transport.links``)."""
+        (``swarm.net.transport.links``)."""
         hubs = ("world", "recorder", "launcher")
         return (*hubs, "router") if self.neighbours.source == "agents" else hubs
 
@@ -662,7 +662,7 @@ class ScenarioConfig(_Strict):
     @property
     def uses_bundles(self) -> bool:
         """The bundle relay (``swarm router``) bundles the agents' states for each agent
-        (``swarm.bundle``)."""
+        (``swarm.net.bundle``)."""
         return self.neighbours.source == "agents" and self.interest == "bundle"
 
     @property
@@ -680,7 +680,7 @@ class ScenarioConfig(_Strict):
         return self.uses_cells or self.uses_bundles
 
     def interest_radius_m(self, agent_id: str) -> float:
-        """The radius [m] within which ``agent_id`` hears every neighbour (swarm.cells)."""
+        """The radius [m] within which ``agent_id`` hears every neighbour (swarm.net.cells)."""
         return self.agent(agent_id).filter.sensing_radius_m + self.neighbours.margin_m
 
     def near_radius_m(self, agent_id: str) -> float:

@@ -216,7 +216,8 @@ def right_hand_bias(
     tracker slows down to the goal: an agent that has arrived is not pushed around its goal
     by its neighbours there. Every agent turning right is consistent: two agents head-on pass
     left shoulder to left shoulder, and a symmetric swap turns into a roundabout instead of a
-    stall. It only changes the reference; the filter still guarantees safety.
+    stall. It only changes the reference; the filter still guarantees safety (docs/design.md,
+    "The barrier math").
     """
     out = np.zeros(3)
     hx, hy = float(heading_w[0]), float(heading_w[1])
@@ -257,9 +258,8 @@ def turned(v_w: FloatArray, bias_w: FloatArray) -> FloatArray:
     """The commanded velocity ``v_w`` [m/s, world] with the tie-break's ``bias_w`` [m/s,
     world] added, scaled back to ``|v_w|`` where the sum is faster: the tie-break turns the
     commanded velocity and never speeds it up, so an agent's target speed stays its top
-    reference speed (as ORCA's maximum speed is). Added whole, a 0.5 m/s bias took a
-    0.8 m/s cruise to 0.94 m/s, and the crowds' times to goal looked shorter for it
-    (EXPERIMENTS.md section 4)."""
+    reference speed (as ORCA's maximum speed is), and times to goal compare fairly
+    (docs/design.md, "The barrier math")."""
     out = v_w + bias_w
     speed, faster = float(np.linalg.norm(v_w)), float(np.linalg.norm(out))
     if faster > speed:

@@ -1,8 +1,8 @@
 """Keeps numba's on-disk cache of the compiled kernels true to the source.
 
 numba re-compiles a cached kernel when the file that defines it changes, but not when a
-kernel it calls from another file does: after an edit of ``swarm/rows.py`` the cached
-``swarm.filter._prepare`` still runs the old ``rows_kernel``, silently (found while
+kernel it calls from another file does: after an edit of ``swarm/safety/constraints.py`` the cached
+``swarm.safety.filter._prepare`` still runs the old ``rows_kernel``, silently (found while
 changing the rows). :func:`clear_stale` drops every cached kernel of the package once any
 of its source files has changed, by a hash of all of them kept beside the cache.
 """

@@ -115,7 +115,7 @@ class QuadParams:
     """Drag-torque coefficient [N m / rpm^2]; yaw torque per newton is ``km / kf``."""
     l_m: float = 0.014
     """Height of the body centre above the base (centre of mass) [m]; the barrier is
-    taken at ``x + l R e3`` (``swarm.barriers``)."""
+    taken at ``x + l R e3`` (``swarm.safety.barriers``)."""
     rotor_to_rotor_m: float = 0.130
     """Distance between two opposite rotors [m]; each rotor is half of it from the centre."""
     thrust_to_weight: float = 2.25

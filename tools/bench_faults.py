@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from swarm import transport as tp
 from swarm.config import ScenarioConfig, load
-from swarm.messages import decode, encode
+from swarm.net import transport as tp
+from swarm.net.messages import decode, encode
 from swarm.runs.launch import RunHandle
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,10 +19,10 @@ import time
 import numpy as np
 
 from swarm.control import AttitudeController, PathTracker
-from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.obstacles import ObstacleArrays
 from swarm.rotation import euler_to_quat
+from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 
 def scenes(model: QuadModel, level: CommandLevel, rows: int, count: int, seed: int = 0) -> list:

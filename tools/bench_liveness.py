@@ -1,14 +1,14 @@
 """Liveness benchmark: swarms that start at rest, C3BF (live rows, the default) beside
 ORCA on the same scenes. Prints one JSON line per scene family point.
 
-Each point flies its scenes in one process (``swarm.closed_loop.simulate_swarm``: the
+Each point flies its scenes in one process (``swarm.offline.closed_loop.simulate_swarm``: the
 agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the world's
 roster of body centres each tick) for every seed, and reports the success rate (every
 agent at its goal, no contact), collisions (contacts: pairs and obstacle contacts), margin
 violations (pairs and agent-obstacles ever inside the safety radius, body radii plus the
-margin), deadlocked agents (``swarm.metrics.deadlock_at``, the same rule for ORCA), infeasible
+margin), deadlocked agents (``swarm.offline.metrics.deadlock_at``, the same rule for ORCA), infeasible
 agent ticks (every filter status but OK), and the mean and worst time
-to goal over the straight-line time (distance / target speed). ORCA (``swarm.orca``: RVO2
+to goal over the straight-line time (distance / target speed). ORCA (``swarm.offline.orca``: RVO2
 on planar scenes, RVO2-3D on the sphere swaps) runs the same scene at rho = 1, with its
 figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho = 0.5.
 
@@ -25,7 +25,7 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations,
-min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.metrics``), deadlocks,
+min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.offline.metrics``), deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio, per_run (each seed's success, collisions,
 margin_violations, deadlocks, infeasible ticks and time ratios), orca, horizon_s, buffer_mps,
 contact_s, free_braking, gamma, sensing_radius_m (null: the default).
@@ -38,17 +38,17 @@ import json
 import tempfile
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
 from swarm.config import ScenarioConfig, resolve
 from swarm.model import QuadModel
-from swarm.scenario import SwapSettings, circle_swap, formation, pillar_swap, sphere_field, sphere_swap
+from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.scenario import SwapSettings, circle_swap, formation, pillar_swap, sphere_field, sphere_swap
 
 PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
 
@@ -138,7 +138,7 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
 
 
 def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
-    from swarm.orca import run_orca
+    from swarm.offline.orca import run_orca
 
     with tempfile.TemporaryDirectory() as tmp:
         try:
@@ -216,39 +216,40 @@ class _Pool:
             self.pool.shutdown()
 
 
+@dataclass(frozen=True)
+class Knobs:
+    """Filter settings given to every agent of every scene (None: the config's own)."""
+
+    horizon_s: float | None = None  # [s]
+    buffer_mps: float | None = None  # [m/s]
+    contact_s: float | None = None  # [s]
+    free_braking: bool | None = None
+    gamma: float | None = None  # [1/s]
+    sensing_radius_m: float | None = None  # [m]
+
+
 def main(
     quick: bool = False,
     seeds: int = 3,
     family: str | None = None,
     jobs: int = 2,
     orca: bool = True,
-    horizon_s: float | None = None,
-    buffer_mps: float | None = None,
-    contact_s: float | None = None,
-    free_braking: bool | None = None,
-    gamma: float | None = None,
-    sensing_radius_m: float | None = None,
+    knobs: Knobs | None = None,
     engine: str = "local",
     address: str | None = None,
 ) -> None:
+    """Print one JSON line per point of the families chosen (``family``; None: every one)."""
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
-    knobs = {
-        "horizon_s": horizon_s,
-        "buffer_mps": buffer_mps,
-        "contact_s": contact_s,
-        "free_braking": free_braking,
-        "gamma": gamma,
-        "sensing_radius_m": sensing_radius_m,
-    }
+    fields = asdict(knobs or Knobs())
     with _Pool(engine, jobs, address) as pool:
         for p in todo:
-            raws = [_with_filter(p.make(s), p.rho, **knobs) for s in p.seeds]
+            raws = [_with_filter(p.make(s), p.rho, **fields) for s in p.seeds]
             results = pool.map([(raw, orca and p.rho == 1.0) for raw in raws])
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _ in results])
             orca_runs = [o for _, o in results if o is not None]
             line["orca"] = _summary(orca_runs) if orca_runs else None
-            line |= knobs
+            line |= fields
             print(json.dumps(line), flush=True)
 
 
@@ -276,12 +277,14 @@ if __name__ == "__main__":
         a.family,
         a.jobs,
         orca=not a.no_orca,
-        horizon_s=a.horizon_s,
-        buffer_mps=a.buffer_mps,
-        contact_s=a.contact_s,
-        free_braking=False if a.no_free_braking else None,
-        gamma=a.gamma,
-        sensing_radius_m=a.sensing_radius_m,
+        knobs=Knobs(
+            horizon_s=a.horizon_s,
+            buffer_mps=a.buffer_mps,
+            contact_s=a.contact_s,
+            free_braking=False if a.no_free_braking else None,
+            gamma=a.gamma,
+            sensing_radius_m=a.sensing_radius_m,
+        ),
         engine=a.engine,
         address=a.address,
     )

@@ -5,7 +5,7 @@
 
 One JSON line per swarm size (the keys of ``tools.bench_swarm``, with ``density_per_m2``):
 ``n`` agents with random starts in a square whose side keeps ``n / side^2`` at
-``--density`` (``swarm.scenario.random_swap``), each flying 4 m in a random direction
+``--density`` (``swarm.offline.scenario.random_swap``), each flying 4 m in a random direction
 (:func:`local_hops`), so the neighbours within an agent's interest radius stay about the
 same whatever ``n``; neighbours from the agents'
 own states (``neighbours.source: agents``: the bundle relay's bundles by default, or by cells
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.scenario import SwapSettings, random_swap
+from swarm.offline.scenario import SwapSettings, random_swap
 from tools.bench_swarm import run_row
 
 HOP_M = 4.0  # each agent flies this far [m], in a random direction, from a random start

@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import resolve
+from swarm.offline.scenario import SwapSettings, circle_swap
 from swarm.runs.launch import RunHandle
-from swarm.scenario import SwapSettings, circle_swap
 
 
 def summaries(run_dir: Path) -> tuple[dict, list[dict]]:

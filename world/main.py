@@ -2,7 +2,7 @@
 
     swarm world CONFIG [--run RUN] [--port P] [--gui]
 
-Each tick the world publishes one clock message (``swarm.messages``: the live agents,
+Each tick the world publishes one clock message (``swarm.net.messages``: the live agents,
 every drone's body centre, velocity and radius, each simulated drone's measurement, the
 obstacles) and, at ``STATUS_HZ``, a status. Lockstep: publish tick k, wait until
 every live agent answered k or the timeout passed (those are late and keep their last
@@ -32,8 +32,6 @@ from typing import Any
 
 import numpy as np
 
-from swarm import transport as tp
-from swarm.cells import near_lists
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import (
     AttitudeController,
@@ -43,10 +41,12 @@ from swarm.control import (
     onboard_rotor_thrusts,
 )
 from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
-from swarm.messages import encode, warm_up
 from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.net import transport as tp
+from swarm.net.cells import near_lists
+from swarm.net.messages import encode, warm_up
+from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.rotation import quat_to_R
-from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.shutdown import StopFlag
 from swarm.world.mocap import BodyEstimate, MocapRelay, connect
 from swarm.world.physics import PhysicsWorld
@@ -188,7 +188,7 @@ class World:
         self.l_m = np.array([self.slots[a].model.params.l_m for a in self.names])  # body-centre offsets [m]
         self.radius_m = np.array([self.slots[a].model.params.body_radius_m for a in self.names])  # bounding radii [m]
         self.goals = np.array([self.slots[a].goal for a in self.names])  # (n, 3) m, world
-        self.cells = cfg.uses_ticks  # each simulated agent gets its own tick message (swarm.cells)
+        self.cells = cfg.uses_ticks  # each simulated agent gets its own tick message (swarm.net.cells)
         self.near_m = np.array([cfg.near_radius_m(a) for a in self.names]) if self.cells else np.zeros(0)  # m
         self.dt_ctrl = 1.0 / cfg.time.control_hz
         self.K = round(cfg.duration_s * cfg.time.control_hz)  # the last tick

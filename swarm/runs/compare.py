@@ -14,10 +14,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from swarm.barriers import BarrierKind
 from swarm.config import ScenarioConfig
 from swarm.runs.launch import RunHandle
 from swarm.runs.sweep import summarise
+from swarm.safety.barriers import BarrierKind
 
 COLUMNS = (
     ("filter", "filter"),

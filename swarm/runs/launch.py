@@ -23,17 +23,17 @@ from pathlib import Path
 from secrets import token_hex
 from typing import Any
 
-from swarm import access
-from swarm import transport as tp
 from swarm.config import ScenarioConfig, dump
-from swarm.layout import run_layout_json
-from swarm.messages import DecodeError, decode
+from swarm.net import access
+from swarm.net import transport as tp
+from swarm.net.messages import DecodeError, decode
+from swarm.runs.layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
 
 
 def free_port(host: str = "127.0.0.1", span: int = len(tp.HUBS)) -> int:
     """A port P such that P .. P + span - 1 are free now (a star's hubs listen on P, P + 1
-    and P + 2; ``swarm.transport.process_config``)."""
+    and P + 2; ``swarm.net.transport.process_config``)."""
     while True:
         with contextlib.ExitStack() as held:
             first = held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
@@ -110,7 +110,7 @@ class RunHandle:
 
     def __init__(self, cfg: ScenarioConfig, out: Path, run: str, secrets: Path | None = None) -> None:
         self.cfg, self.out, self.run = cfg, out, run
-        self.secrets = secrets  # the run's credentials (swarm.access), None with network.access_control off
+        self.secrets = secrets  # the run's credentials (swarm.net.access), None with network.access_control off
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.progress = Progress()
         self.reason: str | None = None
@@ -183,7 +183,7 @@ class RunHandle:
 
     def _open_via_router(self, conf: Any) -> Any:
         """The launcher's session, which opens once the router accepts it (Zenoh retries
-        the link for ``swarm.transport.ROUTER_WAIT_S``); else the router's cause. (A star's
+        the link for ``swarm.net.transport.ROUTER_WAIT_S``); else the router's cause. (A star's
         bundle relay is ``swarm router`` too.)"""
         try:
             return tp.open_session(conf)

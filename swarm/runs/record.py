@@ -4,9 +4,9 @@
 
 Messages are decoded (checked) and written as JSON, one MCAP channel per key expression
 (less its ``swarm/<run>/`` prefix, so that a layout fits every run: ``/agent/cf1/command``),
-each with its kind's JSON schema (``swarm.messages.json_schema``: every field with its
+each with its kind's JSON schema (``swarm.net.messages.json_schema``: every field with its
 unit), so Foxglove lists and plots the fields by name; orjson writes them. Next to them go
-the run's 3-D scene and its log (``swarm.scene``: ``/tf`` ``foxglove.FrameTransforms``,
+the run's 3-D scene and its log (``swarm.runs.scene``: ``/tf`` ``foxglove.FrameTransforms``,
 ``/scene`` ``foxglove.SceneUpdate``, ``/log`` ``foxglove.Log``, schemas from foxglove-sdk).
 The log lines are the processes' own, read from ``DIR/logs`` as they are written (stamped
 with the sim time at which the recorder read them). Undecodable messages are counted and
@@ -29,10 +29,10 @@ from typing import Any
 import orjson
 from mcap.writer import CompressionType, Writer
 
-from swarm import transport as tp
-from swarm.messages import DecodeError, decode, json_schema, record_of
-from swarm.scene import SCHEMAS as SCENE_SCHEMAS
-from swarm.scene import Scene
+from swarm.net import transport as tp
+from swarm.net.messages import DecodeError, decode, json_schema, record_of
+from swarm.runs.scene import SCHEMAS as SCENE_SCHEMAS
+from swarm.runs.scene import Scene
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5

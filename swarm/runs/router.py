@@ -6,12 +6,12 @@
 Every other process of the run is a Zenoh client linked to this router alone; the router
 forwards each message to the sessions whose subscriptions match its key (Zenoh's own key
 matching), and its access-control rules accept from each client only that client's own
-keys (``swarm.access.acl`` with ``router="router"``). It declares the liveliness token
+keys (``swarm.net.access.acl`` with ``router="router"``). It declares the liveliness token
 ``alive/router`` and runs until SIGTERM or SIGINT.
 
 With ``neighbours.interest: bundle`` it also hears every agent's state (each on that
 agent's own key, which only that agent may publish) and sends each agent, once per tick,
-one bundle of the states within its interest radius (:mod:`swarm.bundle`), under
+one bundle of the states within its interest radius (:mod:`swarm.net.bundle`), under
 ``router/bundle/<id>``, a key no client may publish.
 """
 
@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from swarm import statewire
-from swarm import transport as tp
-from swarm.bundle import Bundler
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.errors import DecodeError
+from swarm.net import statewire
+from swarm.net import transport as tp
+from swarm.net.bundle import Bundler
 from swarm.shutdown import StopFlag
 
 

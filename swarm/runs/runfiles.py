@@ -13,8 +13,8 @@ from mcap.records import Channel, Footer, Message
 from mcap.stream_reader import StreamReader
 
 from swarm.config import ScenarioConfig, load
-from swarm.messages import expand_record
-from swarm.metrics import compute
+from swarm.net.messages import expand_record
+from swarm.offline.metrics import compute
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ def read_recording(path: Path) -> Recording:
         try:
             for record in reader.records:
                 if isinstance(record, Channel):
-                    # the swarm's JSON messages; not the scene's protobuf channels (swarm.scene)
+                    # the swarm's JSON messages; not the scene's protobuf channels (swarm.runs.scene)
                     topics[record.id] = record.topic if record.message_encoding == "json" else "/dropped"
                 elif isinstance(record, Message) and topics.get(record.channel_id, "/dropped") != "/dropped":
                     rec = json.loads(record.data)

@@ -10,12 +10,12 @@ first numeric axis with one line per combination of the other axes (seeds averag
 Knobs (the config's names; units in brackets):
 
 * ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
-  or ``orca``: the ORCA baseline (``swarm/orca.py``) instead of the swarm.
+  or ``orca``: the ORCA baseline (``swarm/offline/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
   ``sensing_radius_m`` [m] (neighbours farther away get no row), ``horizon_s`` [s] (the live
-  rows' horizon allowance, ``swarm.barriers``; ``none``: the cone alone), ``buffer_mps``
-  [m/s] (the live rows' velocity buffer, ``swarm.rows``) and ``contact_s`` [s] (the live
-  neighbour rows' contact horizon, ``swarm.barriers``; 0: the cone alone).
+  rows' horizon allowance, ``swarm.safety.barriers``; ``none``: the cone alone), ``buffer_mps``
+  [m/s] (the live rows' velocity buffer, ``swarm.safety.constraints``) and ``contact_s`` [s] (the live
+  neighbour rows' contact horizon, ``swarm.safety.barriers``; 0: the cone alone).
 * ``tiebreak``: ``none`` or ``right_hand`` (``swarm.control.right_hand_bias``).
 * ``obstacle_speed`` [m/s] and ``approach_angle_deg`` [deg]: the first obstacle is
   re-aimed so that it passes its configured centre when the first agent, flying its
@@ -23,7 +23,7 @@ Knobs (the config's names; units in brackets):
   the agent's left, 180 comes from behind. Speed 0 makes it static.
 * ``seed``: the scenario seed.
 * For generated swaps (base ``circle``, ``sphere`` or ``random`` instead of a file):
-  ``agents``, ``radius`` [m], ``perturb_m`` [m] and ``density`` [1/m^2] (``swarm.scenario``).
+  ``agents``, ``radius`` [m], ``perturb_m`` [m] and ``density`` [1/m^2] (``swarm.offline.scenario``).
 """
 
 from __future__ import annotations
@@ -43,9 +43,9 @@ import numpy as np
 
 from swarm.config import ConfigError, ScenarioConfig, resolve
 from swarm.model import QuadParams
-from swarm.orca import run_orca
+from swarm.offline.orca import run_orca
+from swarm.offline.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 from swarm.runs.launch import RunHandle, unpinned
-from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 
 Raw = dict[str, Any]
 Knob = Callable[[Raw, str], Raw]

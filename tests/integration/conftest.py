@@ -41,7 +41,7 @@ def wait_linked(h: RunHandle, session: Any, heard: Any, probe_key: str, what: st
     """Until a put of ``session`` on ``probe_key`` (its own keys) reaches the channel ``heard``
     of another session of the run: the first is linked. Raises after 100 tries, each one world
     status message apart."""
-    from swarm import transport as tp
+    from swarm.net import transport as tp
 
     for _ in range(100):
         session.put(probe_key, b"hello")

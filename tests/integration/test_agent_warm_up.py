@@ -12,13 +12,13 @@ import sys
 PROBE = """
 import json
 import numpy as np
-from swarm import statewire, transport as tp
+from swarm.net import statewire, transport as tp
 from swarm.agents.agent import Agent
 from swarm.config import resolve
-from swarm.messages import decode, encode
-from swarm.neighbours import _rows, _store, _newest
+from swarm.net.messages import decode, encode
+from swarm.net.neighbours import _rows, _store, _newest
 from swarm.model import all_finite
-from swarm.scenario import SwapSettings, circle_swap
+from swarm.offline.scenario import SwapSettings, circle_swap
 
 cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents"), name="warm"), "warm")
 kernels = (all_finite, statewire._verdicts, _store, _rows, _newest)

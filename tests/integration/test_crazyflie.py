@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarm import transport as tp
 from swarm.agents.crazyflie import thrust_command
 from swarm.config import ScenarioConfig, dump, resolve
-from swarm.messages import decode, encode
+from swarm.net import transport as tp
+from swarm.net.messages import decode, encode
 from swarm.runs.launch import ensure_secrets, free_port
 from swarm.world.sitl_cf import SitlDrone as StandIn
 

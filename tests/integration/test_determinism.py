@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import ScenarioConfig, load
-from swarm.messages import measurement_agent
+from swarm.net.messages import measurement_agent
 from swarm.runs.launch import RunHandle
 from swarm.runs.runfiles import read_records
 

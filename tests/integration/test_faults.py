@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from swarm.metrics import compute
+from swarm.offline.metrics import compute
 from swarm.runs.runfiles import read_config, read_recording
 
 from .conftest import scenario

@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from swarm import transport as tp
-from swarm.cells import cell_of
-from swarm.messages import decode, encode
+from swarm.net import transport as tp
+from swarm.net.cells import cell_of
+from swarm.net.messages import decode, encode
 from swarm.runs.launch import RunHandle
 
 from .conftest import scenario, wait_linked
@@ -175,7 +175,7 @@ def test_a_session_without_the_runs_credentials_hears_and_reaches_nothing(start_
 
 
 def test_over_tls_only_sessions_with_the_runs_certificates_link(start_run, tmp_path):
-    from swarm import access
+    from swarm.net import access
 
     cfg = scenario(
         "swap_2.yaml",

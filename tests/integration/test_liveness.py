@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swarm.config import TiebreakSettings, resolve
-from swarm.scenario import SwapSettings, circle_swap, sphere_swap
+from swarm.offline.scenario import SwapSettings, circle_swap, sphere_swap
 
 BODY = 0.07  # Crazyflie bounding radius [m]
 MARGIN = 0.02  # filter margin [m]

@@ -1,6 +1,6 @@
 """Agents' states through a real Zenoh router or a star's bundle relay, each agent hearing
-only the states near it (``neighbours.interest: bundle``, the relay's bundles, swarm.bundle,
-or ``cells`` through the router, swarm.cells).
+only the states near it (``neighbours.interest: bundle``, the relay's bundles, swarm.net.bundle,
+or ``cells`` through the router, swarm.net.cells).
 
 * a lockstep run by bundles or by cells flies bit for bit what the same run flies when every
   agent hears every other (``interest: all``), so lockstep repeats, and no neighbour that
@@ -20,10 +20,10 @@ import time
 import numpy as np
 import pytest
 
-from swarm import statewire
-from swarm import transport as tp
-from swarm.cells import cell_of
-from swarm.messages import encode
+from swarm.net import statewire
+from swarm.net import transport as tp
+from swarm.net.cells import cell_of
+from swarm.net.messages import encode
 from tools.bench_swarm import summaries
 
 from .conftest import scenario, wait_linked

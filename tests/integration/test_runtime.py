@@ -17,9 +17,9 @@ import msgpack
 import numpy as np
 import pytest
 
-from swarm import transport as tp
-from swarm.cells import cell_of
-from swarm.messages import VERSION, encode, measurement_agent
+from swarm.net import transport as tp
+from swarm.net.cells import cell_of
+from swarm.net.messages import VERSION, encode, measurement_agent
 from swarm.runs.runfiles import read_records
 
 from .conftest import CONFIGS, scenario
@@ -222,8 +222,8 @@ def _processes_mentioning(text: str) -> list[int]:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
-    from swarm import transport as tp
     from swarm.config import dump, load
+    from swarm.net import transport as tp
     from swarm.runs.launch import ensure_secrets, free_port
 
     out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
@@ -385,7 +385,7 @@ def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
 @pytest.mark.parametrize("kind", ["circle", "sphere"])
 def test_four_agent_swap_ends_with_success(start_run, kind):
     from swarm.config import resolve
-    from swarm.scenario import circle_swap, sphere_swap
+    from swarm.offline.scenario import circle_swap, sphere_swap
 
     gen = circle_swap if kind == "circle" else sphere_swap
     h = start_run(resolve(gen(4, 2.0)), kind)

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from swarm.messages import measurement_agent
+from swarm.net.messages import measurement_agent
 from swarm.rotation import R_to_euler, quat_to_R
 from swarm.runs.runfiles import read_records
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from swarm import transport as tp
+from swarm.net import transport as tp
 from swarm.runs.launch import free_port
 
 
@@ -51,7 +51,7 @@ def test_inbox_wakes_once_enough_samples_are_queued_or_at_the_deadline():
 
 _BATCH_CHECK = """
 import json, os, time
-from swarm import transport as tp
+from swarm.net import transport as tp
 from swarm.runs.launch import free_port
 before = set(os.listdir("/proc/self/task"))
 endpoint = tp.world_endpoint("127.0.0.1", free_port())
@@ -81,7 +81,7 @@ def test_zenoh_threads_run_as_batch_and_the_caller_keeps_its_policy():
 
 _STAR_PEER = """
 import json, os, sys, time
-from swarm import transport as tp
+from swarm.net import transport as tp
 from swarm.config import load
 name, role, config, need = sys.argv[1], tp.Role(sys.argv[2]), sys.argv[3], set(sys.argv[4].split(","))
 session = tp.open_session(tp.process_config(load(config), role))

@@ -17,7 +17,7 @@ import json
 import numpy as np
 from swarm.config import load
 from swarm.control import onboard_rotor_thrusts
-from swarm.scenario import _min_pair_d2
+from swarm.offline.scenario import _min_pair_d2
 from swarm.world.main import World
 from swarm.world.physics import _frames
 

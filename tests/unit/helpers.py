@@ -8,9 +8,9 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import BarrierKind, BarrierRows, evaluate_pw
 from swarm.model import QuadState
 from swarm.rotation import euler_to_quat
+from swarm.safety.barriers import BarrierKind, BarrierRows, evaluate_pw
 
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 """Hypothesis: a 3-vector with components in [-3, 3] (a position [m], velocity [m/s] or acceleration [m/s^2])."""
@@ -119,7 +119,7 @@ def live_rows(
     horizon_s: float | None = None,
     **settings: float | bool,
 ) -> BarrierRows:
-    """One live C3BF row (``swarm.barriers.evaluate_pw``) for relative ``p`` [m], ``w`` [m/s],
+    """One live C3BF row (``swarm.safety.barriers.evaluate_pw``) for relative ``p`` [m], ``w`` [m/s],
     safety radius ``r`` [m], cylinder axis ``a`` (zeros: a sphere), the reference's relative
     acceleration ``a_ref`` [m/s^2] (or None), a neighbour or not, with ``horizon_s`` [s] and
     the other row ``settings`` of ``evaluate`` (``contact_s``, ``free_braking``)."""

@@ -1,4 +1,4 @@
-"""What the run's access control says (swarm.access), without Zenoh: credentials files,
+"""What the run's access control says (swarm.net.access), without Zenoh: credentials files,
 and which user may publish which key in each process's rules."""
 
 import stat
@@ -6,7 +6,7 @@ from fnmatch import fnmatch
 
 import pytest
 
-from swarm import access
+from swarm.net import access
 
 IDS = ["cf1", "cf2"]
 

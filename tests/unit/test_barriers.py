@@ -1,11 +1,11 @@
 """The barriers by their definitions: gradients against finite differences of h,
-and a defined, finite answer in every edge case of ``swarm.barriers``'s docstring."""
+and a defined, finite answer in every edge case of ``swarm.safety.barriers``'s docstring."""
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import BarrierKind, evaluate_pw
+from swarm.safety.barriers import BarrierKind, evaluate_pw
 
 from .helpers import vec
 

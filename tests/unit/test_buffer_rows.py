@@ -1,4 +1,4 @@
-"""The live rows' velocity buffer (swarm.rows, "Velocity buffer") by its definition.
+"""The live rows' velocity buffer (swarm.safety.constraints, "Velocity buffer") by its definition.
 
 A row's buffered form asks ``h' + g k h >= g k_b v |dh/dw|`` (``g k`` the row's class-K gain,
 ``k`` the far-neighbour factor, ``v = min(buffer, BUFFER_PER_SPEED |w|)``), so:
@@ -23,14 +23,14 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import RATE
-from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
 from swarm.config import resolve
-from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.obstacles import ObstacleArrays
-from swarm.rows import BUFFER_FAR_GAIN_MAX, BUFFER_PER_SPEED
-from swarm.scenario import SwapSettings, circle_swap
+from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.scenario import SwapSettings, circle_swap
+from swarm.safety.barriers import RATE
+from swarm.safety.constraints import BUFFER_FAR_GAIN_MAX, BUFFER_PER_SPEED
+from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import outside, satisfying, vec
 

@@ -1,11 +1,11 @@
-"""The bundles' rules (swarm.bundle.Bundler): who is in an agent's bundle, and when a
+"""The bundles' rules (swarm.net.bundle.Bundler): who is in an agent's bundle, and when a
 tick's bundles are due, in lockstep and in realtime, with stalled and dead agents."""
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.bundle import Bundler
+from swarm.net.bundle import Bundler
 
 
 def _rec(name: str, k: int) -> bytes:

@@ -1,4 +1,4 @@
-"""Interest by distance (swarm.cells): the cells of a point, the cells a ball meets, the
+"""Interest by distance (swarm.net.cells): the cells of a point, the cells a ball meets, the
 subscriptions an agent keeps as it moves (hysteresis, border crossings at full speed), the
 world's near lists, and what the neighbour table does with neighbours that leave."""
 
@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.cells import Interest, cell_of, cells_meeting_ball, near_lists
-from swarm.neighbours import NeighbourTable
+from swarm.net.cells import Interest, cell_of, cells_meeting_ball, near_lists
+from swarm.net.neighbours import NeighbourTable
 
 coord = st.floats(-50.0, 50.0, allow_nan=False)
 point = st.tuples(coord, coord, st.floats(-2.0, 6.0))

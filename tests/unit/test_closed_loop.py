@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from swarm.barriers import BarrierKind
-from swarm.closed_loop import simulate
 from swarm.control import PathTracker
-from swarm.filter import FilterConfig
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.obstacles import ObstacleArrays
+from swarm.offline.closed_loop import simulate
+from swarm.safety.barriers import BarrierKind
+from swarm.safety.filter import FilterConfig
+from swarm.safety.obstacles import ObstacleArrays
 
 MODEL = QuadModel()
 BODY = MODEL.params.body_radius_m

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swarm.config import ConfigError, dump, load, resolve
-from swarm.scenario import circle_swap
+from swarm.offline.scenario import circle_swap
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

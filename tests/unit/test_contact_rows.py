@@ -1,4 +1,4 @@
-"""The contact horizon of live neighbour rows (swarm.barriers, "Contact horizon") by its definition.
+"""The contact horizon of live neighbour rows (swarm.safety.barriers, "Contact horizon") by its definition.
 
 ``h_T = <p, w> + |w| S``, ``S = sqrt(|p|^2 - rho^2)``, ``rho = r (1 - (1 - k) psi(t_c))``,
 ``t_c = (|p| - r) / v_c`` the time to contact at the closing speed ``v_c = -<p, w>/|p|``
@@ -23,10 +23,10 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import CONTACT_FLOOR, LIVE_W_HI_MPS
 from swarm.config import FilterSettings
 from swarm.errors import InputError
-from swarm.filter import FilterConfig
+from swarm.safety.barriers import CONTACT_FLOOR, LIVE_W_HI_MPS
+from swarm.safety.filter import FilterConfig
 
 from .helpers import central_gradients, closest_approach, directions, live_rows, outside, satisfying, vec
 

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from swarm.closed_loop import simulate
 from swarm.control import PathTracker
-from swarm.filter import FilterConfig
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.obstacles import ObstacleArrays
+from swarm.offline.closed_loop import simulate
 from swarm.rotation import euler_to_quat
+from swarm.safety.filter import FilterConfig
+from swarm.safety.obstacles import ObstacleArrays
 
 MODEL = QuadModel()
 

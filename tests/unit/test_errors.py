@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.access import SecretsError, password
 from swarm.config import ConfigError, resolve
 from swarm.errors import DecodeError, InputError, SwarmError
-from swarm.filter import FilterConfig
-from swarm.messages import decode
 from swarm.model import QuadState
+from swarm.net.access import SecretsError, password
+from swarm.net.messages import decode
+from swarm.safety.filter import FilterConfig
 
 
 def test_each_error_is_a_swarm_error_and_its_builtin() -> None:
@@ -37,9 +37,9 @@ def test_the_raised_errors_are_caught_by_the_base(tmp_path) -> None:
 
 
 def test_the_filter_setting_has_the_configs_name() -> None:
-    from swarm.barriers import BarrierKind
     from swarm.config import FilterSettings
     from swarm.model import CommandLevel
+    from swarm.safety.barriers import BarrierKind
 
     cfg = FilterSettings(kind="hocbf").filter_config(CommandLevel.ATTITUDE)
     assert cfg.kind is BarrierKind.HOCBF and not hasattr(cfg, "barrier")

@@ -7,11 +7,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import BarrierKind
 from swarm.errors import InputError
-from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState
-from swarm.obstacles import ObstacleArrays
+from swarm.safety.barriers import BarrierKind
+from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import random_state
 
@@ -201,7 +201,7 @@ def test_bad_input_raises_a_specific_error(make):
 def test_reciprocal_rows_add_up_to_the_pair_condition():
     """rho = 0.5: the two agents' rows sum to the pair's h' + kappa(h) >= 0, kappa(h) =
     2 gamma h outside the cone (each agent keeps its row's whole allowance) and gamma h
-    inside it (the recovery shared; swarm.rows, "Responsibility share"). The paper's
+    inside it (the recovery shared; swarm.safety.constraints, "Responsibility share"). The paper's
     smoothed rows, whose formula this spells out, on both sides of the cone."""
     cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, live=False)
     filt = SafetyFilter(MODEL, cfg)

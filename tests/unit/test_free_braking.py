@@ -1,4 +1,4 @@
-"""Free braking of live neighbour rows (swarm.barriers, "Free braking") by its definition.
+"""Free braking of live neighbour rows (swarm.safety.barriers, "Free braking") by its definition.
 
 A live neighbour row outside its cone, above the blend speed, whose reference's relative
 acceleration brakes ``w`` (``<w, a_ref> < 0``) is the condition of ``B = h / |w|^lambda``,
@@ -25,11 +25,11 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import BRAKE_CLOSING_MPS, LIVE_W_HI_MPS
 from swarm.config import FilterSettings
-from swarm.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.obstacles import ObstacleArrays
+from swarm.safety.barriers import BRAKE_CLOSING_MPS, LIVE_W_HI_MPS
+from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import central_gradients, closest_approach, directions, live_rows, outside, satisfying, vec
 

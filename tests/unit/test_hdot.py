@@ -8,11 +8,11 @@ import zlib
 import numpy as np
 import pytest
 
-from swarm.barriers import BarrierKind
-from swarm.closed_loop import obstacles_at
-from swarm.filter import FilterConfig, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4, thrust_vector_accel
-from swarm.obstacles import ObstacleArrays
+from swarm.offline.closed_loop import obstacles_at
+from swarm.safety.barriers import BarrierKind
+from swarm.safety.filter import FilterConfig, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import random_state
 

@@ -1,4 +1,4 @@
-"""The horizon allowance of live rows (swarm.barriers, "Horizon allowance") by its definition.
+"""The horizon allowance of live rows (swarm.safety.barriers, "Horizon allowance") by its definition.
 
 ``h_tau = <p, w> + |w| s + s^2 / (2 tau)`` (``s = sqrt(|P p|^2 - r^2)``):
 
@@ -18,9 +18,9 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.barriers import LIVE_W_HI_MPS
 from swarm.errors import InputError
-from swarm.filter import FilterConfig
+from swarm.safety.barriers import LIVE_W_HI_MPS
+from swarm.safety.filter import FilterConfig
 
 from .helpers import central_gradients, closest_approach, directions, live_rows, outside, proj, satisfying, vec
 

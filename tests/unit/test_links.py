@@ -55,7 +55,7 @@ def test_auto_topology_is_a_star_only_where_one_can_carry_the_run_and_a_router_f
 
 
 def test_a_router_links_every_other_process_to_itself_alone():
-    from swarm import transport as tp
+    from swarm.net import transport as tp
 
     cfg = _net(network={"port": 7000, "host": "10.0.0.1"})
     assert cfg.topology == "router"
@@ -72,7 +72,7 @@ def test_a_router_links_every_other_process_to_itself_alone():
 
 
 def test_star_links_every_process_to_the_hubs_alone():
-    from swarm import transport as tp
+    from swarm.net import transport as tp
 
     cfg = _net(neighbours={"source": "world"}, network={"port": 7000})
     hub = [f"tcp/127.0.0.1:{p}" for p in (7000, 7001, 7002)]  # world, recorder, launcher

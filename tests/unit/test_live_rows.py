@@ -1,4 +1,4 @@
-"""Live C3BF rows (swarm.barriers, "Live rows") by their definition.
+"""Live C3BF rows (swarm.safety.barriers, "Live rows") by their definition.
 
 Every command that satisfies a live row keeps the exact, unsmoothed collision cone:
 
@@ -18,8 +18,8 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, evaluate_pw
-from swarm.obstacles import ObstacleArrays
+from swarm.safety.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, RowSettings, evaluate_pw
+from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import live_rows as live
 from .helpers import outside, proj, satisfying, vec
@@ -240,9 +240,9 @@ def test_a_drone_at_rest_before_a_sphere_is_not_frozen():
 
 
 def _fly(raw, **over):
-    from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
     from swarm.config import resolve
     from swarm.model import QuadModel
+    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
 
     cfg = resolve(raw)
     agents, obs = scenario_swarm(cfg)
@@ -264,7 +264,7 @@ def _fly(raw, **over):
 def test_a_drone_at_rest_finds_the_one_way_clear_of_every_sphere_ahead():
     """Ten spheres ahead whose rows, each aimed at the reference alone, admit only a = 0
     (the drone sat at its start for the whole run): one clear direction for all of them."""
-    from swarm.scenario import SwapSettings, sphere_field
+    from swarm.offline.scenario import SwapSettings, sphere_field
 
     o, log = _fly(sphere_field(10, SwapSettings(seed=1)))
     assert o.success and o.deadlocked == 0 and o.infeasible_ticks == 0
@@ -275,11 +275,11 @@ def test_with_rho_half_an_unfiltered_neighbour_head_on_is_still_avoided():
     """rho = 0.5, head-on at 0.8 m/s each from rest, the neighbour flying its reference
     unfiltered: no contact. (This scene also held with the neighbour counted as sharing;
     the rule itself is tested on the rows below.)"""
-    from swarm.closed_loop import SwarmAgent, outcome, simulate_swarm
     from swarm.config import resolve
-    from swarm.filter import FilterConfig
     from swarm.model import CommandLevel, QuadModel
-    from swarm.scenario import SwapSettings, circle_swap
+    from swarm.offline.closed_loop import SwarmAgent, outcome, simulate_swarm
+    from swarm.offline.scenario import SwapSettings, circle_swap
+    from swarm.safety.filter import FilterConfig
 
     cfg = resolve(circle_swap(2, 2.0, SwapSettings(perturb_m=0.02, seed=4)))
     fc = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, floor_z_m=0.25, sensing_radius_m=2.5)
@@ -296,9 +296,9 @@ def test_a_neighbour_that_does_not_share_gets_a_full_row():
     """rho = 0.5 halves a neighbour row's rate terms, for a neighbour doing the other half.
     One that says it is solo (not a clean solve, unfiltered), is gone or is past the hard
     limit is an obstacle row instead: the whole condition, as rho = 1 writes it."""
-    from swarm.filter import FilterConfig, SafetyFilter
     from swarm.model import CommandLevel, QuadModel, QuadState
-    from swarm.neighbours import NeighbourTable
+    from swarm.net.neighbours import NeighbourTable
+    from swarm.safety.filter import FilterConfig, SafetyFilter
 
     table = NeighbourTable(timeout_s=0.1, growth_mps=0.5, hard_limit_s=1.0)
     for name, solo in (("a", False), ("b", True), ("c", False)):
@@ -321,14 +321,14 @@ def test_a_neighbour_that_does_not_share_gets_a_full_row():
 def _row_pair(p, w, r, rho):
     """The live row of one relative state as a neighbour's and as an obstacle's, the
     agent a point mass at the attitude level (A = -I / m, a0_own = g e3), at rest."""
-    from swarm.rows import OwnAffine, assemble
+    from swarm.safety.constraints import OwnAffine, assemble
 
     mass = 0.03
     own = OwnAffine(np.zeros((2, 3)), np.hstack([-np.eye(3) / mass, np.array([[0.0], [0.0], [9.81]])]))
     both = ObstacleArrays(
         np.vstack([p, p]), np.vstack([w, w]), np.zeros((2, 3)), np.zeros(2), np.zeros((2, 3)), np.array([True, False])
     )
-    return own, assemble(BarrierKind.C3BF, own, both, r, gamma=GAMMA, rho=rho, live=True)
+    return own, assemble(BarrierKind.C3BF, own, both, RowSettings(r_own_m=r, gamma=GAMMA, rho=rho, live=True))
 
 
 def _own_part_lower(rows) -> tuple[np.ndarray, float]:
@@ -356,7 +356,7 @@ def test_a_far_neighbour_row_is_the_exact_condition_with_a_larger_class_k_gain(p
     whole factor |p| / (FAR_GAIN_RADII r) when not closing, strictly between otherwise;
     and every relative acceleration the row admits satisfies the exact h' + gamma k h >= 0
     (a finite difference of the unsmoothed h): h >= 0 stays forward invariant."""
-    from swarm.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII
+    from swarm.safety.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII
 
     assume(np.linalg.norm(p) >= r + 0.05 and np.linalg.norm(w) >= 1.01 * LIVE_W_HI_MPS)
     h = exact_h(p, w, r, np.zeros(3))
@@ -391,7 +391,7 @@ def test_a_sharing_pair_keeps_the_pair_condition_with_the_doubled_allowance(p, w
     """Two agents whose shares add up to 1 (rho and 1 - rho), outside their cone above the
     blend speed, each flying any acceleration its own row admits: the pair's exact h
     (unsmoothed, by a finite difference along the motion) satisfies h' + 2 gamma k h >= 0,
-    a CBF condition, so h >= 0 stays forward invariant (swarm.rows, "Responsibility
+    a CBF condition, so h >= 0 stays forward invariant (swarm.safety.constraints, "Responsibility
     share"). Agent a sees b at (p, w); b sees a at (-p, -w)."""
     assume(np.linalg.norm(p) >= r + 0.05 and np.linalg.norm(w) >= 1.01 * LIVE_W_HI_MPS)
     h = exact_h(p, w, r, np.zeros(3))
@@ -417,7 +417,7 @@ def test_a_crowd_converging_from_rest_is_not_held_back_by_far_pairs():
     from contact no longer hold the crowd to a crawl: about 1.25 x straight-line time on
     average (1.33 with the gain faded in the closing speed, with the tie-break of then;
     EXPERIMENTS.md section 4)."""
-    from swarm.scenario import sphere_swap
+    from swarm.offline.scenario import sphere_swap
 
     o, log = _fly(sphere_swap(12, 1.5))
     assert o.success and o.collisions == 0 and o.deadlocked == 0 and o.infeasible_ticks == 0
@@ -429,7 +429,7 @@ def test_a_crowd_converging_from_rest_is_not_held_back_by_far_pairs():
 @given(p=vec, w=vec, r=st.floats(0.05, 1.0), dp=vec, dw=vec)
 def test_the_far_gain_is_continuous(p, w, r, dp, dw):
     """k is Lipschitz in (p, w) away from p = 0: the row does not jump between ticks."""
-    from swarm.barriers import far_gain
+    from swarm.safety.barriers import far_gain
 
     assume(np.linalg.norm(p) >= r + 0.05)
     e = 1e-7
@@ -441,7 +441,7 @@ def test_the_far_gain_fades_with_the_time_to_contact_as_documented():
     """The docstring's anchor points, on a pair 10 safety radii apart: the whole factor
     when not closing, half the extra gain at twice FAR_GAIN_CONTACT_S from contact, none
     from FAR_GAIN_CONTACT_S, and none within FAR_GAIN_RADII radii whatever the motion."""
-    from swarm.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII, far_gain
+    from swarm.safety.barriers import FAR_GAIN_CONTACT_S, FAR_GAIN_RADII, far_gain
 
     r = 0.2
     dist = 10 * r

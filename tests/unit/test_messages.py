@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.messages import VERSION, DecodeError, clock_measurement, decode, encode, expand_record, to_json
+from swarm.net.messages import VERSION, DecodeError, clock_measurement, decode, encode, expand_record, to_json
 
 
 def test_messages_round_trip():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from swarm.config import resolve
-from swarm.metrics import compute
+from swarm.offline.metrics import compute
 
 
 def test_metrics_from_synthetic_records():
@@ -56,7 +56,7 @@ def test_metrics_from_synthetic_records():
 
 
 def test_path_deviation_is_the_distance_to_the_polyline():
-    from swarm.metrics import path_deviation
+    from swarm.offline.metrics import path_deviation
 
     path = np.array([[0.0, 0, 1], [2.0, 0, 1], [2.0, 2, 1]])
     pts = np.array([[1.0, 0.3, 1], [2.5, 1.0, 1], [0.0, 0, 1]])

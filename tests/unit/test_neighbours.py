@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from swarm.neighbours import NeighbourTable, roster_arrays
+from swarm.net.neighbours import NeighbourTable, roster_arrays
 
 
 def test_neighbours_extrapolate_grow_and_stop_when_lost():

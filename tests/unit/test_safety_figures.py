@@ -9,10 +9,10 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from swarm.barriers import cone_h
 from swarm.config import resolve
 from swarm.errors import ConfigError
-from swarm.metrics import compute, deadlock_at
+from swarm.offline.metrics import compute, deadlock_at
+from swarm.safety.barriers import cone_h
 
 vec = st.lists(st.floats(-3, 3, allow_nan=False), min_size=3, max_size=3).map(np.array)
 
@@ -149,8 +149,8 @@ def test_a_sensing_radius_that_cannot_see_in_time_is_refused_with_the_field():
 
 
 def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
-    from swarm.closed_loop import SwarmLog
-    from swarm.filter import FilterStatus as S
+    from swarm.offline.closed_loop import SwarmLog
+    from swarm.safety.filter import FilterStatus as S
 
     status = [[S.OK, S.COLLISION], [S.INFEASIBLE, S.OK], [S.FAILED, S.OK]]
     log = SwarmLog(np.zeros(3), np.zeros((3, 2, 3)), np.zeros((3, 2, 3)), status, 1.0, math.inf, [None, None])
@@ -158,9 +158,9 @@ def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
 
 
 def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
-    from swarm.closed_loop import outcome, scenario_swarm, simulate_swarm
     from swarm.model import QuadModel
-    from swarm.scenario import SwapSettings, circle_swap
+    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+    from swarm.offline.scenario import SwapSettings, circle_swap
 
     cfg = resolve(circle_swap(2, 1.0, SwapSettings(duration_s=3.0)))
     agents, obs = scenario_swarm(cfg)

@@ -10,9 +10,9 @@ import numpy as np
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
-from swarm.layout import run_layout_json
-from swarm.messages import SCHEMAS, json_schema
-from swarm.scene import CYLINDER_LENGTH_M, LOG_TOPIC, SCENE_TOPIC, TF_TOPIC, Scene
+from swarm.net.messages import SCHEMAS, json_schema
+from swarm.runs.layout import run_layout_json
+from swarm.runs.scene import CYLINDER_LENGTH_M, LOG_TOPIC, SCENE_TOPIC, TF_TOPIC, Scene
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -1,5 +1,5 @@
 """The state record and the router's bundle: round trips, every check, and garbage that
-never raises (swarm.statewire)."""
+never raises (swarm.net.statewire)."""
 
 import struct
 
@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm import statewire as w
 from swarm.errors import DecodeError
-from swarm.messages import decode, encode
+from swarm.net import statewire as w
+from swarm.net.messages import decode, encode
 
 
 def _state(src="cf1", k=3, x=(1.0, 2.0, 3.0), run="r", solo=False, seq=7):

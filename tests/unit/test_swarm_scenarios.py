@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from swarm.config import load, resolve
-from swarm.metrics import deadlock_start
-from swarm.orca import run_orca
-from swarm.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
+from swarm.offline.metrics import deadlock_start
+from swarm.offline.orca import run_orca
+from swarm.offline.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
 
 
 @pytest.mark.parametrize("kind", ["circle", "sphere", "random"])

@@ -20,15 +20,15 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from swarm import statewire
 from swarm.errors import DecodeError
 from swarm.model import all_finite
+from swarm.net import statewire
 
 VERSION = 8  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
-# 7: the state as a fixed binary record, and the router's bundle of them (swarm.statewire)
+# 7: the state as a fixed binary record, and the router's bundle of them (swarm.net.statewire)
 # 8: the tick names the agents the world has seen go ("gone")
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
@@ -122,7 +122,7 @@ class Message:
 
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
     """msgpack bytes of a message; vector fields (arrays or lists) become float64 binaries."""
-    if kind == "state":  # a fixed binary record (swarm.statewire), not msgpack
+    if kind == "state":  # a fixed binary record (swarm.net.statewire), not msgpack
         return statewire.encode_state(run, src, seq, t, k, body["x"], body["v"], body["r"], body.get("solo", False))
     schema = SCHEMAS.get(kind)
     if schema is None:
@@ -245,7 +245,7 @@ def decode(
     ``fields`` only those body fields are checked and kept (a receiver that reads only
     them: the world reads a command's level, input and status, not the filter's report,
     which the recorder checks); the header is always checked. A state is a
-    :mod:`swarm.statewire` record, checked whole."""
+    :mod:`swarm.net.statewire` record, checked whole."""
     if payload[:3] == statewire.STATE_MAGIC:
         return _state_message(payload, run, kinds)
     try:

@@ -11,13 +11,13 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from swarm.obstacles import OBSTACLE, ObstacleArrays
 from swarm.rotation import BoolArray, FloatArray, IntArray
+from swarm.safety.obstacles import OBSTACLE, ObstacleArrays
 
 
 @njit(cache=True)
 def _roster_fill(xvr, rows, is_nb, out):
-    """Fill ``out`` (k,) :data:`swarm.obstacles.OBSTACLE` with the drones ``rows`` of a
+    """Fill ``out`` (k,) :data:`swarm.safety.obstacles.OBSTACLE` with the drones ``rows`` of a
     roster ``xvr`` (n * 7,): centre, velocity, radius; no acceleration, spheres."""
     for i in range(rows.shape[0]):
         o = 7 * rows[i]
@@ -87,9 +87,13 @@ class _Slots:
 
 
 @njit(cache=True)
-def _store(sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_latest, slots, t, k, x, v, r, flags):
-    """Write state ``n`` (tick k[n], time t[n], centre x[n], velocity v[n], radius r[n],
-    solo bit of flags[n]) into slot slots[n], unless that place holds a newer tick."""
+def _store(table, slots, states):
+    """Write state ``n`` of ``states`` = (t, k, x, v, r, flags): tick k[n], time t[n] [s],
+    centre x[n] [m, world], velocity v[n] [m/s, world], radius r[n] [m], solo bit of
+    flags[n]) into slot slots[n] of ``table`` (:meth:`_Slots.fields`), unless that place
+    holds a newer tick."""
+    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_latest, _ = table
+    t, k, x, v, r, flags = states
     h = sl_k.shape[1]
     for n in range(slots.shape[0]):
         i, kk = slots[n], k[n]
@@ -119,11 +123,12 @@ def _newest(sl_k, i, k_max):
 
 
 @njit(cache=True)
-def _rows(sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_gone, slots, k_max, t_now, lost, out, kept):
-    """The rows of ``slots`` at sim time ``t_now`` [s] (see NeighbourTable.arrays) into
-    ``out`` (OBSTACLE); kept[n]: slot n made a row. ``lost``: the table's
-    (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep them stopped 0.0).
-    Returns the number of rows."""
+def _rows(table, slots, k_max, t_now, lost, out, kept):
+    """The rows of ``slots`` of ``table`` (:meth:`_Slots.fields`) at sim time ``t_now`` [s]
+    (see NeighbourTable.arrays) into ``out`` (OBSTACLE); kept[n]: slot n made a row.
+    ``lost``: the table's (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep
+    them stopped 0.0). Returns the number of rows."""
+    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, _, sl_gone = table
     timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
     m = 0
     for n in range(slots.shape[0]):
@@ -209,9 +214,9 @@ class NeighbourTable:
         s.latest[i] = max(s.latest[i], k)
 
     def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
-        """Every checked :data:`swarm.statewire.STATE` record of ``records`` whose sender is
+        """Every checked :data:`swarm.net.statewire.STATE` record of ``records`` whose sender is
         one of ``known``; any other is dropped and counted on ``counter``
-        (:class:`swarm.transport.Counter`). One compiled call writes them all."""
+        (:class:`swarm.net.transport.Counter`). One compiled call writes them all."""
         slots, keep = [], []
         for n, src in enumerate(records["src"].tolist()):
             name = src.decode()
@@ -223,11 +228,8 @@ class NeighbourTable:
         if not slots:
             return
         rec = records if len(keep) == len(records) else records[keep]
-        s = self.s
-        _store(
-            s.k, s.t, s.x, s.v, s.r, s.solo, s.latest, np.array(slots, dtype=np.int64),
-            rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"],
-        )  # fmt: skip
+        states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
+        _store(self.s.fields(), np.array(slots, dtype=np.int64), states)
 
     def mark_gone(self, name: str) -> None:
         self.gone.add(name)
@@ -281,12 +283,11 @@ class NeighbourTable:
         if not slots:
             self.row_names = []
             return ObstacleArrays.empty()
-        s = self.s
         sel = np.array(slots, dtype=np.int64)
         out = np.empty(len(slots), dtype=OBSTACLE)
         kept = np.empty(len(slots), dtype=np.bool_)
         k = _ANY_TICK if k_max is None else k_max
-        m = _rows(s.k, s.t, s.x, s.v, s.r, s.solo, s.gone, sel, k, t_now, self._lost, out, kept)
+        m = _rows(self.s.fields(), sel, k, t_now, self._lost, out, kept)
         self.row_names = [self.names[i] for i, ok in zip(slots, kept.tolist(), strict=True) if ok]
         if m == 0:
             return ObstacleArrays.empty()

@@ -9,8 +9,8 @@ import numpy as np
 from numba import njit
 
 from swarm.config import ObstacleConfig
-from swarm.obstacles import ObstacleArrays
 from swarm.rotation import FloatArray
+from swarm.safety.obstacles import ObstacleArrays
 
 
 def obstacle_items(obstacles: list[ObstacleConfig], t_s: float) -> list[dict]:
@@ -26,7 +26,7 @@ def obstacle_items(obstacles: list[ObstacleConfig], t_s: float) -> list[dict]:
 
 
 def items_to_arrays(items: list[dict]) -> ObstacleArrays:
-    """Obstacle arrays of message items (already checked by :func:`swarm.messages.decode`:
+    """Obstacle arrays of message items (already checked by :func:`swarm.net.messages.decode`:
     finite, radius >= 0; axes are unit or zero as the world sends them)."""
     if not items:
         return ObstacleArrays.empty()
@@ -82,8 +82,8 @@ class SwapSettings:
     sensing_radius_m: float = 2.5
     duration_s: float | None = None  # default: 2.5 x the longest straight path / speed + 5 s
     # 1/s and m/s: the filter's class-K gain and velocity buffer (the default buffer, written out).
-    # Twice the paper's gain takes crowds from rest to their goals sooner (every sphere swap of
-    # the liveness benchmark) with about as many least-violation ticks (EXPERIMENTS.md section 4)
+    # Twice the paper's gain takes crowds from rest to their goals sooner with about as many
+    # least-violation ticks (EXPERIMENTS.md section 4)
     gamma: float = 2.0
     buffer_mps: float = 0.1
 

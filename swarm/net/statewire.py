@@ -27,7 +27,7 @@ from numba import njit
 
 from swarm.errors import DecodeError
 
-VERSION = 8  # the message schema version (swarm.messages.VERSION) these records belong to
+VERSION = 8  # the message schema version (swarm.net.messages.VERSION) these records belong to
 STATE_MAGIC = b"C3S"
 BUNDLE_MAGIC = b"C3B"
 ID_BYTES = 32  # agent ids are at most 32 ASCII characters (swarm.config)
@@ -63,7 +63,7 @@ _STATE_PACK = struct.Struct("<3sBIQQqd3d3dd32s")
 _BUNDLE_PACK = struct.Struct("<3sBIQQqd32s")
 _ID = re.compile(rb"[A-Za-z0-9_-]{1,32}")
 if _STATE_PACK.size != STATE.itemsize or _BUNDLE_PACK.size != BUNDLE.itemsize:  # pragma: no cover
-    raise ImportError("swarm.statewire: record layouts disagree")
+    raise ImportError("swarm.net.statewire: record layouts disagree")
 
 
 @lru_cache(maxsize=64)

@@ -1,4 +1,6 @@
-"""Collision-cone barriers (docs/design.md, "The barrier math"), compiled with numba, one loop over rows.
+"""Collision-cone barriers, compiled with numba, one loop over rows. What each row kind
+guarantees and why each liveness part exists: docs/design.md, "The barrier math"; the
+formulas here.
 
 A row is an obstacle seen from the agent: ``p`` the relative position obstacle centre
 minus agent body centre [m, world], ``w = p'`` [m/s, world], ``r`` the full safety
@@ -78,8 +80,7 @@ for every state, and at ``h = 0`` the row is unchanged (``h' >= 0``): the set ``
 stays forward invariant. What it gives up is the rate ``h' + gamma h >= 0`` for far pairs
 that would not meet within ``FAR_GAIN_CONTACT_S`` (half the extra gain at twice that time,
 all of it for a pair that is not closing); a pair that would meet within
-``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain
-(EXPERIMENTS.md section 4).
+``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain.
 
 **Horizon allowance** (live rows, opt-in: ``filter.horizon_s = tau``). The cone forbids a
 collision course however far away the contact is; ORCA truncates its velocity obstacles
@@ -94,9 +95,7 @@ allowance shrinks to 0 at contact. It is still collision-free: with ``S = |p|^2 
 ``h_tau >= 0`` gives ``S' = 2 <p, w> >= -2 |w| sqrt(S) - S / tau``, so S, like the cone's,
 can at most reach 0, where ``h_tau = <p, w> >= 0`` (no approach): the same boundary as
 the cone's grazing contact. Its w-gradient is the cone's, so a row still asks to turn
-off the collision course rather than to brake. Measured (EXPERIMENTS.md, section 4): at
-``tau = 2 s`` crowded swaps reach their goals far sooner, but with several times more
-infeasible ticks; it is not the default.
+off the collision course rather than to brake.
 
 **Contact horizon** (live neighbour rows, opt-in: ``filter.contact_s = T``). The cone
 also forbids a collision course however slowly it closes: a crowd at rest converging on a
@@ -118,15 +117,14 @@ plus rho's own gradient, ``dS = (g / S) dt_c`` with ``g = rho r (1 - k) psi'`` a
 away. It is still collision-free: a pair closing at the safety radius has ``t_c = 0``,
 hence ``rho = r`` and ``h_T = h``, and ``h_T >= 0`` there asks ``<p, w> >= 0`` as the cone
 does. What it lets through, like ORCA's time horizon, is a slow approach, never a fast
-one; obstacles keep the cone (``nb`` rows only). Measured in EXPERIMENTS.md, section 4.
+one; obstacles keep the cone (``nb`` rows only).
 
 **Free braking** (live neighbour rows, on by default: ``filter.free_braking``). The cone's
 ``h = |w| (<p, u> + s)``, ``u = w/|w|``, is the relative speed times an angular margin, so
 braking a relative velocity without turning it lowers h in proportion: ``h' + gamma k h >= 0``
 lets a relative speed decay no faster than ``exp(-gamma k t)`` (with ``rho < 1`` the agent's
-share of that). An agent whose reference brakes a drift, past neighbours well outside their
-cones, is held drifting: in the densest sphere swap at ``rho = 0.5`` one overshot its goal and
-was held drifting away from it. Any positive scaling of a barrier is a barrier with the same
+share of that): an agent whose reference brakes a drift, past neighbours well outside their
+cones, is held drifting. Any positive scaling of a barrier is a barrier with the same
 safe set, so a row may be the condition of
 
     B = h / |w|^lambda,   0 <= lambda <= 1   (|w| > 0)                         (4)
@@ -140,12 +138,11 @@ invariant with lambda chosen per tick; for ``h > 0`` it asks ``h' >= -(gamma k -
 A row takes ``lambda = max(0, min(1, 1 - v_c / BRAKE_CLOSING_MPS))`` (``v_c = -<p, w>/|p|`` the
 closing speed) where its reference's relative acceleration brakes (``<w, a_ref> < 0``), it is
 a neighbour's, outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair
-closing fast keeps the paper's row: there braking is what the cone must price (measured:
-rescaling those rows too gave crowds that met at speed more least-violation ticks). The
+closing fast keeps the paper's row: there braking is what the cone must price. The
 lambda of a row is held for the tick. A tick whose braking carries ``w`` through zero (the
 plain row would have capped the braking near ``gamma |w|``) leaves ``h >= -|w+| (|p| - s)``,
 ``w+`` the relative velocity after it, no larger than the tick's change of velocity; the next
-tick's recovery (``RATE``) takes that back. Measured in EXPERIMENTS.md, section 4.
+tick's recovery (``RATE``) takes that back.
 """
 
 from __future__ import annotations
@@ -189,9 +186,7 @@ FAR_GAIN_RADII = 2.0
 (:func:`far_gain`) [unit-free]."""
 FAR_GAIN_CONTACT_S = 1.0
 """... times ``1 - FAR_GAIN_CONTACT_S / (time to contact)``: none for a pair that would meet
-within this [s], all of it for one that is not closing. (2 s until the tie-break turned
-rather than sped up; with it, 1 s has no more least-violation ticks and faster crowds:
-EXPERIMENTS.md section 4.)"""
+within this [s], all of it for one that is not closing."""
 
 LIVE_W_LO_MPS = 0.005
 """Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
@@ -227,44 +222,49 @@ ROW_PARAMS = np.dtype(
 its fields by name; a structured array passes into a kernel as fast as a plain one)."""
 
 
-def row_params(
-    kind: BarrierKind = BarrierKind.C3BF,
-    *,
-    gamma: float = 1.0,
-    rho: float = 1.0,
-    r_own_m: float = 0.0,
-    eps: float = 1e-3,
-    gamma_ho: float = 1.0,
-    escape_speed: float = 0.3,
-    live: bool = False,
-    w_lo_mps: float = LIVE_W_LO_MPS,
-    w_hi_mps: float = LIVE_W_HI_MPS,
-    horizon_s: float | None = None,
-    buffer_mps: float = 0.0,
-    contact_s: float = 0.0,
-    free_braking: bool = False,
-) -> np.ndarray:
-    """A (1,) :data:`ROW_PARAMS` array; ``kind`` defaults to C3BF. ``live`` applies to
-    C3BF rows only, ``horizon_s`` (the horizon allowance's time [s], None: none) to live
-    rows, ``contact_s`` (the contact horizon [s], 0: none) and ``free_braking`` to live
-    neighbour rows."""
+@dataclass(frozen=True)
+class RowSettings:
+    """What every row of one filter shares: the filter's settings in the rows' terms.
+    ``live`` applies to C3BF rows only; ``horizon_s``, ``buffer_mps`` to live rows;
+    ``contact_s`` and ``free_braking`` to live neighbour rows."""
+
+    gamma: float = 1.0  # class-K gain [1/s]
+    rho: float = 1.0  # responsibility share of neighbour rows, (0, 1]
+    r_own_m: float = 0.0  # added to each obstacle's radius [m]: the agent's bounding radius and margin
+    eps: float = 1e-3  # smoothing of |w| [m/s] (paper rows)
+    gamma_ho: float = 1.0  # HO-CBF gain [m/s]
+    escape_speed: float = 0.3  # separation speed asked inside a safety radius [m/s]
+    live: bool = False  # C3BF rows are live rows ("Live rows")
+    w_lo_mps: float = LIVE_W_LO_MPS  # live rows: below this relative speed [m/s] the target alone
+    w_hi_mps: float = LIVE_W_HI_MPS  # live rows: from this relative speed [m/s] the exact C3BF row
+    horizon_s: float | None = None  # live rows: the horizon allowance's time [s] (None: none)
+    buffer_mps: float = 0.0  # live rows: the velocity buffer [m/s] (0: none)
+    contact_s: float = 0.0  # live neighbour rows: the contact horizon [s] (0: none)
+    free_braking: bool = False  # live neighbour rows: free braking
+
+
+def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | None = None) -> np.ndarray:
+    """``settings`` (default :class:`RowSettings`) for rows of ``kind`` as the (1,)
+    :data:`ROW_PARAMS` array the kernels take."""
     kind = BarrierKind(kind)
+    st = settings or RowSettings()
+    live = st.live and kind is BarrierKind.C3BF
     out = np.zeros(1, dtype=ROW_PARAMS)
     out[0] = (
         kind.code,
-        gamma,
-        rho,
-        r_own_m,
-        eps,
-        gamma_ho,
-        escape_speed,
-        live and kind is BarrierKind.C3BF,
-        w_lo_mps,
-        w_hi_mps,
-        0.0 if horizon_s is None else 1.0 / horizon_s,
-        buffer_mps if live and kind is BarrierKind.C3BF else 0.0,
-        contact_s if live and kind is BarrierKind.C3BF else 0.0,
-        free_braking and live and kind is BarrierKind.C3BF,
+        st.gamma,
+        st.rho,
+        st.r_own_m,
+        st.eps,
+        st.gamma_ho,
+        st.escape_speed,
+        live,
+        st.w_lo_mps,
+        st.w_hi_mps,
+        0.0 if st.horizon_s is None else 1.0 / st.horizon_s,
+        st.buffer_mps if live else 0.0,
+        st.contact_s if live else 0.0,
+        st.free_braking and live,
     )
     return out
 
@@ -593,37 +593,21 @@ def evaluate(
     r: FloatArray,
     axis_w: FloatArray | None = None,
     *,
-    eps: float = 1e-3,
-    gamma_ho: float = 1.0,
-    escape_speed: float = 0.3,
-    live: bool = False,
+    settings: RowSettings | None = None,
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
-    horizon_s: float | None = None,
-    contact_s: float = 0.0,
-    free_braking: bool = False,
 ) -> BarrierRows:
-    """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3). ``axis_w`` (n, 3) holds unit
-    cylinder axes (zero rows for spheres); ``None`` means all spheres. With ``live`` the
-    C3BF rows are live rows for the reference relative accelerations ``a_ref`` (n, 3)
-    [m/s^2, world] (``None``: no reference) and the neighbour flags ``is_neighbour`` (n,),
-    with the horizon allowance of ``horizon_s`` [s] (None: none), the contact horizon
-    ``contact_s`` [s] (0: none) and free braking (``free_braking``)."""
+    """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3) with ``settings`` (default
+    :class:`RowSettings`). ``axis_w`` (n, 3) holds unit cylinder axes (zero rows for
+    spheres); ``None`` means all spheres. Live C3BF rows take the reference relative
+    accelerations ``a_ref`` (n, 3) [m/s^2, world] (``None``: no reference) and the
+    neighbour flags ``is_neighbour`` (n,)."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
-    params = row_params(
-        kind,
-        eps=eps,
-        gamma_ho=gamma_ho,
-        escape_speed=escape_speed,
-        live=live,
-        horizon_s=horizon_s,
-        contact_s=contact_s,
-        free_braking=free_braking,
-    )
+    params = row_params(kind, settings)
     Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
     return BarrierRows(Y_used, coef, inside)
 
@@ -634,10 +618,15 @@ def evaluate_pw(
     w: FloatArray,
     r: FloatArray,
     axis_w: FloatArray | None = None,
-    **kw: Any,
+    *,
+    a_ref: FloatArray | None = None,
+    is_neighbour: BoolArray | None = None,
+    **settings: Any,
 ) -> BarrierRows:
-    """:func:`evaluate` for separate ``p`` and ``w`` (n, 3)."""
-    return evaluate(kind, np.stack([p, w], axis=1), r, axis_w, **kw)
+    """:func:`evaluate` for separate ``p`` and ``w`` (n, 3), with the fields of
+    :class:`RowSettings` given by name."""
+    Y = np.stack([p, w], axis=1)
+    return evaluate(kind, Y, r, axis_w, settings=RowSettings(**settings), a_ref=a_ref, is_neighbour=is_neighbour)
 
 
 def cone_h(

@@ -15,7 +15,7 @@ import osqp
 import scipy.sparse as sp
 
 from swarm.errors import InputError
-from swarm.qp.problem import QPProblem, QPSolution, QPStatus
+from swarm.safety.qp.problem import QPProblem, QPSolution, QPStatus
 
 _INF = 1e30
 ACCEPT_VIOLATION = 1e-7

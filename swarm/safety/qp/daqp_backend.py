@@ -8,7 +8,7 @@ import time
 import daqp
 import numpy as np
 
-from swarm.qp.problem import QPProblem, QPSolution, QPStatus
+from swarm.safety.qp.problem import QPProblem, QPSolution, QPStatus
 
 
 class DaqpBackend:

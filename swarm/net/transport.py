@@ -1,9 +1,12 @@
 """Zenoh wiring: session configs, key expressions, and draining channels once per tick.
 
-The only module of ``swarm/`` that imports zenoh. Subscribers use FIFO channel handlers,
-never Python callbacks (a process with a callback subscriber can hang in
-``session.close()`` or at exit); processes drain what arrived once per tick with
-:func:`drain`, and every blocking wait has a deadline.
+The only module of ``swarm/`` that imports zenoh. Subscribers come in two kinds: FIFO
+channel handlers (:func:`open_channel`, drained once per tick with :func:`drain`), and the
+:class:`Inbox`, whose callback, run by Zenoh's receive thread, only enqueues each sample so
+that a wait wakes as soon as enough have arrived. A process with a callback subscriber can
+hang in ``session.close()`` or at interpreter exit, so the processes that own an Inbox (the
+world, the agents, the router, the recorder) end with ``os._exit`` and never close their
+session. Every blocking wait has a deadline.
 """
 
 from __future__ import annotations
@@ -21,8 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from swarm import access
-from swarm.messages import DecodeError, Message, decode
+from swarm.net import access
+from swarm.net.messages import DecodeError, Message, decode
 
 if TYPE_CHECKING:
     from swarm.config import ScenarioConfig
@@ -74,7 +77,7 @@ class Keys:
         return f"{self.root}/router/bundle/{agent_id}"
 
     def cell_state(self, cell: tuple[int, int, int], agent_id: str) -> str:
-        """An agent's state, published under the cell of its body centre (swarm.cells)."""
+        """An agent's state, published under the cell of its body centre (swarm.net.cells)."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/{agent_id}"
 
     def cell(self, cell: tuple[int, int, int]) -> str:
@@ -126,7 +129,7 @@ def session_config(
         # of two peers that gossip told about each other, only the one with the greater id
         # opens their link. Zenoh's default (both open it) makes a duplicate link, which with
         # user-password authentication is refused, now and then leaving the pair unlinked
-        # (eclipse-zenoh/zenoh#2577; measured: 3 of 60 pairs unlinked, 0 of 80 with this)
+        # (eclipse-zenoh/zenoh#2577)
         strategy = {"peer": {"to_router": "always", "to_peer": "greater-zid"}}
         conf.insert_json5("scouting/gossip/autoconnect_strategy", json.dumps(strategy))
     if lowlatency:
@@ -165,7 +168,7 @@ def star_hubs(cfg: ScenarioConfig) -> tuple[Role, ...]:
 
 @dataclass(frozen=True)
 class Access:
-    """The credentials one process of a run uses (:mod:`swarm.access`): its user name,
+    """The credentials one process of a run uses (:mod:`swarm.net.access`): its user name,
     the run's secrets folder, and what the access-control rules need to know."""
 
     run: str
@@ -329,7 +332,7 @@ def payload(sample: Any) -> bytes:
 def decode_sample(
     sample: Any, run: str, counter: Counter, kinds: tuple[str, ...] | None = None, fields: tuple[str, ...] | None = None
 ) -> Message | None:
-    """Decode a sample (its ``fields`` only, if given: :func:`swarm.messages.decode`) or
+    """Decode a sample (its ``fields`` only, if given: :func:`swarm.net.messages.decode`) or
     drop and count it."""
     data = payload(sample)
     counter.rx_bytes += len(data)
@@ -359,8 +362,7 @@ class Inbox:
         self._want = _NEVER  # wake wait_for when the queue holds this many samples (a wait for several)
         self._enough = threading.Event()
         # indirect=False: Zenoh's receive thread runs the callback itself, instead of handing
-        # each sample to a Python thread of its own first (one thread wake-up less per sample;
-        # measured on 16 agents: the recorder's context switches per tick 75 -> 52)
+        # each sample to a Python thread of its own first (one thread wake-up less per sample)
         self._session = session
         self.subs: dict[str, Any] = {}
         for key in [keys] if isinstance(keys, str) else keys:

@@ -20,7 +20,7 @@ A planar scenario stays planar (the disc model ORCA's papers and the 2-D benchma
 although RVO2-3D could also fly it with altitude changes.
 
 The run writes the same records a real run would (measurements, agent states with the
-per-agent solve time, collisions, a final status), so ``swarm.metrics.compute`` gives
+per-agent solve time, collisions, a final status), so ``swarm.offline.metrics.compute`` gives
 exactly the same metrics, into ``metrics.json`` of the run folder.
 """
 
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from swarm.config import AgentConfig, ScenarioConfig, dump
-from swarm.metrics import compute
+from swarm.offline.metrics import compute
 from swarm.rotation import FloatArray
 
 

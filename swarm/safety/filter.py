@@ -4,7 +4,7 @@
                                        u in the input set of the command level
 
 Inputs ``u``: rotor thrusts ``f`` (4,) [N] at the rotor level; thrust vector ``F`` (3,)
-[N, world] at the attitude level. The live rows' buffered form (``swarm.rows``, "Velocity
+[N, world] at the attitude level. The live rows' buffered form (``swarm.safety.constraints``, "Velocity
 buffer") is tried first and the rows themselves only if it cannot all hold; when the rows
 cannot all hold either, the least-violation QP with one slack per row (quadratic penalty)
 is solved instead and the tick is flagged.
@@ -16,11 +16,11 @@ import math
 import time
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from swarm.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, row_params
 from swarm.errors import InputError
 from swarm.model import (
     Q_NORM2_MAX,
@@ -36,10 +36,11 @@ from swarm.model import (
     state_check,
     thrust_vector_input_set,
 )
-from swarm.obstacles import ObstacleArrays
-from swarm.qp import QPProblem, QPSolution, QPStatus, make_backend
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.rows import OwnDynamics, Rows, assemble_with, own_affine, rows_kernel
+from swarm.safety.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, RowSettings, row_params
+from swarm.safety.constraints import OwnDynamics, Rows, assemble_with, own_affine, rows_kernel
+from swarm.safety.obstacles import ObstacleArrays
+from swarm.safety.qp import QPProblem, QPSolution, QPStatus, make_backend
 
 DEFAULT_BACKEND = "daqp"
 """Chosen by ``tools/bench_filter.py``: daqp is exact and several times faster here."""
@@ -84,7 +85,7 @@ FILTER_PARAMS = np.dtype(
 @njit(cache=True)
 def _select(obs, x, r2, max_rows):
     """(indices of the rows, ascending; number of non-neighbours) of the obstacles ``obs``
-    (:data:`swarm.obstacles.OBSTACLE`): every non-neighbour, and the neighbours with
+    (:data:`swarm.safety.obstacles.OBSTACLE`): every non-neighbour, and the neighbours with
     ``|c - x|^2 <= r2``, nearest first (stable) while fewer than ``max_rows`` rows. The
     caller raises when the non-neighbours alone are too many."""
     n = obs.shape[0]
@@ -114,7 +115,7 @@ def _select(obs, x, r2, max_rows):
 @njit(cache=True)
 def _floor_row(af, fp, C_row, d, j, z, vz, q, ub):
     """Fill the floor row ``C_row u <= d[j]`` (see ``FilterConfig.floor_z_m``; ``fp`` a
-    :data:`FILTER_PARAMS` record, ``af`` a :data:`swarm.rows.AIRFRAME` record) for the
+    :data:`FILTER_PARAMS` record, ``af`` a :data:`swarm.safety.constraints.AIRFRAME` record) for the
     centre-of-mass height ``z`` [m] and vertical speed ``vz`` [m/s]: ``-F_z <= -need`` at
     the attitude level, ``-R33 sum f <= -need`` at the rotor level (no row when upside
     down or on edge, ``R33 < 0.1``); ``need`` is capped at 95 % of what the inputs give."""
@@ -138,20 +139,43 @@ def _floor_row(af, fp, C_row, d, j, z, vz, q, ub):
 _BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
 
 
+class Prepared(NamedTuple):
+    """What :func:`_prepare` hands back: ``bad`` (a ``_BAD_*`` code), ``fixed`` (as
+    :func:`_select` gives it), ``idx`` (the obstacles that got a row), and the rows'
+    arrays as :func:`swarm.safety.constraints.rows_kernel` returns them."""
+
+    bad: int
+    fixed: int
+    idx: IntArray
+    Y: FloatArray
+    coef: FloatArray
+    inside: BoolArray
+    Lf: FloatArray
+    A: FloatArray
+    b_all: FloatArray
+    c_ref: FloatArray
+    ref_ok: bool
+    any_inside: bool
+    tight: FloatArray
+
+
 @njit(cache=True)
-def _prepare(check, x, v, q, Om, u_ref, obs, air, params, fparams, lb, ub, C, d):
-    """One filter call's work before the QP, in one compiled call, for the state ``x``
-    [m], ``v`` [m/s], ``q`` (scalar-last), ``Om`` [rad/s, body], the reference ``u_ref``,
-    the obstacles ``obs`` (an (n,) :data:`swarm.obstacles.OBSTACLE` array), the (1,)
-    settings arrays ``air`` (:data:`swarm.rows.AIRFRAME`), ``params``
-    (:data:`swarm.barriers.ROW_PARAMS`) and ``fparams`` (:data:`FILTER_PARAMS`), and the
-    input set ``lb <= u <= ub``, ``C u <= d`` (the floor row, when on, is its last row,
-    refilled here). With ``check`` the state's finiteness, shapes and quaternion norm and
+def _prepare(check, state, u_ref, obs, settings, inputs):
+    """One filter call's work before the QP, in one compiled call, for ``state`` = (``x``
+    [m], ``v`` [m/s], ``q`` (scalar-last), ``Om`` [rad/s, body]), the reference ``u_ref``,
+    the obstacles ``obs`` (an (n,) :data:`swarm.safety.obstacles.OBSTACLE` array),
+    ``settings`` = the (1,) arrays (``air``: :data:`swarm.safety.constraints.AIRFRAME`,
+    ``params``: :data:`swarm.safety.barriers.ROW_PARAMS`, ``fparams``:
+    :data:`FILTER_PARAMS`) and ``inputs`` = the input set (``lb``, ``ub``, ``C``, ``d``:
+    ``lb <= u <= ub``, ``C u <= d``; the floor row, when on, is its last row, refilled
+    here). With ``check`` the state's finiteness, shapes and quaternion norm and
     ``u_ref``'s finiteness (a failure returns its ``_BAD_*`` code at once; the caller
     raises the named error) and the quaternion normalised; then :func:`_select`, the
-    floor row, the own dynamics (:func:`swarm.rows.own_affine`) and
-    :func:`swarm.rows.rows_kernel` at ``u_ref``. Returns (bad, fixed, idx, Y, coef,
-    inside, Lf, A, b_all, c_ref, ref_ok, any_inside); ``fixed`` as :func:`_select` gives it."""
+    floor row, the own dynamics (:func:`swarm.safety.constraints.own_affine`) and
+    :func:`swarm.safety.constraints.rows_kernel` at ``u_ref``. Returns a :class:`Prepared`."""
+    x, v, q, Om = state
+    air, params, fparams = settings
+    lb, ub, C, d = inputs
     fp = fparams[0]
     m = lb.shape[0]
     qn = np.empty(4)
@@ -172,7 +196,7 @@ def _prepare(check, x, v, q, Om, u_ref, obs, air, params, fparams, lb, ub, C, d)
             bad = _BAD_UREF
         if bad != 0:
             z1 = np.zeros(0)
-            return (
+            return Prepared(
                 bad,
                 0,
                 np.zeros(0, dtype=np.intp),
@@ -195,7 +219,17 @@ def _prepare(check, x, v, q, Om, u_ref, obs, air, params, fparams, lb, ub, C, d)
     Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
-    return 0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight
+    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight)
+
+
+@dataclass(slots=True)
+class _Call:
+    """One filter call's rows, for the result of whichever QP decides it."""
+
+    t0: float  # perf_counter at the call's start [s]
+    idx: IntArray  # (n,) the obstacles that got a row
+    rows: Rows
+    ins: LinearInputSet  # the input set the call used (with the floor row, when on)
 
 
 def _is_vector(a: object) -> bool:
@@ -233,7 +267,7 @@ class FilterConfig:
     rho: float = 1.0
     """Responsibility share of neighbour rows, in (0, 1]: the agent's share of a pair's
     relative drift and, inside the cone, of its recovery; outside the cone each agent keeps
-    its row's whole allowance ``gamma h`` (``swarm.rows``, "Responsibility share"). 1: the
+    its row's whole allowance ``gamma h`` (``swarm.safety.constraints``, "Responsibility share"). 1: the
     whole condition, as if the neighbour did nothing; 0.5: reciprocal, each pair then asks
     ``h' + 2 gamma h >= 0`` outside its cone between its two agents."""
     sensing_radius_m: float = 3.0
@@ -241,7 +275,7 @@ class FilterConfig:
     margin_m: float = 0.02
     """Extra clearance [m] added to every safety radius."""
     eps_w_mps: float = 1e-3
-    """Smoothing of ``|w|`` [m/s] (``swarm.barriers``)."""
+    """Smoothing of ``|w|`` [m/s] (``swarm.safety.barriers``)."""
     escape_speed_mps: float = 0.3
     """Separation speed asked of rows already inside their radius."""
     slack_weight: float = 1e6
@@ -254,7 +288,7 @@ class FilterConfig:
     one more input row: ``F_z`` at the attitude level, ``R33 sum f`` at the rotor level."""
     floor_gain_per_s: float = 2.0
     live: bool = True
-    """C3BF only: live rows (``swarm.barriers``, "Live rows"), which let a swarm at rest
+    """C3BF only: live rows (``swarm.safety.barriers``, "Live rows"), which let a swarm at rest
     move where the cone allows, or False for the paper's smoothed rows, which freeze at
     zero relative velocity. The live rows are the exact C3BF rows from ``live_hi_mps``."""
     live_lo_mps: float = LIVE_W_LO_MPS
@@ -262,24 +296,24 @@ class FilterConfig:
     live_hi_mps: float = LIVE_W_HI_MPS
     """Relative speed [m/s] from which a live row is the exact C3BF row."""
     buffer_mps: float = 0.1
-    """Live rows: the velocity buffer ``b`` [m/s] (``swarm.rows``, "Velocity buffer"): the
+    """Live rows: the velocity buffer ``b`` [m/s] (``swarm.safety.constraints``, "Velocity buffer"): the
     QP is first solved with every live row asking ``h' + g k h >= g v |dh/dw|`` (``g k`` its
     class-K gain, ``v = min(b, 0.1 |w|)``), which keeps the relative velocity about ``v``
     outside its cone, and with the rows themselves only if those cannot all hold. 0: the
     rows alone."""
     contact_s: float = 0.0
-    """Live neighbour rows: the contact horizon ``T`` [s] (``swarm.barriers``, "Contact
+    """Live neighbour rows: the contact horizon ``T`` [s] (``swarm.safety.barriers``, "Contact
     horizon"): a neighbour row whose time to contact exceeds ``T`` relaxes its radius,
     to a tenth of it from ``2 T``, so a slow approach is not held as hard as a fast one.
     0: none."""
     free_braking: bool = True
-    """Live neighbour rows: free braking (``swarm.barriers``, "Free braking"): where the
+    """Live neighbour rows: free braking (``swarm.safety.barriers``, "Free braking"): where the
     reference brakes a relative velocity, outside the cone and not closing fast, the row
     is the condition of ``h / |w|^lambda`` (``lambda`` up to 1, fading with the closing
     speed), which leaves braking free, rather than of h."""
     horizon_s: float | None = None
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
-    ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.barriers``, "Horizon
+    ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.safety.barriers``, "Horizon
     allowance"), or None: the cone alone (the default)."""
 
     def __post_init__(self) -> None:
@@ -373,19 +407,21 @@ class SafetyFilter:
         self._own = OwnDynamics(cfg.level, model)
         self._params = row_params(
             cfg.kind,
-            gamma=cfg.gamma,
-            rho=cfg.rho,
-            r_own_m=self.r_own_m,
-            eps=cfg.eps_w_mps,
-            gamma_ho=cfg.gamma_ho,
-            escape_speed=cfg.escape_speed_mps,
-            live=cfg.live,
-            w_lo_mps=cfg.live_lo_mps,
-            w_hi_mps=cfg.live_hi_mps,
-            horizon_s=cfg.horizon_s,
-            buffer_mps=cfg.buffer_mps,
-            contact_s=cfg.contact_s,
-            free_braking=cfg.free_braking,
+            RowSettings(
+                gamma=cfg.gamma,
+                rho=cfg.rho,
+                r_own_m=self.r_own_m,
+                eps=cfg.eps_w_mps,
+                gamma_ho=cfg.gamma_ho,
+                escape_speed=cfg.escape_speed_mps,
+                live=cfg.live,
+                w_lo_mps=cfg.live_lo_mps,
+                w_hi_mps=cfg.live_hi_mps,
+                horizon_s=cfg.horizon_s,
+                buffer_mps=cfg.buffer_mps,
+                contact_s=cfg.contact_s,
+                free_braking=cfg.free_braking,
+            ),
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
         self._fparams[0] = (
@@ -395,6 +431,7 @@ class SafetyFilter:
             cfg.floor_z_m or 0.0,
             cfg.floor_gain_per_s,
         )
+        self._kernel_settings = (self._own.air, self._params, self._fparams)  # _prepare's settings
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
@@ -437,50 +474,51 @@ class SafetyFilter:
             state = state.validated()  # not float64 vectors: checked and converted, or the field named
             u_ref = check_finite("u_ref", u_ref, (m,))
         ins = self.input_set if cfg.floor_z_m is None else self._floor_set
-        bad, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = _prepare(
+        prep = _prepare(
             validate,
-            state.x_w,
-            state.v_w,
-            state.q,
-            state.Omega_b,
+            (state.x_w, state.v_w, state.q, state.Omega_b),
             u_ref,
             obstacles.rec,
-            self._own.air,
-            self._params,
-            self._fparams,
-            ins.lb,
-            ins.ub,
-            ins.C,
-            ins.d,
+            self._kernel_settings,
+            (ins.lb, ins.ub, ins.C, ins.d),
         )
-        if bad != _BAD_NONE:  # the same checks as _prepare's, in Python: one of them raises, naming the field
+        if prep.bad != _BAD_NONE:  # the same checks as _prepare's, in Python: one of them raises, naming the field
             state.validated()
             check_finite("u_ref", u_ref, (m,))
-        if fixed > cfg.max_rows:
-            raise InputError(f"obstacles: {fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
+        if prep.fixed > cfg.max_rows:
+            raise InputError(f"obstacles: {prep.fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
         rows = Rows(
-            BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), ins.d.size, bool(any_inside), tight
+            BarrierRows(prep.Y, prep.coef, prep.inside),
+            prep.Lf,
+            prep.A,
+            prep.b_all,
+            prep.c_ref,
+            bool(prep.ref_ok),
+            ins.d.size,
+            bool(prep.any_inside),
+            prep.tight,
         )
+        call = _Call(t0, prep.idx, rows, ins)
         G, b = rows.G, rows.b  # barrier rows as G u <= b
         n = b.shape[0]
         zeros = np.zeros(n)
 
         # Fast path: the reference already satisfies everything (the buffered rows included).
         if rows.ref_ok:
-            return self._result(u_ref, u_ref, FilterStatus.OK, idx, rows, zeros, t0, G, b, (rows.c_ref, 0.0), ins, True)
+            return self._result(call, u_ref, u_ref, FilterStatus.OK, zeros, residuals=(rows.c_ref, 0.0), buffered=True)
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
         status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
-        has_buffer = bool(tight.any())
+        has_buffer = bool(rows.buffer.any())
         if has_buffer:  # the buffered rows first; the rows themselves only if those cannot all hold
             bt = bb.copy()
-            bt[ins.d.size :] -= tight
+            bt[ins.d.size :] -= rows.buffer
             sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bt))
             if sol.status is QPStatus.OPTIMAL:
-                return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=True)
+                return self._result(call, sol.x, u_ref, status, zeros, buffered=True)
         sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb))  # rows from the kernel
         if sol.status is QPStatus.OPTIMAL:
-            return self._result(sol.x, u_ref, status, idx, rows, zeros, t0, G, b, ins=ins, buffered=not has_buffer)
+            return self._result(call, sol.x, u_ref, status, zeros, buffered=not has_buffer)
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
         m = self.m
@@ -493,9 +531,9 @@ class SafetyFilter:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)
             st = FilterStatus.COLLISION if rows.any_inside else FilterStatus.INFEASIBLE
-            return self._result(u, u_ref, st, idx, rows, slack, t0, G, b, ins=ins)
+            return self._result(call, u, u_ref, st, slack)
         u = np.clip(u_ref, ins.lb, ins.ub)
-        return self._result(u, u_ref, FilterStatus.FAILED, idx, rows, np.maximum(G @ u - b, 0.0), t0, G, b, ins=ins)
+        return self._result(call, u, u_ref, FilterStatus.FAILED, np.maximum(G @ u - b, 0.0))
 
     def _solve(self, problem: QPProblem) -> QPSolution:
         """The QP by the configured backend, retried once by daqp if it failed numerically."""
@@ -529,36 +567,35 @@ class SafetyFilter:
 
     def _result(
         self,
+        call: _Call,
         u: FloatArray,
         u_ref: FloatArray,
         status: FilterStatus,
-        idx: IntArray,
-        rows: Rows,
         slack: FloatArray,
-        t0: float,
-        G: FloatArray,
-        b: FloatArray,
+        *,
         residuals: tuple[FloatArray, float] | None = None,
-        ins: LinearInputSet | None = None,
         buffered: bool = False,
     ) -> FilterResult:
-        ins = ins or self.input_set
-        if residuals is not None:  # the reference, already checked: c over [input rows; barrier rows]
+        """The call's result for the command ``u``: its residuals at the rows (``residuals``:
+        the reference's, already computed over [input rows; barrier rows]) and which rows bind
+        (against the buffered rows where ``u`` holds them)."""
+        rows, ins = call.rows, call.ins
+        if residuals is not None:
             c, viol = residuals[0][ins.d.size :], residuals[1]
         else:
-            c, viol = _residuals(G, b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
+            c, viol = _residuals(rows.G, rows.b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
         active = c - rows.buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
         return FilterResult(
             u=u,
             u_ref=u_ref,
             status=status,
-            row_index=idx,
+            row_index=call.idx,
             h=rows.h,
             constraint=c,
             active=active,
             inside=rows.inside,
             slack=slack,
-            solve_time_s=time.perf_counter() - t0,
+            solve_time_s=time.perf_counter() - call.t0,
             max_violation=viol,
             buffer=rows.buffer,
             buffered=buffered,

@@ -8,7 +8,7 @@ Safety figures, all from the measured (ground-truth) states:
 * ``collisions``: contacts, bodies touching (the world's contact test, at the body radii);
 * ``margin_violations``: pairs and agent-obstacles that came closer than the safety
   radius the filter keeps (body radii plus the margin), with the deepest slip;
-* ``min_h``: the exact C3BF barrier (:func:`swarm.barriers.cone_h`) of every pair and
+* ``min_h``: the exact C3BF barrier (:func:`swarm.safety.barriers.cone_h`) of every pair and
   agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
   sensing radius), its smallest value and the ticks it was negative; the ticks a
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
@@ -27,12 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from swarm.barriers import cone_h
 from swarm.config import ScenarioConfig
-from swarm.messages import measurement_agent
 from swarm.model import body_centre
-from swarm.obstacles import ObstacleArrays
-from swarm.scenario import items_to_arrays, min_pair_distance, surface_clearance
+from swarm.net.messages import measurement_agent
+from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
+from swarm.safety.barriers import cone_h
+from swarm.safety.obstacles import ObstacleArrays
 
 SUMMARY_KEYS = (
     "collisions",
@@ -199,7 +199,7 @@ def _finite_or_none(x: float) -> float | None:
 
 
 def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
-    """Metrics of one run. ``records`` are decoded messages (``swarm.messages.to_json``)."""
+    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``)."""
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')

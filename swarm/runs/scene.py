@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from foxglove import messages as fg
 
-from swarm.messages import CLOCK_MEAS, CLOCK_XVR
+from swarm.net.messages import CLOCK_MEAS, CLOCK_XVR
 
 TF_TOPIC, SCENE_TOPIC, LOG_TOPIC = "/tf", "/scene", "/log"
 WORLD_FRAME = "world"

@@ -1,16 +1,18 @@
-"""Barrier rows of the safety QP: Lie derivatives for both command levels.
+"""The constraint rows of the safety QP: Lie derivatives of the barriers
+(:mod:`swarm.safety.barriers`) for both command levels, with the responsibility share and
+the velocity buffer (why they exist: docs/design.md, "The barrier math").
 
 For an obstacle with centre ``c`` and an agent body centre ``x_b = x + l R e3``::
 
     p = c - x_b,   w = c' - x_b',   w' = c'' + a0_own + A u
 
 ``a0_own`` and ``A`` are the agent's own (negated) body-centre acceleration, shared by
-all rows; ``c''`` is the obstacle's. With ``h`` from :mod:`swarm.barriers`::
+all rows; ``c''`` is the obstacle's. With ``h`` from :mod:`swarm.safety.barriers`::
 
     Lf_h = <dh_dp, w> + <dh_dw, c'' + a0_own>,   Lg_h = A^T dh_dw
 
 and each row asks ``Lg_h u >= -(<dh_dw, c'' + a0_own> + rho <dh_dp, w> + sigma gamma h)``,
-``rho = sigma = 1`` except for neighbours (``swarm.filter``; docs/design.md).
+``rho = sigma = 1`` except for neighbours (``swarm.safety.filter``; docs/design.md).
 
 **Responsibility share** (neighbour rows, ``rho`` in (0, 1]). An agent takes the share
 ``rho`` of the pair's relative drift ``<dh_dp, w>`` and, inside the cone (``h < 0``), of
@@ -23,10 +25,8 @@ then ask together, with ``h'`` the pair's true derivative under both commands,
 (``g`` the row's class-K gain: ``gamma`` times the far-neighbour gain outside the cone,
 ``max(gamma, rate)`` inside it; below), a CBF condition with the extended class-K function
 ``kappa`` (continuous, increasing, ``kappa(0) = 0``), so ``h >= 0`` stays forward invariant
-as with any gain. Splitting the allowance too (``sigma = rho``) gave a sharing pair half the
-rate of an agent alone: crowds that share converged as if at half the gain (EXPERIMENTS.md
-section 4), while splitting the recovery keeps what each agent must do inside a cone as
-small as before. With ``rho = 1`` each agent takes the whole condition, as if its neighbour
+as with any gain. Splitting the recovery keeps what each agent must do inside a cone as
+small as with ``rho = 1``. With ``rho = 1`` each agent takes the whole condition, as if its neighbour
 did nothing.
 
 Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
@@ -52,9 +52,7 @@ i.e. ``b - buffer`` in place of ``b`` with ``buffer = sigma g k_b v |dh/dw|``
 how far [m/s] the relative velocity lies outside the cone; (B) makes it settle about
 ``v k_b / k`` outside rather than on the cone's boundary: ``v`` for ``k`` up to
 ``BUFFER_FAR_GAIN_MAX``, less for the farthest, slowest pairs (a far neighbour drifting
-slowly needs little buffer). With ``k_b = 1`` the far-neighbour gain's time-to-contact fade
-let crowds ride closer to their cones and slip in more often; with ``k_b = k`` the rho 0.5
-32-drone circles did (EXPERIMENTS.md section 4).
+slowly needs little buffer).
 The filter solves the QP with the buffered rows first and with the rows themselves only
 if the buffered ones cannot all hold, so every command still satisfies
 every row whenever the rows can hold: the buffer changes no guarantee, it only chooses among
@@ -63,7 +61,7 @@ the acceleration, while the firmware's attitude loop reaches it some 0.1 s later
 that rides its cones' boundaries then slips just inside some of them (h about -0.01 m^2/s
 at 2 m), and an agent on several cones at once whose outward normals surround it has no
 command that leaves them all: a least-violation tick, though it is far from contact. With
-the buffer such slips stay outside the cones (measured: EXPERIMENTS.md section 4). ``v``
+the buffer such slips stay outside the cones. ``v``
 fades with the relative speed, so a swarm at rest, or flying side by side, keeps none and
 settles where it is.
 """
@@ -76,27 +74,26 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from swarm.barriers import (
+from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState, body_point_into
+from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
+from swarm.safety.barriers import (
     A_P,
     A_W,
     B_P,
     B_W,
     C_D,
-    LIVE_W_HI_MPS,
-    LIVE_W_LO_MPS,
     N_COEF,
     RATE,
     WW,
     BarrierKind,
     BarrierRows,
     H,
+    RowSettings,
     barrier_row,
     far_gain,
     row_params,
 )
-from swarm.model import CommandLevel, LinearInputSet, QuadModel, QuadState, body_point_into
-from swarm.obstacles import ObstacleArrays
-from swarm.rotation import BoolArray, FloatArray, IntArray, quat_to_R_into
+from swarm.safety.obstacles import ObstacleArrays
 
 
 @dataclass(slots=True)
@@ -224,7 +221,7 @@ def _clear_of(v, Ps, ss, axes, m):
 @njit(cache=True)
 def free_target(obs, sel, r_own, xv_b, A0, w_hi):
     """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at,
-    for the obstacles ``obs[sel]`` (:data:`swarm.obstacles.OBSTACLE`), safety radius
+    for the obstacles ``obs[sel]`` (:data:`swarm.safety.obstacles.OBSTACLE`), safety radius
     ``r + r_own`` [m], the own body centre ``xv_b`` (2, 3).
 
     At rest relative to several obstacles the exact condition asks for one direction of
@@ -308,8 +305,8 @@ def free_target(obs, sel, r_own, xv_b, A0, w_hi):
 @njit(cache=True)
 def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     """All rows at once, row i for obstacle ``obs[sel[i]]`` (``obs`` an (n,)
-    :data:`swarm.obstacles.OBSTACLE` array; a selection indexes it, no copy), under the
-    settings ``params`` (a (1,) :data:`swarm.barriers.ROW_PARAMS` array: safety radius
+    :data:`swarm.safety.obstacles.OBSTACLE` array; a selection indexes it, no copy), under the
+    settings ``params`` (a (1,) :data:`swarm.safety.barriers.ROW_PARAMS` array: safety radius
     ``r + r_own``, responsibility share ``rho`` for neighbour rows, 1 for the others; module
     docstring, "Responsibility share"),
     for the own body centre ``xv_b`` and ``Aa`` = [A | a0_own] (:class:`OwnAffine`),
@@ -321,7 +318,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     clear of all their cones: :func:`free_target`).
 
     The class-K gain of a row is ``max(gamma, rate)`` (``rate`` from the barrier: inside
-    the cone, twice the inverse time to contact), times :func:`swarm.barriers.far_gain`
+    the cone, twice the inverse time to contact), times :func:`swarm.safety.barriers.far_gain`
     for a live neighbour row with ``h > 0``. With ``params.buffer`` each live row outside
     its safety radius also gets its velocity buffer (module docstring, (B); for a neighbour
     row with ``h > 0`` times the far gain, at most ``BUFFER_FAR_GAIN_MAX``): the buffered
@@ -460,40 +457,20 @@ def assemble(
     kind: BarrierKind,
     own: OwnAffine,
     obstacles: ObstacleArrays,
-    r_own_m: float,
+    settings: RowSettings,
     *,
-    gamma: float,
-    rho: float = 1.0,
-    eps: float = 1e-3,
-    gamma_ho: float = 1.0,
-    escape_speed: float = 0.3,
     u_ref: FloatArray | None = None,
     input_set: LinearInputSet | None = None,
     sel: IntArray | None = None,
-    live: bool = False,
-    live_lo_mps: float = LIVE_W_LO_MPS,
-    live_hi_mps: float = LIVE_W_HI_MPS,
 ) -> Rows:
-    """Build every row at once: one per obstacle, or row i for obstacle ``sel[i]``.
-    ``r_own_m`` [m] is added to each obstacle's radius for the full safety radius of its
-    row (the agent's own bounding radius and margin).
-    With ``input_set`` its rows ``C u <= d`` go on top of the barrier rows; with
-    ``u_ref`` the residuals at it are computed too (``Rows.c_ref``, ``Rows.ref_ok``).
-    ``live`` makes the C3BF rows live rows aimed at ``u_ref`` (:mod:`swarm.barriers`;
-    default the paper's rows)."""
-    params = row_params(
-        kind,
-        gamma=gamma,
-        rho=rho,
-        r_own_m=r_own_m,
-        eps=eps,
-        gamma_ho=gamma_ho,
-        escape_speed=escape_speed,
-        live=live,
-        w_lo_mps=live_lo_mps,
-        w_hi_mps=live_hi_mps,
-    )
-    return assemble_with(own, obstacles, params, u_ref=u_ref, input_set=input_set, sel=sel)
+    """Build every row at once: one per obstacle, or row i for obstacle ``sel[i]``, with
+    ``settings`` (:class:`swarm.safety.barriers.RowSettings`; its ``r_own_m`` [m] is added
+    to each obstacle's radius for the full safety radius of its row: the agent's own
+    bounding radius and margin). With ``input_set`` its rows ``C u <= d`` go on top of the
+    barrier rows; with ``u_ref`` the residuals at it are computed too (``Rows.c_ref``,
+    ``Rows.ref_ok``). ``settings.live`` makes the C3BF rows live rows aimed at ``u_ref``
+    (:mod:`swarm.safety.barriers`; default the paper's rows)."""
+    return assemble_with(own, obstacles, row_params(kind, settings), u_ref=u_ref, input_set=input_set, sel=sel)
 
 
 def assemble_with(
@@ -505,7 +482,7 @@ def assemble_with(
     input_set: LinearInputSet | None = None,
     sel: IntArray | None = None,
 ) -> Rows:
-    """:func:`assemble` with the row settings given as a (1,) :data:`swarm.barriers.ROW_PARAMS` array."""
+    """:func:`assemble` with the row settings given as a (1,) :data:`swarm.safety.barriers.ROW_PARAMS` array."""
     m = own.Aa.shape[1] - 1
     if input_set is None:  # no bounds: residuals of the barrier rows only
         lb, ub = np.full(m, -np.inf), np.full(m, np.inf)

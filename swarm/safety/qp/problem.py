@@ -106,17 +106,3 @@ class QPBackend(Protocol):
     name: str
 
     def solve(self, problem: QPProblem) -> QPSolution: ...
-
-
-def make_backend(name: str, n: int, max_rows: int) -> QPBackend:
-    """A backend by name (``daqp`` or ``osqp``) for ``n`` variables and at most
-    ``max_rows`` rows of ``A`` (OSQP keeps one persistent workspace of that size)."""
-    if name == "daqp":
-        from swarm.qp.daqp_backend import DaqpBackend
-
-        return DaqpBackend()
-    if name == "osqp":
-        from swarm.qp.osqp_backend import OsqpBackend
-
-        return OsqpBackend(n, max_rows)
-    raise InputError(f"unknown QP backend {name!r}; choose 'daqp' or 'osqp'")

@@ -19,11 +19,11 @@ from swarm.control import (
     yaw_of,
 )
 from swarm.errors import InputError
-from swarm.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
-from swarm.obstacles import ObstacleArrays
+from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.rotation import FloatArray, quat_to_R
-from swarm.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -132,7 +132,7 @@ class SwarmLog:
     @property
     def infeasible_ticks(self) -> int:
         """Agent ticks whose filter call was not a clean solve (every status but OK: slack,
-        escape rows, a failed solve), as the agents and ``swarm.metrics`` count them."""
+        escape rows, a failed solve), as the agents and ``swarm.offline.metrics`` count them."""
         return sum(s is not FilterStatus.OK for row in self.status for s in row)
 
     @property
@@ -267,12 +267,12 @@ class SwarmOutcome:
 
     collisions: int  # contacts: agent pairs whose airframes touched, plus agent-obstacle contacts
     margin_violations: int  # pairs and agent-obstacles ever closer than the safety radius (body radii + margin)
-    deadlocked: int  # agents that never reached the goal and stalled short of it (swarm.metrics.deadlock_at)
+    deadlocked: int  # agents that never reached the goal and stalled short of it (swarm.offline.metrics.deadlock_at)
     reached: int  # agents that reached their goal
     agents: int
     infeasible_ticks: int
     time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
-    min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.metrics)
+    min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.offline.metrics)
     negative_h_ticks: int = 0  # agent ticks with such an h below 0
 
     @property
@@ -281,9 +281,9 @@ class SwarmOutcome:
 
 
 def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
-    """Contacts, the safety figures of ``swarm.metrics`` (margin violations, the exact
+    """Contacts, the safety figures of ``swarm.offline.metrics`` (margin violations, the exact
     barrier), deadlocks, arrivals and time ratios of a run of ``cfg``."""
-    from swarm.metrics import SafetyFigures, deadlock_at
+    from swarm.offline.metrics import SafetyFigures, deadlock_at
 
     body = np.array([a.airframe.params().body_radius_m for a in cfg.agents])
     x = log.x_b_w  # (T, N, 3)

@@ -426,6 +426,7 @@ class AgentProcess:
         self.drone: RealDrone | None = None
         self.alive: set[str] = set()
         self.world_seen = False
+        self.world_deadline = time.monotonic() + cfg.time.start_timeout_s  # the world must show up by then
         self.pending: list[Message] = []  # measurements not yet acted on
         self.seq = 0
         self.tick_s: list[float] = []  # wall time from measurement taken up to command sent
@@ -553,6 +554,9 @@ class AgentProcess:
                     if not agent.from_world:  # the world keeps measuring a dead agent's body
                         agent.table.mark_gone(name)
                     self.neighbour_gone(name, "liveliness")
+        if not self.world_seen and time.monotonic() > self.world_deadline:  # its launcher died before the world
+            print(f"agent {self.id}: no world within time.start_timeout_s, stopping", file=sys.stderr)
+            return False
         if self.world_seen and "world" not in self.alive:
             print(f"agent {self.id}: the world is gone, stopping", file=sys.stderr)
             if self.drone is not None and self.drone.flying:

@@ -58,6 +58,20 @@ def ensure_secrets(cfg: ScenarioConfig, folder: Path) -> Path:
     return folder
 
 
+class _ListGroup:
+    """Run in a new child between fork and exec: append its process group (its pid, as it
+    leads a session of its own) to the run's ``process_groups`` file, open as ``fd``. So a
+    process is listed before it can run, even if the launcher dies the next instant; the
+    reaper reads the list again after its grace time (swarm.runs.reaper). Only system calls:
+    safe in a child forked from a process with threads."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+
+    def __call__(self) -> None:
+        os.write(self.fd, b"%d\n" % os.getpid())
+
+
 def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
     try:
         os.killpg(p.pid, sig)
@@ -269,11 +283,18 @@ class RunHandle:
         env.pop(CPU_ENV, None)
         if cpu is not None:
             env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (swarm.cli)
-        self.procs[name] = p = subprocess.Popen(
-            [sys.executable, *args], stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
-        )
-        with (self.out / GROUPS_FILE).open("a") as f:  # each child leads its group (swarm.runs.reaper)
-            f.write(f"{p.pid}\n")
+        groups = os.open(self.out / GROUPS_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:  # each child leads its group and lists it itself, before it runs (swarm.runs.reaper)
+            self.procs[name] = subprocess.Popen(
+                [sys.executable, *args],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                env=env,
+                preexec_fn=_ListGroup(groups),
+            )
+        finally:
+            os.close(groups)
 
     @property
     def session(self) -> Any:

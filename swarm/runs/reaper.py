@@ -47,11 +47,12 @@ def _signal(groups: list[int], sig: int) -> None:
 
 
 def reap(run_dir: Path | int, grace_s: float = 2.0) -> None:
-    """SIGTERM to every group of the run, then SIGKILL after ``grace_s`` seconds."""
-    groups = process_groups(run_dir)
-    _signal(groups, signal.SIGTERM)
+    """SIGTERM to every group of the run, then SIGKILL after ``grace_s`` seconds to every
+    group listed by then (a child forked just before its launcher died lists itself an
+    instant later: :class:`swarm.runs.launch.RunHandle`)."""
+    _signal(process_groups(run_dir), signal.SIGTERM)
     time.sleep(grace_s)
-    _signal(groups, signal.SIGKILL)
+    _signal(process_groups(run_dir), signal.SIGKILL)
 
 
 def main(run_dir: Path) -> int:

@@ -499,13 +499,14 @@ class SafetyFilter:
             prep.tight,
         )
         call = _Call(t0, prep.idx, rows, ins)
-        G, b = rows.G, rows.b  # barrier rows as G u <= b
-        n = b.shape[0]
+        n = prep.idx.shape[0]
         zeros = np.zeros(n)
 
         # Fast path: the reference already satisfies everything (the buffered rows included).
         if rows.ref_ok:
             return self._result(call, u_ref, u_ref, FilterStatus.OK, zeros, residuals=(rows.c_ref, 0.0), buffered=True)
+
+        G, b = rows.G, rows.b  # barrier rows as G u <= b
 
         A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
         status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK

@@ -201,3 +201,20 @@ def test_a_dead_neighbour_on_the_path_is_kept_as_an_obstacle_and_avoided(start_r
     # the same with the dead neighbour dropped from the rows: cf1 flies into the drone the firmware holds there
     m = _kill_the_hoverer(start_run, "dropped", "drop")
     assert m["dead_agent_contacts"] >= 1 and "cf1|hover" in m["dead_agent_contact_pairs"], m
+
+
+def test_an_agent_whose_world_never_comes_stops_by_itself(tmp_path):
+    """An agent started alone (its launcher died before it started the world) gives up after
+    ``time.start_timeout_s`` instead of waiting for ever."""
+    from swarm.config import dump
+    from swarm.runs.launch import ensure_secrets, free_port
+
+    cfg = scenario("swap_2.yaml", time={"start_timeout_s": 2.0}, network={"port": free_port()})
+    path = tmp_path / "config.yaml"
+    path.write_text(dump(cfg))
+    secrets = ensure_secrets(cfg, tmp_path / "secrets")
+    args = ["agent", str(path), "--id", "cf1", "--run", "alone", "--port", str(cfg.network.port), "--secrets"]
+    res = subprocess.run(
+        [sys.executable, "-m", "swarm.cli", *args, str(secrets)], capture_output=True, text=True, timeout=120
+    )
+    assert "no world within time.start_timeout_s" in res.stderr, res.stderr

@@ -162,8 +162,11 @@ def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_clus
     t.join(5)
     groups = killed["groups"]
     assert isinstance(groups, list) and groups
-    _wait_ended(groups, 15)
     assert (out / "p000_obstacle_speed-0.5.attempt1").is_dir()  # what the first attempt left is kept
+    # every process the killed attempt started, those it listed after the kill too, has ended
+    every = process_groups(out / "p000_obstacle_speed-0.5.attempt1")
+    assert set(groups) <= set(every)
+    _wait_ended(every, 15)
     assert rows[0]["attempts"] == 2 and rows[0]["error"] == ""  # flown again, in full
     assert [r["attempts"] for r in rows[1:]] == [1, 1] and all(r["collisions"] == 0 for r in rows)
 

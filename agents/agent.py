@@ -34,6 +34,7 @@ from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
+from swarm.planning import StaticObstacles, path_for
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.shutdown import StopFlag
@@ -58,7 +59,9 @@ class Agent:
         self.filt = SafetyFilter(self.model, fc)
         # a real drone lands through its floor: landing filters with the floor off
         self.filt_land = SafetyFilter(self.model, replace(fc, floor_z_m=None)) if me.backend == "crazyflie" else None
-        self.tracker = PathTracker(me.path(), me.speed_mps)
+        # the path around the static obstacles (swarm.planning), replanned when it stalls
+        path_w, self.route = path_for(me, StaticObstacles.of(list(cfg.obstacles)))
+        self.tracker = PathTracker(path_w, me.speed_mps)
         self.att = AttitudeController(self.model)
         f = cfg.failure
         self.table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
@@ -257,6 +260,15 @@ class Agent:
             self.missed += sum(1 for n in near if (s := self.table.state(n)) is None or t - s.t_s > timeout_s)
         return self.table.arrays(t)
 
+    def _replan(self, t_s: float, x_w: np.ndarray) -> None:
+        """A new path from where the agent is, if it has made no progress along its own
+        for a while (swarm.planning.Route)."""
+        if self.route is None:
+            return
+        new = self.route.update(t_s, x_w, self.goal, self.tracker.reference(x_w)[2])
+        if new is not None:
+            self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps)
+
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
         return self.missing(k) == 0
@@ -276,6 +288,8 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
+        if tracker is self.tracker:
+            self._replan(t, state.x_w)
         F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours]) if len(self.obstacles) else neighbours

@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from swarm.crazyflie_fw import pwm_per_newton
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, Layout, QuadParams
+from swarm.planning import PlannerSettings
 from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig
 
@@ -197,6 +198,20 @@ class CrazyflieSettings(_Strict):
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
 
 
+class PlannerConfig(_Strict):
+    """The agent's reference path around the static obstacles (``swarm.planning``;
+    docs/design.md, "Reference paths"). It shapes the reference only: the filter keeps
+    the agent safe whatever the path."""
+
+    kind: Literal["grid", "none"] = "grid"  # grid: planned where the straight path is blocked; none: straight
+    resolution_m: float = Field(0.1, gt=0, le=1)  # m: the grid's cell
+    clearance_m: float = Field(0.1, ge=0, le=2)  # m: kept from obstacles beyond the safety radius
+    stall_s: float = Field(4.0, gt=0)  # s: replan from where the agent is after this long without progress
+
+    def settings(self) -> PlannerSettings:
+        return PlannerSettings(resolution_m=self.resolution_m, clearance_m=self.clearance_m)
+
+
 class AgentConfig(_Strict):
     """One quadrotor after layering."""
 
@@ -210,6 +225,7 @@ class AgentConfig(_Strict):
     command_level: CommandLevel = CommandLevel.ATTITUDE
     filter: FilterSettings = FilterSettings()
     tiebreak: TiebreakSettings = TiebreakSettings()
+    planner: PlannerConfig = PlannerConfig()
     airframe: AirframeSettings = AirframeSettings()
     backend: Literal["sim", "crazyflie"] = "sim"  # simulated in PyBullet, or a real Crazyflie
     crazyflie: CrazyflieSettings | None = None  # required with backend: crazyflie

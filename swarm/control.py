@@ -72,8 +72,9 @@ class PathTracker:
         self.speed_mps = float(speed_mps)
         self.gains = gains or TrackingGains()
         seg_len = np.linalg.norm(np.diff(W, axis=0), axis=1)
-        self._seg_len = seg_len  # (k-1,) m
-        self._tail = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]])  # (k-1,) m of path after each
+        tail = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]])  # m of path after each segment
+        # per segment (k-1, 3): its length [m], the path after it [m], the speed [m/s] at its end
+        self._seg = np.column_stack([seg_len, tail, corner_speeds(W, self.speed_mps)])
         g = self.gains
         self._gains = np.zeros(1, dtype=TRACKING)  # the gains as the compiled kernels read them
         self._gains[0] = (g.kp_per_s, g.kd_per_s, g.max_horizontal_accel_mps2, g.max_vertical_accel_mps2)
@@ -85,15 +86,13 @@ class PathTracker:
 
     def reference(self, x_w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
         """Closest path point [m, world], path tangent, remaining path length [m]."""
-        self.segment, c, tangent, remaining = _path_point(
-            self.W, self._seg_len, self._tail, self.segment, np.asarray(x_w, dtype=float)
-        )
+        self.segment, c, tangent, remaining = _path_point(self.W, self._seg, self.segment, np.asarray(x_w, dtype=float))
         return c, tangent, remaining
 
     def desired_velocity(self, x_w: FloatArray) -> FloatArray:
         """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
         self.segment, v_des = _desired_velocity(
-            self.W, self._seg_len, self._tail, self.segment, np.asarray(x_w, dtype=float), self.speed_mps, self._gains
+            self.W, self._seg, self.segment, np.asarray(x_w, dtype=float), self.speed_mps, self._gains
         )
         return v_des
 
@@ -112,8 +111,7 @@ class PathTracker:
         if v_des_w is None:
             self.segment, F = _tracker_thrust(
                 self.W,
-                self._seg_len,
-                self._tail,
+                self._seg,
                 self.segment,
                 np.asarray(x_w, dtype=float),
                 np.asarray(v_w, dtype=float),
@@ -128,10 +126,29 @@ class PathTracker:
         return p.mass_kg * a
 
 
+CORNER_SPEED_MIN = 0.2
+"""The slowest a tracker takes a corner, as a fraction of its target speed."""
+
+
+def corner_speeds(W: FloatArray, speed_mps: float) -> FloatArray:
+    """(k-1,) the speed [m/s] a tracker may have at the end of each segment of the path
+    ``W`` (k, 3): ``speed cos^2(theta / 2)`` for a turn by ``theta`` there (the full speed
+    on a straight, half at a right angle, at least ``CORNER_SPEED_MIN`` of it), 0 at the
+    path's end. A straight path (two points) is unaffected: its only end is the goal."""
+    d = np.diff(W, axis=0)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    u = np.divide(d, n, out=np.zeros_like(d), where=n > 1e-9)
+    cos = np.sum(u[:-1] * u[1:], axis=1)
+    out = speed_mps * np.maximum(CORNER_SPEED_MIN, 0.5 * (1.0 + cos))
+    return np.append(out, 0.0)
+
+
 @njit(cache=True)
-def _path_point(W, seg_len, tail, segment, x):
+def _path_point(W, seg, segment, x):
     """(segment, closest path point (3,) [m, world], tangent (3,), remaining path [m]) of
-    :class:`PathTracker`, starting the search at ``segment`` (it only moves forward)."""
+    :class:`PathTracker`, starting the search at ``segment`` (it only moves forward);
+    ``seg`` (k-1, 3): each segment's length, the path after it and its end speed."""
+    seg_len, tail = seg[:, 0], seg[:, 1]
     last = seg_len.shape[0] - 1
     c = np.empty(3)
     tangent = np.zeros(3)
@@ -157,13 +174,15 @@ def _path_point(W, seg_len, tail, segment, x):
 
 
 @njit(cache=True)
-def _desired_velocity(W, seg_len, tail, segment, x, speed, gains):
+def _desired_velocity(W, seg, segment, x, speed, gains):
     """(segment, v_des (3,) [m/s, world]): the target speed along the path (tapering as
-    ``kp * remaining`` near the end) plus ``kp`` times the cross-track error; ``gains`` a
+    ``kp * remaining`` near the end, and as ``corner + kp * d`` at ``d`` [m] before a
+    corner: :func:`corner_speeds`) plus ``kp`` times the cross-track error; ``gains`` a
     (1,) :data:`TRACKING` array."""
-    segment, c, tangent, remaining = _path_point(W, seg_len, tail, segment, x)
+    segment, c, tangent, remaining = _path_point(W, seg, segment, x)
     kp = gains[0].kp
-    s = min(speed, kp * remaining)
+    to_end = remaining - seg[segment, 1]  # m to the current segment's end
+    s = min(speed, kp * remaining, seg[segment, 2] + kp * to_end)
     v_des = np.empty(3)
     for j in range(3):
         v_des[j] = s * tangent[j] + kp * (c[j] - x[j])
@@ -188,9 +207,9 @@ def _desired_accel(v_des, v, gains):
 
 
 @njit(cache=True)
-def _tracker_thrust(W, seg_len, tail, segment, x, v, speed, gains, mass, g):
+def _tracker_thrust(W, seg, segment, x, v, speed, gains, mass, g):
     """(segment, F_ref (3,) [N, world]) of :meth:`PathTracker.thrust_vector` in one call."""
-    segment, v_des = _desired_velocity(W, seg_len, tail, segment, x, speed, gains)
+    segment, v_des = _desired_velocity(W, seg, segment, x, speed, gains)
     a = _desired_accel(v_des, v, gains)
     a[2] += g
     for j in range(3):

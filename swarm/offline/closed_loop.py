@@ -21,6 +21,7 @@ from swarm.control import (
 from swarm.errors import InputError
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.planning import Route, StaticObstacles, path_for
 from swarm.rotation import FloatArray, quat_to_R
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -109,6 +110,7 @@ class SwarmAgent:
     start_velocity_w: FloatArray | None = None  # (3,) m/s, world (default: at rest)
     tiebreak: tuple[float, float] | None = None  # right-hand tie-break (trigger [m], speed [m/s]), or None
     filtered: bool = True  # False: flies its reference unfiltered (and so takes no share of any pair)
+    route: Route | None = None  # replans path_w when the agent stalls (swarm.planning), or None
 
     @property
     def goal_w(self) -> FloatArray:
@@ -202,6 +204,11 @@ def simulate_swarm(
         setpoints = []
         for i in range(n):
             nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
+            route = agents[i].route
+            if route is not None:
+                new = route.update(t, states[i].x_w, goals[i], trackers[i].reference(states[i].x_w)[2])
+                if new is not None:
+                    trackers[i] = PathTracker(new.waypoints_w, agents[i].speed_mps)
             F_ref = reference_thrust(
                 model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
             )
@@ -246,18 +253,22 @@ def simulate_swarm(
 def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArrays]:
     """A validated scenario's agents and obstacles (at t = 0) as :func:`simulate_swarm`
     takes them, every filter at the attitude level."""
-    agents = [
-        SwarmAgent(
-            np.asarray(a.start, dtype=float),
-            np.asarray(a.path()[1:] or [a.start], dtype=float),
-            a.speed_mps,
-            a.filter.filter_config(CommandLevel.ATTITUDE),
-            np.asarray(a.start_velocity, dtype=float),
-            a.tiebreak.pair,
-            a.filter.enabled,
+    still = StaticObstacles.of(list(cfg.obstacles))
+    agents = []
+    for a in cfg.agents:
+        path_w, route = path_for(a, still)  # around the static obstacles, as the agents fly it
+        agents.append(
+            SwarmAgent(
+                np.asarray(a.start, dtype=float),
+                path_w[1:] if len(path_w) > 1 else path_w,
+                a.speed_mps,
+                a.filter.filter_config(CommandLevel.ATTITUDE),
+                np.asarray(a.start_velocity, dtype=float),
+                a.tiebreak.pair,
+                a.filter.enabled,
+                route,
+            )
         )
-        for a in cfg.agents
-    ]
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))
 
 

@@ -278,3 +278,198 @@ def pillar_swap(
         }
     ]
     return raw
+
+
+# Scenes among walls (docs/design.md, "Reference paths"): walls are rows of touching vertical
+# pillars, as a lab builds them from poles; every scene is planar at the settings' altitude.
+
+PILLAR_LENGTH_M = 4.0  # physics length of a wall's pillars (the barrier treats them as infinite)
+
+
+def _pillar(name: str, x: float, y: float, r: float, alt: float) -> dict:
+    return {
+        "id": name,
+        "shape": "cylinder",
+        "center": [round(x, 6), round(y, 6), alt],
+        "axis": [0.0, 0.0, 1.0],
+        "radius_m": r,
+        "length_m": PILLAR_LENGTH_M,
+    }
+
+
+def _wall(prefix: str, a: tuple[float, float], b: tuple[float, float], r: float, alt: float) -> list[dict]:
+    """Touching pillars of radius ``r`` [m] whose surfaces span the segment from ``a`` to
+    ``b`` [m] (centres ``2 r`` apart, the first and last ``r`` inside the ends)."""
+    p, q = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    length = float(np.linalg.norm(q - p))
+    k = max(1, round(length / (2 * r)))
+    u = (q - p) / max(length, 1e-9)
+    step = (length - 2 * r) / max(k - 1, 1)
+    centres = [p + u * (r + i * step) for i in range(k)]
+    return [_pillar(f"{prefix}{i}", float(c[0]), float(c[1]), r, alt) for i, c in enumerate(centres)]
+
+
+def doorway(
+    n: int = 6,
+    gap_m: float = 0.8,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    spacing_m: float = 0.6,
+    distance_m: float = 3.0,
+    half_width_m: float = 4.0,
+    pillar_radius_m: float = 0.15,
+) -> dict:
+    """``n`` drones abreast ``spacing_m`` apart, ``distance_m`` before a wall across their
+    way (along y, ``half_width_m`` each side) with one doorway ``gap_m`` wide between its
+    pillars' surfaces; each goal is its start mirrored through the doorway's centre, so
+    every straight line runs through the doorway."""
+    s = settings or SwapSettings()
+    y = (np.arange(n) - (n - 1) / 2) * spacing_m
+    starts = np.column_stack([np.full(n, -distance_m), y, np.full(n, s.altitude_m)])
+    goals = np.column_stack([np.full(n, distance_m), -y, np.full(n, s.altitude_m)])
+    raw = _scenario(name or f"doorway_{n}", starts, goals, s, planar=True)
+    half = gap_m / 2
+    raw["obstacles"] = _wall("wall_l", (0.0, half), (0.0, half_width_m), pillar_radius_m, s.altitude_m) + _wall(
+        "wall_r", (0.0, -half), (0.0, -half_width_m), pillar_radius_m, s.altitude_m
+    )
+    return raw
+
+
+def corridor(
+    n_per_side: int = 4,
+    width_m: float = 0.5,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    length_m: float = 2.0,
+    spacing_m: float = 0.6,
+    distance_m: float = 3.0,
+    half_width_m: float = 3.0,
+    pillar_radius_m: float = 0.15,
+) -> dict:
+    """Two opposing flows of ``n_per_side`` drones through one corridor along x, ``length_m``
+    long and ``width_m`` wide between its pillars' surfaces (too narrow for two drones side
+    by side with their clearance): a wall across the way at each end (``half_width_m``
+    each side) opens into it. Each flow starts abreast ``distance_m`` from the middle and
+    flies to the other flow's starts."""
+    s = settings or SwapSettings()
+    y = (np.arange(n_per_side) - (n_per_side - 1) / 2) * spacing_m
+    left = np.column_stack([np.full(n_per_side, -distance_m), y, np.full(n_per_side, s.altitude_m)])
+    right = np.column_stack([np.full(n_per_side, distance_m), y, np.full(n_per_side, s.altitude_m)])
+    starts = np.vstack([left, right])
+    goals = np.vstack([right[::-1], left[::-1]])
+    raw = _scenario(name or f"corridor_{n_per_side}x2", starts, goals, s, planar=True)
+    r, alt, half, x0 = pillar_radius_m, s.altitude_m, width_m / 2, length_m / 2
+    big = 2.0 * r  # the end walls' pillars: fewer rows for the filter
+    raw["obstacles"] = (
+        _wall("side_l", (-x0, half + 0.0), (x0, half), r, alt)
+        + _wall("side_r", (-x0, -half), (x0, -half), r, alt)
+        + _wall("end_wl", (-x0 - big, half), (-x0 - big, half_width_m), big, alt)
+        + _wall("end_wr", (-x0 - big, -half), (-x0 - big, -half_width_m), big, alt)
+        + _wall("end_el", (x0 + big, half), (x0 + big, half_width_m), big, alt)
+        + _wall("end_er", (x0 + big, -half), (x0 + big, -half_width_m), big, alt)
+    )
+    for o in raw["obstacles"]:  # each wall's pillars stand off its line by their radius, away from the way
+        side = 1.0 if o["center"][1] > 0 else -1.0
+        if o["id"].startswith("side"):
+            o["center"][1] = round(o["center"][1] + side * o["radius_m"], 6)
+    return raw
+
+
+def trap(
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    width_m: float = 2.0,
+    depth_m: float = 2.0,
+    distance_m: float = 3.0,
+    pillar_radius_m: float = 0.15,
+) -> dict:
+    """One drone at rest inside a U-shaped wall (``width_m`` across, ``depth_m`` deep, its
+    back across the x axis at x = 0, open towards +x) with its goal behind the U's back,
+    ``distance_m`` away: the straight line runs into the back, and the way out is the
+    opening on the far side and round an arm (the classic local minimum)."""
+    s = settings or SwapSettings()
+    start = np.array([[depth_m / 2, 0.0, s.altitude_m]])
+    goal = np.array([[-distance_m, 0.0, s.altitude_m]])
+    raw = _scenario(name or "trap", start, goal, s, planar=True)
+    r, alt, w = pillar_radius_m, s.altitude_m, width_m / 2
+    raw["obstacles"] = (
+        _wall("back", (-r, -w - r), (-r, w + r), r, alt)
+        + _wall("arm_l", (r, w + r), (depth_m, w + r), r, alt)
+        + _wall("arm_r", (r, -w - r), (depth_m, -w - r), r, alt)
+    )
+    return raw
+
+
+def forest(
+    n: int = 4,
+    density_per_m2: float = 0.3,
+    settings: SwapSettings | None = None,
+    name: str | None = None,
+    *,
+    depth_m: float = 4.0,
+    spacing_m: float = 0.8,
+    distance_m: float = 3.5,
+    radius_range_m: tuple[float, float] = (0.1, 0.25),
+    gap_m: float = 0.7,
+) -> dict:
+    """``n`` drones abreast ``spacing_m`` apart crossing a forest: random vertical pillars
+    (seeded radii in ``radius_range_m``) at ``density_per_m2`` over a band ``depth_m`` deep
+    across their way, as wide as the flight, every two pillars at least ``gap_m`` apart
+    between surfaces (so a way through exists). Goals straight across, ``2 distance_m``
+    away."""
+    s = settings or SwapSettings()
+    rng = np.random.default_rng(s.seed)
+    y = (np.arange(n) - (n - 1) / 2) * spacing_m
+    starts = np.column_stack([np.full(n, -distance_m), y, np.full(n, s.altitude_m)])
+    goals = np.column_stack([np.full(n, distance_m), y, np.full(n, s.altitude_m)])
+    raw = _scenario(name or f"forest_{n}", starts, goals, s, planar=True)
+    half_w = float(np.abs(y).max()) + 1.5
+    count = round(density_per_m2 * depth_m * 2 * half_w)
+    placed: list[tuple[float, float, float]] = []
+    for _ in range(2000 * max(count, 1)):
+        if len(placed) == count:
+            break
+        x, yy, r = rng.uniform(-depth_m / 2, depth_m / 2), rng.uniform(-half_w, half_w), rng.uniform(*radius_range_m)
+        if all(math.hypot(x - px, yy - py) >= r + pr + gap_m for px, py, pr in placed):
+            placed.append((float(x), float(yy), float(r)))
+    raw["obstacles"] = [_pillar(f"tree{i}", x, yy, round(r, 4), s.altitude_m) for i, (x, yy, r) in enumerate(placed)]
+    return raw
+
+
+def default_radius(kind: str, n: int) -> float:
+    """Swap radius [m] for ``n`` agents: 2 m, growing so that neighbours start >= 0.6 m apart."""
+    if kind == "sphere":
+        return max(2.0, math.sqrt(n * 0.6**2 / (4 * math.pi)) * 2)
+    return max(2.0, n * 0.6 / (2 * math.pi))
+
+
+def generate(
+    kind: str,
+    n: int,
+    settings: SwapSettings | None = None,
+    *,
+    radius_m: float | None = None,
+    density: float | None = None,
+    gap_m: float | None = None,
+) -> dict:
+    """A raw scenario of ``kind``: ``circle``, ``sphere`` (``radius_m``, default growing
+    with ``n``), ``random`` (``density`` agents per m^2), ``doorway`` (``gap_m`` wide),
+    ``corridor`` (``n`` per side, ``gap_m`` wide), ``trap`` (one drone) or ``forest``
+    (``density`` pillars per m^2). None: each generator's default."""
+    s = settings or SwapSettings()
+    if kind in ("circle", "sphere"):
+        return (circle_swap if kind == "circle" else sphere_swap)(n, radius_m or default_radius(kind, n), s)
+    if kind == "random":
+        return random_swap(n, 0.5 if density is None else density, s)
+    if kind == "doorway":
+        return doorway(n, 0.8 if gap_m is None else gap_m, s)
+    if kind == "corridor":
+        return corridor(n, 0.5 if gap_m is None else gap_m, s)
+    if kind == "trap":
+        return trap(s)
+    if kind == "forest":
+        return forest(n, 0.3 if density is None else density, s)
+    raise ValueError(f"scenario kind {kind!r}: choose circle, sphere, random, doorway, corridor, trap or forest")

@@ -44,7 +44,7 @@ import numpy as np
 from swarm.config import ConfigError, ScenarioConfig, resolve
 from swarm.model import QuadParams
 from swarm.offline.orca import run_orca
-from swarm.offline.scenario import SwapSettings, circle_swap, random_swap, sphere_swap
+from swarm.offline.scenario import SwapSettings, circle_swap, default_radius, random_swap, sphere_swap
 from swarm.runs.launch import RunHandle, unpinned
 
 Raw = dict[str, Any]
@@ -193,13 +193,6 @@ def generate(gen: dict[str, Any]) -> Raw:
         return random_swap(n, _float("density", str(gen["density"])), settings)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-
-
-def default_radius(kind: str, n: int) -> float:
-    """Swap radius [m] for ``n`` agents: 2 m, growing so that neighbours start >= 0.6 m apart."""
-    if kind == "sphere":
-        return max(2.0, math.sqrt(n * 0.6**2 / (4 * math.pi)) * 2)
-    return max(2.0, n * 0.6 / (2 * math.pi))
 
 
 def parse_axes(specs: list[str], known: dict[str, Knob] | None = None) -> dict[str, list[str]]:

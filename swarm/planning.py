@@ -1,0 +1,259 @@
+"""Reference paths around the static world (docs/design.md, "Reference paths").
+
+A reactive filter with a straight-line reference stops where its reference points into
+a wall: a doorway beside it, a U-shaped trap around its goal. Each agent therefore flies
+a path planned around the obstacles it knows that do not move, and the C3BF-QP keeps it
+safe whatever the path: the path only shapes the reference.
+
+The plan is a shortest path on an 8-connected grid at the agent's altitude (networkx's
+A*), over the cells whose centres keep ``keep_m`` (the agent's safety radius plus a
+clearance) from every static obstacle's surface, shortened by line of sight into a few
+waypoints. A start or goal that is itself closer than ``keep_m`` joins the grid at its
+nearest free cell. Where the straight line is already clear, the plan is the straight
+line and no grid is made. Cylinders are infinite, as the barrier treats them.
+
+:class:`Route` replans from where the agent is when it has made no progress along its
+path for ``stall_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from swarm.errors import InputError
+from swarm.rotation import FloatArray
+
+if TYPE_CHECKING:
+    import networkx as nx
+
+    from swarm.config import AgentConfig
+
+
+@dataclass(frozen=True)
+class StaticObstacles:
+    """The obstacles that do not move: centres ``c_w`` (m, 3) [m, world], radii ``r_m``
+    (m,) [m] and unit cylinder axes ``axis_w`` (m, 3) [world] (zero rows for spheres)."""
+
+    c_w: FloatArray
+    r_m: FloatArray
+    axis_w: FloatArray
+
+    @classmethod
+    def of(cls, obstacles: list) -> StaticObstacles:
+        """From :class:`swarm.config.ObstacleConfig` items: those with zero velocity."""
+        still = [o for o in obstacles if not any(o.velocity)]
+        if not still:
+            return cls(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+        axes = np.array([[0.0, 0.0, 0.0] if o.axis is None else o.axis for o in still], dtype=float)
+        norms = np.linalg.norm(axes, axis=1, keepdims=True)
+        axes = np.divide(axes, norms, out=np.zeros_like(axes), where=norms > 0)
+        return cls(np.array([o.center for o in still], dtype=float), np.array([o.radius_m for o in still]), axes)
+
+    def __len__(self) -> int:
+        return int(self.r_m.shape[0])
+
+    def clearance(self, points_w: FloatArray) -> FloatArray:
+        """(k,) distance [m] from each point (k, 3) to the nearest obstacle surface (inf
+        with no obstacle; negative inside one)."""
+        points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
+        if not len(self):
+            return np.full(points_w.shape[0], math.inf)
+        d = self.c_w[None, :, :] - points_w[:, None, :]  # (k, m, 3)
+        d = d - np.sum(d * self.axis_w[None], axis=2, keepdims=True) * self.axis_w[None]
+        return (np.linalg.norm(d, axis=2) - self.r_m[None, :]).min(axis=1)
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """How paths are planned. Units in the names."""
+
+    resolution_m: float = 0.1  # grid cell size
+    clearance_m: float = 0.1  # kept from obstacles beyond the agent's safety radius
+    pad_m: float = 2.0  # the grid reaches this far beyond the start, the goal and the obstacles
+    max_cells: int = 250_000  # larger grids are refused (a coarser resolution is needed)
+
+    def __post_init__(self) -> None:
+        for name in ("resolution_m", "pad_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"PlannerSettings.{name}: must be a finite number > 0, got {v!r}")
+        if not (math.isfinite(self.clearance_m) and self.clearance_m >= 0):
+            raise InputError(f"PlannerSettings.clearance_m: must be a finite number >= 0, got {self.clearance_m!r}")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned path: ``waypoints_w`` (k >= 2, 3) [m, world] from the start to the goal;
+    ``found`` False when no free path exists (then the straight line), with ``reason``."""
+
+    waypoints_w: FloatArray
+    found: bool
+    reason: str
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(np.diff(self.waypoints_w, axis=0), axis=1).sum())
+
+
+def _segment_points(a: FloatArray, b: FloatArray, step_m: float) -> FloatArray:
+    n = max(2, math.ceil(float(np.linalg.norm(b - a)) / step_m) + 1)
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    return a[None] + s * (b - a)[None]
+
+
+def clear(a: FloatArray, b: FloatArray, obstacles: StaticObstacles, keep_m: float, step_m: float = 0.02) -> bool:
+    """Whether the segment from ``a`` to ``b`` [m, world] keeps ``keep_m`` from every
+    obstacle surface (checked every ``step_m``)."""
+    if not len(obstacles):
+        return True
+    return bool(obstacles.clearance(_segment_points(a, b, step_m)).min() >= keep_m)
+
+
+class _Grid:
+    """The free cells of a plane at altitude ``z_m`` over a box, as a networkx graph."""
+
+    def __init__(self, lo: FloatArray, hi: FloatArray, z_m: float, res: float) -> None:
+        self.lo, self.res, self.z = lo, res, z_m
+        self.nx, self.ny = int(math.ceil((hi[0] - lo[0]) / res)) + 1, int(math.ceil((hi[1] - lo[1]) / res)) + 1
+
+    def centres(self) -> FloatArray:
+        ix, iy = np.meshgrid(np.arange(self.nx), np.arange(self.ny), indexing="ij")
+        return np.column_stack([self.lo[0] + ix.ravel() * self.res, self.lo[1] + iy.ravel() * self.res,
+                                np.full(ix.size, self.z)])  # fmt: skip
+
+    def graph(self, free: np.ndarray) -> nx.Graph:
+        """8-connected graph of the free cells (node: flat index), edges weighted [m]."""
+        import networkx as nx  # (imported only where a path must be planned: 0.2 s)
+
+        g = nx.Graph()
+        ok = free.reshape(self.nx, self.ny)
+        g.add_nodes_from(np.flatnonzero(free).tolist())
+        idx = np.arange(self.nx * self.ny).reshape(self.nx, self.ny)
+        for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):  # each cell to its neighbour at (+dx, +dy)
+            j0, j1 = max(0, -dy), self.ny - max(0, dy)
+            a = idx[0 : self.nx - dx, j0:j1]
+            b = idx[dx : self.nx, j0 + dy : j1 + dy]
+            both = ok.ravel()[a] & ok.ravel()[b]
+            w = self.res * math.hypot(dx, dy)
+            g.add_weighted_edges_from(zip(a[both].tolist(), b[both].tolist(), [w] * int(both.sum()), strict=True))
+        return g
+
+
+def plan(
+    start_w: FloatArray,
+    goal_w: FloatArray,
+    obstacles: StaticObstacles,
+    radius_m: float,
+    settings: PlannerSettings | None = None,
+) -> Plan:
+    """A path from ``start_w`` to ``goal_w`` [m, world] that keeps the agent's safety radius
+    ``radius_m`` [m] plus the settings' clearance from every static obstacle (module
+    docstring). Never raises for a blocked world: a goal with no free path gives the
+    straight line with ``found`` False."""
+    st = settings or PlannerSettings()
+    a, b = np.asarray(start_w, dtype=float), np.asarray(goal_w, dtype=float)
+    keep = radius_m + st.clearance_m
+    if clear(a, b, obstacles, keep):
+        return Plan(np.vstack([a, b]), True, "straight")
+    z = 0.5 * (a[2] + b[2])
+    near = obstacles.c_w[:, :2]
+    lo = np.minimum(np.minimum(a[:2], b[:2]), near.min(axis=0)) - st.pad_m
+    hi = np.maximum(np.maximum(a[:2], b[:2]), near.max(axis=0)) + st.pad_m
+    lo = np.maximum(lo, np.minimum(a[:2], b[:2]) - 4 * st.pad_m - 10.0)  # (an infinite cylinder's centre may be far)
+    hi = np.minimum(hi, np.maximum(a[:2], b[:2]) + 4 * st.pad_m + 10.0)
+    grid = _Grid(lo, hi, z, st.resolution_m)
+    if grid.nx * grid.ny > st.max_cells:
+        raise InputError(
+            f"planner: a {grid.nx} x {grid.ny} grid exceeds max_cells = {st.max_cells}; use a coarser resolution_m"
+        )
+    centres = grid.centres()
+    free = obstacles.clearance(centres) >= keep
+    if not free.any():
+        return Plan(np.vstack([a, b]), False, "no free cell")
+    g = grid.graph(free)
+    free_idx = np.flatnonzero(free)
+    ends = [int(free_idx[np.argmin(np.sum((centres[free_idx, :2] - p[:2]) ** 2, axis=1))]) for p in (a, b)]
+    for p, e in zip((a, b), ends, strict=True):  # a start or goal inside the clearance joins its nearest free cell
+        if not clear(p, centres[e], obstacles, radius_m):  # ... unless that way crosses an obstacle
+            return Plan(np.vstack([a, b]), False, "start or goal walled in")
+
+    def dist(u: int, v: int) -> float:
+        return float(math.dist(centres[u, :2], centres[v, :2]))
+
+    import networkx as nx
+
+    try:
+        cells = nx.astar_path(g, ends[0], ends[1], heuristic=dist, weight="weight")
+    except nx.NetworkXNoPath:
+        return Plan(np.vstack([a, b]), False, "no free path")
+    pts = [a, *centres[cells], b]
+    way = _shorten(pts, obstacles, keep)
+    frac = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way[:, :2], axis=0), axis=1))])
+    way[:, 2] = a[2] + (b[2] - a[2]) * frac / max(frac[-1], 1e-9)  # altitude from start to goal along the path
+    return Plan(way, True, "planned")
+
+
+def _shorten(pts: list[FloatArray], obstacles: StaticObstacles, keep_m: float) -> FloatArray:
+    """Line-of-sight shortcuts: from each kept point, the farthest later point in sight
+    (the next point when none is: the grid's own step)."""
+    out = [pts[0]]
+    i = 0
+    while i < len(pts) - 1:
+        j = len(pts) - 1
+        while j > i + 1 and not clear(pts[i], pts[j], obstacles, keep_m):
+            j -= 1
+        out.append(pts[j])
+        i = j
+    return np.array(out, dtype=float)
+
+
+class Route:
+    """An agent's path with replanning: :meth:`update` says when the agent has not come
+    closer to its goal along the path by ``progress_m`` within ``stall_s`` and gives a new
+    plan from where it is (None otherwise)."""
+
+    def __init__(
+        self,
+        obstacles: StaticObstacles,
+        radius_m: float,
+        settings: PlannerSettings | None = None,
+        stall_s: float = 4.0,
+        progress_m: float = 0.3,
+    ) -> None:
+        self.obstacles, self.radius_m, self.settings = obstacles, radius_m, settings or PlannerSettings()
+        self.stall_s, self.progress_m = stall_s, progress_m
+        self._best = math.inf  # least remaining path length [m] seen since the last plan
+        self._since = 0.0  # sim time [s] of the last progress
+        self.replans = 0
+
+    def first(self, start_w: FloatArray, goal_w: FloatArray, t_s: float = 0.0) -> Plan:
+        self._best, self._since = math.inf, t_s
+        return plan(start_w, goal_w, self.obstacles, self.radius_m, self.settings)
+
+    def update(self, t_s: float, x_w: FloatArray, goal_w: FloatArray, remaining_m: float) -> Plan | None:
+        """At sim time ``t_s`` [s], the agent at ``x_w`` with ``remaining_m`` [m] of path
+        left: a new plan if it has stalled, else None."""
+        if remaining_m < self._best - self.progress_m:
+            self._best, self._since = remaining_m, t_s
+            return None
+        if t_s - self._since < self.stall_s or remaining_m < self.progress_m or not len(self.obstacles):
+            return None
+        self.replans += 1
+        return self.first(x_w, goal_w, t_s)
+
+
+def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray, Route | None]:
+    """The waypoints (k, 3) [m, world] a configured agent flies from its start (each leg of
+    its configured path planned around ``obstacles``), and its :class:`Route` for replanning
+    (None with ``planner.kind: none`` or no static obstacle)."""
+    pts = np.asarray(agent.path(), dtype=float)
+    if agent.planner.kind == "none" or not len(obstacles) or len(pts) < 2:
+        return pts, None
+    radius_m = agent.airframe.params().body_radius_m + agent.filter.margin_m
+    route = Route(obstacles, radius_m, agent.planner.settings(), agent.planner.stall_s)
+    legs = [route.first(a, b).waypoints_w for a, b in zip(pts[:-1], pts[1:], strict=True)]
+    return np.vstack([legs[0], *(leg[1:] for leg in legs[1:])]), route

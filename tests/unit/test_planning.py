@@ -1,0 +1,172 @@
+"""Reference paths around static obstacles (swarm.planning) by what they promise: a path
+keeps the clearance it is asked for, goes where the straight line cannot, says when there
+is no way, and replans a stalled agent; and the filter keeps its guarantee whatever path it
+is given."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarm.config import resolve
+from swarm.control import PathTracker, reference_thrust
+from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.offline.closed_loop import SwarmAgent, scenario_swarm, simulate_swarm
+from swarm.offline.scenario import corridor, doorway, forest, trap
+from swarm.planning import PlannerSettings, Route, StaticObstacles, clear, plan
+from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import ObstacleArrays
+
+pytestmark = pytest.mark.unit
+
+R = 0.09  # an agent's safety radius against a static obstacle [m]
+KEEP = R + PlannerSettings().clearance_m
+
+
+def pillars(xy: list[tuple[float, float]], r: float = 0.15) -> StaticObstacles:
+    n = len(xy)
+    c = np.array([[x, y, 1.0] for x, y in xy], dtype=float).reshape(n, 3)
+    return StaticObstacles(c, np.full(n, r), np.tile([0.0, 0.0, 1.0], (n, 1)))
+
+
+def of_scene(raw: dict) -> StaticObstacles:
+    return StaticObstacles.of(list(resolve(raw).obstacles))
+
+
+def keeps(waypoints: np.ndarray, obstacles: StaticObstacles, keep: float) -> bool:
+    legs = zip(waypoints[:-1], waypoints[1:], strict=True)
+    return all(clear(a, b, obstacles, keep - 1e-9, step_m=0.005) for a, b in legs)
+
+
+def test_a_clear_straight_line_is_the_plan():
+    p = plan([0, 0, 1.0], [4, 0, 1.0], pillars([(2.0, 1.0)]), R)
+    assert p.found and p.reason == "straight" and p.waypoints_w.shape == (2, 3)
+
+
+@pytest.mark.parametrize("start, goal", [((-3, 1.5), (3, 1.5)), ((-3, -1.5), (3, 2.0))])
+def test_a_path_through_the_doorway_keeps_its_clearance(start, goal):
+    obs = of_scene(doorway(2))
+    a, b = np.array([*start, 1.0]), np.array([*goal, 1.0])
+    p = plan(a, b, obs, R)
+    assert p.found and p.reason == "planned"
+    assert np.array_equal(p.waypoints_w[0], a) and np.array_equal(p.waypoints_w[-1], b)
+    assert keeps(p.waypoints_w, obs, KEEP)
+    assert abs(p.waypoints_w[:, 0]).min() < 0.5 and abs(p.waypoints_w[np.argmin(abs(p.waypoints_w[:, 0])), 1]) < 0.4
+    assert p.length_m < 1.2 * (math.dist(a, [0, 0, 1.0]) + math.dist([0, 0, 1.0], b))  # near the shortest way
+
+
+def test_the_trap_s_way_out_is_round_the_opening():
+    cfg = resolve(trap())
+    obs, a = StaticObstacles.of(list(cfg.obstacles)), cfg.agents[0]
+    p = plan(np.array(a.start), np.array(a.goal), obs, R)
+    assert p.found and keeps(p.waypoints_w, obs, KEEP)
+    assert p.waypoints_w[:, 0].max() > 2.0  # out through the opening beyond the arms' ends (x = 2)
+    assert p.length_m > 1.5 * math.dist(a.start, a.goal)  # out, round an arm and back
+
+
+@pytest.mark.parametrize("ring_m, count, why", [(0.6, 10, "no free path"), (0.3, 6, "start or goal walled in")])
+def test_a_goal_walled_in_has_no_path_and_says_so(ring_m, count, why):
+    """A ring of touching pillars round the goal: free inside it (0.6 m) or not (0.3 m)."""
+    ring = [(2 + ring_m * math.cos(t), ring_m * math.sin(t)) for t in np.linspace(0, 2 * math.pi, count + 1)[:-1]]
+    p = plan([-2, 0, 1.0], [2, 0, 1.0], pillars(ring, r=0.2), R)
+    assert not p.found and p.reason == why
+    np.testing.assert_array_equal(p.waypoints_w, [[-2, 0, 1.0], [2, 0, 1.0]])  # the straight line: the filter stops it
+
+
+def test_a_start_inside_the_clearance_still_gets_a_path():
+    obs = pillars([(0.0, 0.0)])
+    p = plan([-0.3, 0.0, 1.0], [2.0, 0.0, 1.0], obs, R)  # 0.15 m from the surface: inside R + clearance
+    assert p.found and np.array_equal(p.waypoints_w[0], [-0.3, 0.0, 1.0])
+    assert keeps(p.waypoints_w[1:], obs, KEEP)
+
+
+def test_a_grid_too_large_is_refused_by_name():
+    with pytest.raises(Exception, match="max_cells"):
+        plan([-3, 1.5, 1.0], [3, 1.5, 1.0], of_scene(doorway(2)), R, PlannerSettings(resolution_m=0.01))
+
+
+def test_a_stalled_agent_replans_from_where_it_is_and_a_moving_one_does_not():
+    obs = of_scene(doorway(2))
+    route = Route(obs, R, stall_s=2.0, progress_m=0.3)
+    first = route.first(np.array([-3, 1.5, 1.0]), np.array([3, 1.5, 1.0]))
+    goal = first.waypoints_w[-1]
+    for k in range(40):  # progressing 0.1 m every 0.1 s
+        assert route.update(0.1 * k, np.array([-3 + 0.1 * k, 1.5, 1.0]), goal, first.length_m - 0.1 * k) is None
+    here = np.array([-0.5, 1.0, 1.0])
+    news = [route.update(4.0 + 0.1 * k, here, goal, 2.0) for k in range(30)]  # stuck: no progress for 3 s
+    replanned = [p for p in news if p is not None]
+    assert len(replanned) == 1 and route.replans == 1
+    assert np.array_equal(replanned[0].waypoints_w[0], here) and np.array_equal(replanned[0].waypoints_w[-1], goal)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    xy=st.lists(st.tuples(st.floats(-2.0, 2.0), st.floats(-2.0, 2.0)), min_size=1, max_size=12),
+    r=st.floats(0.1, 0.4),
+    seed=st.integers(0, 1000),
+)
+def test_every_planned_segment_keeps_its_clearance(xy, r, seed):
+    rng = np.random.default_rng(seed)
+    obs = pillars(xy, r)
+    a = np.array([-3.5, rng.uniform(-2, 2), 1.0])
+    b = np.array([3.5, rng.uniform(-2, 2), 1.0])
+    p = plan(a, b, obs, R, PlannerSettings(resolution_m=0.1))
+    assert np.all(np.isfinite(p.waypoints_w))
+    assert np.array_equal(p.waypoints_w[0], a) and np.array_equal(p.waypoints_w[-1], b)
+    if p.found:
+        assert keeps(p.waypoints_w, obs, KEEP)
+    else:
+        assert p.waypoints_w.shape == (2, 3)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    way=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=1, max_size=5),
+    pos=st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)),
+    vel=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)),
+)
+def test_whatever_path_the_tracker_is_given_the_filter_s_command_keeps_every_row(way, pos, vel):
+    """Waypoints anywhere (through the pillar, behind the drone, a single point): the
+    reference they make is only a reference; the filter's command satisfies every row
+    whenever it reports OK, and is finite always."""
+    model = QuadModel()
+    filt = SafetyFilter(model, FilterConfig(level=CommandLevel.ATTITUDE, gamma=2.0, floor_z_m=None))
+    obs = ObstacleArrays.build(c_w=[[0.0, 0.0, 1.0]], radius_m=[0.3], axis_w=[[0.0, 0.0, 1.0]])
+    x = np.array([*pos, 1.0])
+    if np.hypot(*pos) < 0.3 + 0.11:
+        x[:2] = np.array(pos) / max(np.hypot(*pos), 1e-3) * 0.5  # outside the safety radius
+    state = QuadState.hover(x)
+    state.v_w = np.array([*vel, 0.0])
+    tracker = PathTracker(np.array([x, *[[wx, wy, 1.0] for wx, wy in way]]), 0.8)
+    F = reference_thrust(model, tracker, state.x_w, state.v_w, state.x_w, np.zeros((0, 3)), None)
+    res = filt.filter(state, F, obs)
+    assert np.all(np.isfinite(res.u))
+    if res.status is FilterStatus.OK:
+        assert res.max_violation <= 1e-6 and (res.constraint >= -1e-6).all()
+
+
+def test_a_path_straight_through_a_pillar_is_flown_without_touching_it():
+    """The planner's worst case (a stale path through an obstacle): the filter alone keeps
+    the drone outside its safety radius."""
+    cfg = resolve(doorway(2))
+    agents, obs = scenario_swarm(cfg)
+    wall = [o for o in cfg.obstacles if o.id == "wall_l3"][0]
+    through = np.array([[wall.center[0], wall.center[1], 1.0], [2.0, wall.center[1], 1.0]])
+    a = SwarmAgent(np.array([-2.0, wall.center[1], 1.0]), through, 0.8, agents[0].config)
+    log = simulate_swarm(QuadModel(), [a], obs, 6.0, control_hz=cfg.time.control_hz, physics_hz=cfg.time.physics_hz)
+    assert log.min_clearance_m >= R - 0.01  # the safety radius, less the attitude lag's few mm
+
+
+@pytest.mark.parametrize("make", [lambda: doorway(6), lambda: corridor(4), trap, lambda: forest(4, 0.6)])
+def test_every_scene_among_walls_is_valid_and_planned_round_its_walls(make):
+    cfg = resolve(make())
+    still = StaticObstacles.of(list(cfg.obstacles))
+    agents, _ = scenario_swarm(cfg)
+    for spec, a in zip(cfg.agents, agents, strict=True):
+        path = np.vstack([a.start_w, a.path_w])
+        assert np.array_equal(path[-1], spec.goal)
+        assert keeps(path[1:-1], still, KEEP) if len(path) > 3 else True

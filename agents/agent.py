@@ -260,14 +260,18 @@ class Agent:
             self.missed += sum(1 for n in near if (s := self.table.state(n)) is None or t - s.t_s > timeout_s)
         return self.table.arrays(t)
 
-    def _replan(self, t_s: float, x_w: np.ndarray) -> None:
-        """A new path from where the agent is, if it has made no progress along its own
-        for a while (swarm.planning.Route)."""
+    def _route(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> bool:
+        """The route at this tick (swarm.planning.Route): a new path from where the agent is
+        if it has made no progress along its own for a while; then whether it gives way
+        before a narrow passage to the neighbours it hears."""
         if self.route is None:
-            return
-        new = self.route.update(t_s, x_w, self.goal, self.tracker.reference(x_w)[2])
+            return False
+        remaining = self.tracker.reference(state.x_w)[2]
+        new = self.route.update(t_s, state.x_w, self.goal, remaining)
         if new is not None:
             self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps)
+            remaining = self.tracker.reference(state.x_w)[2]
+        return self.route.waits(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
@@ -288,9 +292,14 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
-        if tracker is self.tracker:
-            self._replan(t, state.x_w)
-        F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
+        waits = False
+        if tracker is self.tracker:  # the mission's path (not a real drone's take-off or landing)
+            waits = self._route(t, state, neighbours)  # gives way before a narrow passage
+            tracker = self.tracker  # (replanned)
+        if waits:
+            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, np.zeros(3))  # hover where it is
+        else:
+            F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours]) if len(self.obstacles) else neighbours
         row_ids: list[str] = []

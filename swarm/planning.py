@@ -211,10 +211,95 @@ def _shorten(pts: list[FloatArray], obstacles: StaticObstacles, keep_m: float) -
     return np.array(out, dtype=float)
 
 
+NARROW_M = 0.45
+"""A path point closer than this [m] to an obstacle surface is in a narrow passage: two
+drones, each keeping its safety radius and the planner's clearance, cannot pass there."""
+WAIT_M = 1.0
+"""An agent that gives way waits this far [m] before the passage's entry, or where it is."""
+TIE_M = 0.05
+"""Two agents whose distances to the passage differ by less than this [m] are tied."""
+MAX_WAIT_S = 8.0
+"""An agent gives way at most this long [s] per passage, then goes (two agents whose
+passages differ can each see the other first)."""
+
+
+@dataclass(frozen=True)
+class Passage:
+    """The first narrow stretch of a path: its sample points ``points_w`` (k, 3) [m, world]
+    and where it starts and ends, ``s_in_m`` and ``s_out_m`` [m] of path from the start."""
+
+    points_w: FloatArray
+    s_in_m: float
+    s_out_m: float
+
+    @property
+    def entry_w(self) -> FloatArray:
+        return self.points_w[0]
+
+    @property
+    def exit_w(self) -> FloatArray:
+        return self.points_w[-1]
+
+
+def passage_of(waypoints_w: FloatArray, obstacles: StaticObstacles, step_m: float = 0.05) -> Passage | None:
+    """The first stretch of the path ``waypoints_w`` (k, 3) whose points are closer than
+    :data:`NARROW_M` to an obstacle, or None."""
+    W = np.asarray(waypoints_w, dtype=float)
+    if W.shape[0] < 2 or not len(obstacles):
+        return None
+    pts = [W[:1]]
+    for a, b in zip(W[:-1], W[1:], strict=True):
+        pts.append(_segment_points(a, b, step_m)[1:])
+    P = np.vstack(pts)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+    narrow = obstacles.clearance(P) < NARROW_M
+    if not narrow.any():
+        return None
+    i = int(np.argmax(narrow))
+    j = i + int(np.argmin(narrow[i:])) if not narrow[i:].all() else len(P)
+    return Passage(P[i:j], float(s[i]), float(s[j - 1]))
+
+
+def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray) -> bool:
+    """Whether an agent ``s_m`` [m] along its path, at ``x_w`` [m, world], waits before its
+    ``passage`` for the other agents at ``others_x_w`` (k, 3) moving at ``others_v_w`` (k,
+    3) [m/s, world]: it does while, within :data:`WAIT_M` of the entry, another agent in
+    the passage comes against it, or one outside it on the far side, not moving away, is
+    nearer its end of the passage than this agent is to its own (a tie goes to the agent
+    whose position is first in (x, y, z) order). Agents that go the same way follow each
+    other. Every agent decides from positions and velocities it hears, by the same rule,
+    so two agents at the two ends of a passage never both go (docs/design.md, "Reference
+    paths")."""
+    if not (passage.s_in_m - WAIT_M <= s_m < passage.s_in_m) or not len(others_x_w):
+        return False
+    along = passage.exit_w - passage.entry_w
+    along = along / max(float(np.linalg.norm(along)), 1e-9)
+    mine = float(np.linalg.norm(x_w - passage.entry_w))
+    inside = np.min(np.linalg.norm(others_x_w[:, None, :] - passage.points_w[None], axis=2), axis=1) < NARROW_M
+    against = others_v_w @ along <= 0.05  # not moving through the passage my way
+    to_exit = np.linalg.norm(others_x_w - passage.exit_w, axis=1)
+    to_entry = np.linalg.norm(others_x_w - passage.entry_w, axis=1)
+    coming = np.sum(others_v_w * (passage.exit_w - others_x_w), axis=1) >= 0.0  # towards its end, or at rest
+    first = (to_exit < mine - TIE_M) | ((np.abs(to_exit - mine) <= TIE_M) & _before(others_x_w, x_w))
+    far_side = (to_exit < to_entry) & ~inside & coming & first
+    return bool(np.any(inside & against) or np.any(far_side))
+
+
+def _before(others_x_w: FloatArray, x_w: FloatArray) -> np.ndarray:
+    """(k,) whether each other position comes before ``x_w`` in (x, y, z) order."""
+    out = np.zeros(others_x_w.shape[0], dtype=bool)
+    undecided = np.ones(others_x_w.shape[0], dtype=bool)
+    for d in range(3):
+        out |= undecided & (others_x_w[:, d] < x_w[d])
+        undecided &= others_x_w[:, d] == x_w[d]
+    return out
+
+
 class Route:
     """An agent's path with replanning: :meth:`update` says when the agent has not come
     closer to its goal along the path by ``progress_m`` within ``stall_s`` and gives a new
-    plan from where it is (None otherwise)."""
+    plan from where it is (None otherwise). It also keeps the path's first narrow passage
+    (:attr:`passage`, :func:`gives_way`)."""
 
     def __init__(
         self,
@@ -229,10 +314,38 @@ class Route:
         self._best = math.inf  # least remaining path length [m] seen since the last plan
         self._since = 0.0  # sim time [s] of the last progress
         self.replans = 0
+        self.passage: Passage | None = None  # the current path's first narrow passage
+        self.length_m = 0.0  # the current path's length [m]
+        self._waiting_since: float | None = None  # sim time [s] it began to give way at this passage
 
     def first(self, start_w: FloatArray, goal_w: FloatArray, t_s: float = 0.0) -> Plan:
         self._best, self._since = math.inf, t_s
-        return plan(start_w, goal_w, self.obstacles, self.radius_m, self.settings)
+        p = plan(start_w, goal_w, self.obstacles, self.radius_m, self.settings)
+        self.follow(p.waypoints_w)
+        return p
+
+    def follow(self, waypoints_w: FloatArray) -> None:
+        """The path now flown (its passage and length)."""
+        self.passage = passage_of(waypoints_w, self.obstacles)
+        self.length_m = float(np.linalg.norm(np.diff(waypoints_w, axis=0), axis=1).sum())
+        self._waiting_since = None
+
+    def waits(
+        self, t_s: float, remaining_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray
+    ) -> bool:
+        """:func:`gives_way` at sim time ``t_s`` [s] on the current path, ``remaining_m`` [m]
+        of it left, for at most :data:`MAX_WAIT_S` at this passage; time spent giving way
+        does not count as a stall."""
+        if self.passage is None:
+            return False
+        if self._waiting_since is not None and t_s - self._waiting_since > MAX_WAIT_S:
+            return False  # waited long enough: go
+        wait = gives_way(self.passage, self.length_m - remaining_m, x_w, others_x_w, others_v_w)
+        if wait:
+            self._since = t_s
+            if self._waiting_since is None:
+                self._waiting_since = t_s
+        return wait
 
     def update(self, t_s: float, x_w: FloatArray, goal_w: FloatArray, remaining_m: float) -> Plan | None:
         """At sim time ``t_s`` [s], the agent at ``x_w`` with ``remaining_m`` [m] of path
@@ -256,4 +369,6 @@ def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray
     radius_m = agent.airframe.params().body_radius_m + agent.filter.margin_m
     route = Route(obstacles, radius_m, agent.planner.settings(), agent.planner.stall_s)
     legs = [route.first(a, b).waypoints_w for a, b in zip(pts[:-1], pts[1:], strict=True)]
-    return np.vstack([legs[0], *(leg[1:] for leg in legs[1:])]), route
+    path = np.vstack([legs[0], *(leg[1:] for leg in legs[1:])])
+    route.follow(path)
+    return path, route

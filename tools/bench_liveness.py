@@ -26,9 +26,16 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations,
 min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.offline.metrics``), deadlocks,
-infeasible_ticks, mean_time_ratio, worst_time_ratio, per_run (each seed's success, collisions,
-margin_violations, deadlocks, infeasible ticks and time ratios), orca, horizon_s, buffer_mps,
-contact_s, free_braking, gamma, sensing_radius_m (null: the default).
+infeasible_ticks, mean_time_ratio, worst_time_ratio (against the straight line),
+mean_free_time_ratio, worst_free_time_ratio (against the shortest path that keeps the safety radius
+from the static obstacles: :func:`free_times`), per_run (each seed's success, collisions,
+margin_violations, deadlocks, infeasible ticks and time ratios), orca, orca_path (ORCA along the
+paths the C3BF agents plan, among walls), horizon_s, buffer_mps, contact_s, free_braking, gamma,
+sensing_radius_m (null: the default).
+
+Families among walls (``doorway`` 2 to 8 abreast, ``corridor`` two flows of 4, ``trap``,
+``forest`` at two densities, ``swarm.offline.scenario``) fly the paths each agent plans
+(``swarm.planning``), as every agent does by default where there are static obstacles.
 """
 
 from __future__ import annotations
@@ -48,7 +55,19 @@ import numpy as np
 from swarm.config import ScenarioConfig, resolve
 from swarm.model import QuadModel
 from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
-from swarm.offline.scenario import SwapSettings, circle_swap, formation, pillar_swap, sphere_field, sphere_swap
+from swarm.offline.scenario import (
+    SwapSettings,
+    circle_swap,
+    corridor,
+    doorway,
+    forest,
+    formation,
+    pillar_swap,
+    sphere_field,
+    sphere_swap,
+    trap,
+)
+from swarm.planning import PlannerSettings, StaticObstacles, path_for, plan
 
 PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
 
@@ -97,6 +116,26 @@ def _pillar(perturbed: bool, seed: int) -> dict:
     return pillar_swap(8, settings=SwapSettings(perturb_m=PERTURB_M, seed=seed) if perturbed else None)
 
 
+def _doorway(n: int, seed: int) -> dict:
+    return doorway(n)
+
+
+def _corridor(n: int, seed: int) -> dict:
+    return corridor(n)
+
+
+def _trap(seed: int) -> dict:
+    return trap()
+
+
+def _forest(density: float, seed: int) -> dict:
+    return forest(4, density, SwapSettings(seed=seed))
+
+
+WALLS = ("doorway", "corridor", "trap", "forest")
+"""The families among walls (their time ratios are against the shortest free path)."""
+
+
 def points(quick: bool, seeds: int) -> Iterator[Point]:
     few = (0,) if quick else tuple(range(seeds))
     for rho in (1.0, 0.5):
@@ -111,6 +150,12 @@ def points(quick: bool, seeds: int) -> Iterator[Point]:
         yield Point("formation", "formation_4", 4, rho, True, _formation, (0,))
         yield Point("pillar", "pillar_8", 8, rho, True, partial(_pillar, False), (0,))
         yield Point("pillar", "pillar_8", 8, rho, False, partial(_pillar, True), few)
+        for n in (2, 6) if quick else (2, 4, 6, 8):
+            yield Point("doorway", f"doorway_{n}", n, rho, True, partial(_doorway, n), (0,))
+        yield Point("corridor", "corridor_4x2", 8, rho, True, partial(_corridor, 4), (0,))
+        yield Point("trap", "trap", 1, rho, True, _trap, (0,))
+        for trees in (0.3, 0.6):
+            yield Point("forest", f"forest_4_d{trees:g}", 4, rho, False, partial(_forest, trees), few)
 
 
 def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
@@ -125,7 +170,9 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         goal_tolerance_m=cfg.goal_tolerance_m,
     )
     o = outcome(cfg, log)
+    free = free_times(cfg)
     return {
+        "free_ratios": [t / f for t, f in zip(log.time_to_goal_s, free, strict=True) if t is not None and f > 0],
         "success": o.success,
         "collisions": o.collisions,
         "margin_violations": o.margin_violations,
@@ -137,12 +184,30 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
     }
 
 
-def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
+def free_times(cfg: ScenarioConfig) -> list[float]:
+    """Each agent's time [s] at its target speed along the shortest path that keeps its
+    safety radius from the static obstacles (the grid planner with no clearance, 5 cm
+    cells: a few per cent longer than the exact shortest path at most); the straight line
+    where that is clear."""
+    still = StaticObstacles.of(list(cfg.obstacles))
+    fine = PlannerSettings(resolution_m=0.05, clearance_m=0.0)
+    out = []
+    for a in cfg.agents:
+        r = a.airframe.params().body_radius_m + a.filter.margin_m
+        out.append(plan(np.array(a.start), np.array(a.final_goal), still, r, fine).length_m / a.speed_mps)
+    return out
+
+
+def _orca(cfg: ScenarioConfig, with_paths: bool = False) -> dict[str, Any] | None:
+    """ORCA on ``cfg``, its preferred velocity at the goal, or with ``with_paths`` along the
+    path each C3BF agent plans (swarm.planning); None where ORCA cannot fly the scene."""
     from swarm.offline.orca import run_orca
 
+    still = StaticObstacles.of(list(cfg.obstacles))
+    paths = [path_for(a, still)[0] for a in cfg.agents] if with_paths else None
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            m = run_orca(cfg, Path(tmp))
+            m = run_orca(cfg, Path(tmp), paths=paths)
         except ValueError:  # a scene neither RVO2 nor RVO2-3D can fly
             return None
     ratios = [
@@ -150,7 +215,13 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
         for i, a in enumerate(m["agents"].values())
         if a["time_to_goal_s"] is not None
     ]
+    free = free_times(cfg)
     return {
+        "free_ratios": [
+            a["time_to_goal_s"] / free[i]
+            for i, a in enumerate(m["agents"].values())
+            if a["time_to_goal_s"] is not None and free[i] > 0
+        ],
         "success": bool(m["all_reached_goal"]) and m["collisions"] == 0,
         "collisions": m["collisions"],
         "margin_violations": m["margin_violations"],
@@ -162,16 +233,24 @@ def _orca(cfg: ScenarioConfig) -> dict[str, Any] | None:
     }
 
 
-def _run(args: tuple[dict, bool]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+def _run(args: tuple[dict, bool]) -> tuple[dict[str, Any], dict[str, Any] | None, dict[str, Any] | None]:
+    """One scene: C3BF, and with ``with_orca`` ORCA (and, among walls, ORCA along the
+    planned paths)."""
     raw, with_orca = args
     cfg = resolve(raw)
-    return _c3bf(cfg), (_orca(cfg) if with_orca else None)
+    walls = any(not any(o.velocity) for o in cfg.obstacles) and cfg.name.split("_")[0] in WALLS
+    return (
+        _c3bf(cfg),
+        _orca(cfg) if with_orca else None,
+        _orca(cfg, with_paths=True) if with_orca and walls else None,
+    )
 
 
 def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """The figures of one point over its runs, with each run's own (``per_run``: every mean
     and count can be recomputed from them)."""
     ratios = [r for run in runs for r in run["ratios"]]
+    free = [r for run in runs for r in run["free_ratios"]]
     infeasible = [run["infeasible"] for run in runs]
     return {
         "runs": len(runs),
@@ -184,6 +263,8 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "infeasible_ticks": None if None in infeasible else sum(infeasible),
         "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,
         "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
+        "mean_free_time_ratio": round(float(np.mean(free)), 3) if free else None,
+        "worst_free_time_ratio": round(float(np.max(free)), 3) if free else None,
         "per_run": runs,
     }
 
@@ -206,7 +287,7 @@ class _Pool:
             self.pool = ProcessPoolExecutor(max_workers=self.jobs)
         return self
 
-    def map(self, args: list[tuple[dict, bool]]) -> list[tuple[dict[str, Any], dict[str, Any] | None]]:
+    def map(self, args: list[tuple[dict, bool]]) -> list[tuple[dict[str, Any], dict[str, Any] | None, Any]]:
         if self.engine == "ray":
             return list(self.ray.get([self.task.remote(a) for a in args]))
         return list(self.pool.map(_run, args))
@@ -246,9 +327,11 @@ def main(
             raws = [_with_filter(p.make(s), p.rho, **fields) for s in p.seeds]
             results = pool.map([(raw, orca and p.rho == 1.0) for raw in raws])
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
-            line |= _summary([c for c, _ in results])
-            orca_runs = [o for _, o in results if o is not None]
+            line |= _summary([c for c, _, _ in results])
+            orca_runs = [o for _, o, _ in results if o is not None]
             line["orca"] = _summary(orca_runs) if orca_runs else None
+            orca_paths = [o for _, _, o in results if o is not None]
+            line["orca_path"] = _summary(orca_paths) if orca_paths else None
             line |= fields
             print(json.dumps(line), flush=True)
 
@@ -257,7 +340,10 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="one seed, smaller swarms")
     ap.add_argument("--seeds", type=int, default=3, help="seeds per perturbed scene")
-    ap.add_argument("--family", choices=["sphere_field", "circle", "sphere", "formation", "pillar"])
+    ap.add_argument(
+        "--family",
+        choices=["sphere_field", "circle", "sphere", "formation", "pillar", "doorway", "corridor", "trap", "forest"],
+    )
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-orca", action="store_true")
     ap.add_argument("--horizon-s", type=float, help="filter.horizon_s of every agent (default: none)")

@@ -152,6 +152,30 @@ def _body_rows(states: list[QuadState], l_m: float) -> tuple[FloatArray, FloatAr
     return xb, vb
 
 
+def _gives_way(
+    agent: SwarmAgent,
+    trackers: list[PathTracker],
+    i: int,
+    t_s: float,
+    state: QuadState,
+    goal_w: FloatArray,
+    others_x_w: FloatArray,
+    others_v_w: FloatArray,
+) -> bool:
+    """The agent's route at this tick, as the agent process runs it: a new path if it has
+    stalled (``trackers[i]`` replaced), then whether it waits before a narrow passage
+    (swarm.planning.gives_way)."""
+    route = agent.route
+    if route is None:
+        return False
+    remaining = trackers[i].reference(state.x_w)[2]
+    new = route.update(t_s, state.x_w, goal_w, remaining)
+    if new is not None:
+        trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps)
+        remaining = trackers[i].reference(state.x_w)[2]
+    return route.waits(t_s, remaining, state.x_w, others_x_w, others_v_w)
+
+
 def simulate_swarm(
     model: QuadModel,
     agents: list[SwarmAgent],
@@ -204,14 +228,12 @@ def simulate_swarm(
         setpoints = []
         for i in range(n):
             nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
-            route = agents[i].route
-            if route is not None:
-                new = route.update(t, states[i].x_w, goals[i], trackers[i].reference(states[i].x_w)[2])
-                if new is not None:
-                    trackers[i] = PathTracker(new.waypoints_w, agents[i].speed_mps)
-            F_ref = reference_thrust(
-                model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
-            )
+            if _gives_way(agents[i], trackers, i, t, states[i], goals[i], xb[others[i]], vb[others[i]]):
+                F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, np.zeros(3))  # wait: hover
+            else:
+                F_ref = reference_thrust(
+                    model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
+                )
             if agents[i].filtered:
                 res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
                 u, status = res.u, res.status

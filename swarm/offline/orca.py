@@ -144,6 +144,20 @@ def planar(cfg: ScenarioConfig) -> bool:
     return all(abs(a.final_goal[2] - a.start[2]) <= 1e-6 for a in cfg.agents)
 
 
+WAYPOINT_REACHED_M = 0.3
+"""ORCA with paths: an agent this close [m] to its next waypoint aims at the one after."""
+
+
+def _next_waypoints(paths: list[FloatArray], nxt: list[int], P: FloatArray) -> FloatArray:
+    """Each agent's waypoint to aim at (advancing ``nxt`` in place past reached ones)."""
+    out = np.empty_like(P)
+    for i, W in enumerate(paths):
+        while nxt[i] < len(W) - 1 and np.linalg.norm(W[nxt[i]] - P[i]) <= WAYPOINT_REACHED_M:
+            nxt[i] += 1
+        out[i] = W[min(nxt[i], len(W) - 1)]
+    return out
+
+
 def run_orca(
     cfg: ScenarioConfig,
     out: Path,
@@ -152,10 +166,14 @@ def run_orca(
     neighbour_dist_m: float = 3.0,
     max_neighbours: int = 16,
     kp_per_s: float = 1.5,
+    paths: list[FloatArray] | None = None,
 ) -> dict[str, Any]:
     """Simulate ``cfg`` with ORCA at its control rate (the planar backend if every agent
     keeps its altitude, else the spatial one); write ``config.yaml`` and ``metrics.json``
-    into ``out``; return the metrics. A scenario neither backend can fly raises ValueError."""
+    into ``out``; return the metrics. A scenario neither backend can fly raises ValueError.
+    Each agent's preferred velocity points at its goal, or with ``paths`` (one (k, 3)
+    waypoint array [m, world] per agent, from its start) at its next waypoint, taken as
+    reached within ``WAYPOINT_REACHED_M``."""
     dt = 1.0 / cfg.time.control_hz
     backend = (_Planar if planar(cfg) else _Spatial)(cfg, dt, time_horizon_s, neighbour_dist_m, max_neighbours)
     ids = [a.id for a in cfg.agents]
@@ -168,6 +186,7 @@ def run_orca(
     touching: set[tuple[int, int]] = set()
     q = [0.0, 0.0, 0.0, 1.0]
     steps = round(cfg.duration_s * cfg.time.control_hz)
+    nxt = [1] * n  # each agent's next waypoint (with paths)
     k = 0
     for k in range(steps + 1):
         t = k * dt
@@ -192,12 +211,14 @@ def run_orca(
                 if d[i, j] < body[i] + body[j] and (i, j) not in touching:
                     touching.add((i, j))
                     records.append({"kind": "collision", "t": t, "k": k, "a": ids[i], "b": ids[j]})
-        to_goal = goals - P
-        dist = np.linalg.norm(to_goal, axis=1)
-        arrived = dist <= cfg.goal_tolerance_m
+        arrived = np.linalg.norm(goals - P, axis=1) <= cfg.goal_tolerance_m
         if cfg.stop_when_all_reached and arrived.all() or k == steps:
             break
-        pref = to_goal * (np.minimum(speed, kp_per_s * dist) / np.maximum(dist, 1e-9))[:, None]
+        aim = goals if paths is None else _next_waypoints(paths, nxt, P)
+        to_aim = aim - P
+        dist = np.linalg.norm(to_aim, axis=1)
+        slow = np.linalg.norm(goals - P, axis=1)  # slowing within kp of the goal, not of a waypoint
+        pref = to_aim * (np.minimum(speed, kp_per_s * slow) / np.maximum(dist, 1e-9))[:, None]
         t0 = time.perf_counter()
         backend.step(pref)
         per_agent_us = (time.perf_counter() - t0) * 1e6 / n

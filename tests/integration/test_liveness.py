@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swarm.config import TiebreakSettings, resolve
-from swarm.offline.scenario import SwapSettings, circle_swap, sphere_swap
+from swarm.offline.scenario import SwapSettings, circle_swap, doorway, sphere_swap, trap
 
 BODY = 0.07  # Crazyflie bounding radius [m]
 MARGIN = 0.02  # filter margin [m]
@@ -40,6 +40,8 @@ SCENES = {
     "sphere_8_radius_1p5": lambda: sphere_swap(8, 1.5),
     "exact_two_drone_swap": lambda: circle_swap(2, 2.0, SwapSettings(duration_s=14.0)),
     "drone_before_a_sphere_field": sphere_field,
+    "drone_in_a_u_shaped_trap": trap,  # out through the opening on its planned path (swarm.planning)
+    "four_abreast_through_a_doorway": lambda: doorway(4),
 }
 
 
@@ -48,6 +50,7 @@ def test_a_swarm_at_rest_reaches_every_goal_without_collision(start_run, name):
     raw = SCENES[name]()
     cfg = resolve(raw)
     assert all(a.filter.live and a.tiebreak == TiebreakSettings() for a in cfg.agents)  # the defaults
+    assert all(a.planner.kind == "grid" for a in cfg.agents)
     assert all(a.start_velocity == [0.0, 0.0, 0.0] for a in cfg.agents)  # from rest
     h = start_run(cfg, name)
     assert h.wait() == "completed"

@@ -170,3 +170,41 @@ def test_every_scene_among_walls_is_valid_and_planned_round_its_walls(make):
         path = np.vstack([a.start_w, a.path_w])
         assert np.array_equal(path[-1], spec.goal)
         assert keeps(path[1:-1], still, KEEP) if len(path) > 3 else True
+
+
+def _corridor_routes() -> tuple[list, list]:
+    cfg = resolve(corridor(1))  # one drone each way
+    agents, _ = scenario_swarm(cfg)
+    return agents, [np.vstack([a.start_w, a.path_w]) for a in agents]
+
+
+@pytest.mark.parametrize("left_m, right_m", [(0.5, 0.8), (0.8, 0.5), (0.6, 0.6)])
+def test_of_two_drones_at_the_two_ends_of_a_passage_exactly_one_gives_way(left_m, right_m):
+    """Each decides alone from the other's position: the nearer goes, a tie by position."""
+    from swarm.planning import gives_way
+
+    agents, paths = _corridor_routes()
+    at = []
+    for a, dist in zip(agents, (left_m, right_m), strict=True):
+        p = a.route.passage
+        back = (p.entry_w - p.points_w[min(5, len(p.points_w) - 1)]) / np.linalg.norm(
+            p.entry_w - p.points_w[min(5, len(p.points_w) - 1)]
+        )
+        at.append((p.s_in_m - dist, p.entry_w + dist * back))
+    waits = [
+        gives_way(a.route.passage, s, x, np.array([at[1 - i][1]]), np.zeros((1, 3)))
+        for i, (a, (s, x)) in enumerate(zip(agents, at, strict=True))
+    ]
+    assert sum(waits) == 1
+    if left_m != right_m:
+        assert waits == [left_m > right_m, right_m > left_m]  # the farther one waits
+
+
+def test_drones_going_the_same_way_through_a_passage_follow_each_other():
+    from swarm.planning import gives_way
+
+    agents, _ = _corridor_routes()
+    p = agents[0].route.passage
+    ahead = p.points_w[len(p.points_w) // 2]  # in the passage, moving my way
+    assert not gives_way(p, p.s_in_m - 0.5, p.entry_w - [0.5, 0, 0], ahead[None], np.array([[0.8, 0.0, 0.0]]))
+    assert gives_way(p, p.s_in_m - 0.5, p.entry_w - [0.5, 0, 0], ahead[None], np.array([[-0.8, 0.0, 0.0]]))

@@ -218,6 +218,8 @@ WAIT_M = 1.0
 """An agent that gives way waits this far [m] before the passage's entry, or where it is."""
 TIE_M = 0.05
 """Two agents whose distances to the passage differ by less than this [m] are tied."""
+COMING_MPS = 0.1
+"""An agent beyond the passage counts once it flies towards it faster than this [m/s]."""
 MAX_WAIT_S = 8.0
 """An agent gives way at most this long [s] per passage, then goes (two agents whose
 passages differ can each see the other first)."""
@@ -264,7 +266,7 @@ def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatAr
     """Whether an agent ``s_m`` [m] along its path, at ``x_w`` [m, world], waits before its
     ``passage`` for the other agents at ``others_x_w`` (k, 3) moving at ``others_v_w`` (k,
     3) [m/s, world]: it does while, within :data:`WAIT_M` of the entry, another agent in
-    the passage comes against it, or one outside it on the far side, not moving away, is
+    the passage comes against it, or one outside it on the far side, flying towards it, is
     nearer its end of the passage than this agent is to its own (a tie goes to the agent
     whose position is first in (x, y, z) order). Agents that go the same way follow each
     other. Every agent decides from positions and velocities it hears, by the same rule,
@@ -279,7 +281,8 @@ def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatAr
     against = others_v_w @ along <= 0.05  # not moving through the passage my way
     to_exit = np.linalg.norm(others_x_w - passage.exit_w, axis=1)
     to_entry = np.linalg.norm(others_x_w - passage.entry_w, axis=1)
-    coming = np.sum(others_v_w * (passage.exit_w - others_x_w), axis=1) >= 0.0  # towards its end, or at rest
+    towards = (passage.exit_w - others_x_w) / np.maximum(to_exit, 1e-9)[:, None]
+    coming = np.sum(others_v_w * towards, axis=1) > COMING_MPS  # flying at its end (not parked at a goal)
     first = (to_exit < mine - TIE_M) | ((np.abs(to_exit - mine) <= TIE_M) & _before(others_x_w, x_w))
     far_side = (to_exit < to_entry) & ~inside & coming & first
     return bool(np.any(inside & against) or np.any(far_side))

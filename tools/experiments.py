@@ -257,14 +257,19 @@ def _liveness_table(path: Path) -> str:
     """EXPERIMENTS.md section 4's table, one row per line of ``tools.bench_liveness``."""
     out = [
         "| family | scene | rho | start | runs | success | contacts | inside the safety radius | min exact h | "
-        "deadlocks | infeasible ticks | mean / worst time ratio | "
-        "ORCA: success, deadlocks, inside the safety radius, mean ratio |",
-        "|" + "---|" * 13,
+        "deadlocks | infeasible ticks | mean / worst time ratio | mean / worst free-path ratio | "
+        "ORCA: success, deadlocks, inside the safety radius, mean ratio | ORCA along the path: success, "
+        "deadlocks, mean free-path ratio |",
+        "|" + "---|" * 15,
     ]
+
+    def pair(mean: float | None, worst: float | None) -> str:
+        return "-" if mean is None else f"{mean:.2f} / {worst:.2f}"
+
     for r in _jsonl(path):
-        start = "random field" if r["family"] == "sphere_field" else ("exact" if r["exact"] else "perturbed")
+        random = r["family"] in ("sphere_field", "forest")
+        start = "random field" if random else ("exact" if r["exact"] else "perturbed")
         rho = f"{r['rho']:g}"
-        ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f} / {r['worst_time_ratio']:.2f}"
         o = r["orca"]
         orca = (
             "-"
@@ -273,6 +278,13 @@ def _liveness_table(path: Path) -> str:
                 f"{o['success_rate']:.2f}, {o['deadlocks']}, {o.get('margin_violations', '-')}, "
                 + ("-" if o["mean_time_ratio"] is None else f"{o['mean_time_ratio']:.2f}")
             )
+        )
+        op = r.get("orca_path")
+        orca_path = (
+            "-"
+            if op is None
+            else f"{op['success_rate']:.2f}, {op['deadlocks']}, "
+            + ("-" if op["mean_free_time_ratio"] is None else f"{op['mean_free_time_ratio']:.2f}")
         )
         cells = [
             r["family"],
@@ -286,8 +298,10 @@ def _liveness_table(path: Path) -> str:
             "-" if r.get("min_h") is None else f"{r['min_h']:.3f}",
             str(r["deadlocks"]),
             str(r["infeasible_ticks"]),
-            ratio,
+            pair(r["mean_time_ratio"], r["worst_time_ratio"]),
+            pair(r.get("mean_free_time_ratio"), r.get("worst_free_time_ratio")),
             orca,
+            orca_path,
         ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)

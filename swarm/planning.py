@@ -9,8 +9,11 @@ The plan is a shortest path on an 8-connected grid at the agent's altitude (netw
 A*), over the cells whose centres keep ``keep_m`` (the agent's safety radius plus a
 clearance) from every static obstacle's surface, shortened by line of sight into a few
 waypoints. A start or goal that is itself closer than ``keep_m`` joins the grid at its
-nearest free cell. Where the straight line is already clear, the plan is the straight
-line and no grid is made. Cylinders are infinite, as the barrier treats them.
+nearest free cell. Where no wall (obstacles closer together than two clearances) crosses
+the straight line, the plan is the straight line and no grid is made: the filter passes an
+isolated obstacle on its own. The world is planar: its walls are static vertical cylinders
+(infinite, as the barrier treats them); spheres and tilted cylinders are left to the filter,
+which can pass over or under them.
 
 :class:`Route` replans from where the agent is when it has made no progress along its
 path for ``stall_s``.
@@ -44,14 +47,32 @@ class StaticObstacles:
 
     @classmethod
     def of(cls, obstacles: list) -> StaticObstacles:
-        """From :class:`swarm.config.ObstacleConfig` items: those with zero velocity."""
-        still = [o for o in obstacles if not any(o.velocity)]
+        """The planar world's walls and pillars among :class:`swarm.config.ObstacleConfig`
+        items: static vertical cylinders. A sphere or a tilted cylinder can be passed over
+        or under, which the filter does; a plan at one altitude would only go round it."""
+        still = [
+            o
+            for o in obstacles
+            if not any(o.velocity) and o.axis is not None and math.hypot(o.axis[0], o.axis[1]) < 1e-9 * abs(o.axis[2])
+        ]
         if not still:
             return cls(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
-        axes = np.array([[0.0, 0.0, 0.0] if o.axis is None else o.axis for o in still], dtype=float)
-        norms = np.linalg.norm(axes, axis=1, keepdims=True)
-        axes = np.divide(axes, norms, out=np.zeros_like(axes), where=norms > 0)
+        axes = np.tile([0.0, 0.0, 1.0], (len(still), 1))
         return cls(np.array([o.center for o in still], dtype=float), np.array([o.radius_m for o in still]), axes)
+
+    def subset(self, keep: np.ndarray) -> StaticObstacles:
+        return StaticObstacles(self.c_w[keep], self.r_m[keep], self.axis_w[keep])
+
+    def clustered(self, gap_m: float) -> StaticObstacles:
+        """The obstacles with another closer than ``gap_m`` [m] surface to surface: walls,
+        where an agent cannot pass between two of them. An isolated obstacle is left to the
+        filter, whose live rows pass a convex obstacle on their own."""
+        n = len(self)
+        if n < 2:
+            return self.subset(np.zeros(n, dtype=bool))
+        d = np.linalg.norm((self.c_w[:, None, :2] - self.c_w[None, :, :2]), axis=2) - self.r_m[:, None] - self.r_m[None]
+        np.fill_diagonal(d, math.inf)
+        return self.subset(d.min(axis=1) < gap_m)
 
     def __len__(self) -> int:
         return int(self.r_m.shape[0])
@@ -157,7 +178,7 @@ def plan(
     st = settings or PlannerSettings()
     a, b = np.asarray(start_w, dtype=float), np.asarray(goal_w, dtype=float)
     keep = radius_m + st.clearance_m
-    if clear(a, b, obstacles, keep):
+    if clear(a, b, obstacles.clustered(2 * keep), keep):  # no wall across the way: the filter passes the rest
         return Plan(np.vstack([a, b]), True, "straight")
     z = 0.5 * (a[2] + b[2])
     near = obstacles.c_w[:, :2]
@@ -212,8 +233,9 @@ def _shorten(pts: list[FloatArray], obstacles: StaticObstacles, keep_m: float) -
 
 
 NARROW_M = 0.45
-"""A path point closer than this [m] to an obstacle surface is in a narrow passage: two
-drones, each keeping its safety radius and the planner's clearance, cannot pass there."""
+"""A path point with obstacle surfaces closer than this [m] on both sides is in a narrow
+passage: two drones, each keeping its safety radius and the planner's clearance, cannot pass
+there side by side."""
 WAIT_M = 1.0
 """An agent that gives way waits this far [m] before the passage's entry, or where it is."""
 TIE_M = 0.05
@@ -243,18 +265,30 @@ class Passage:
         return self.points_w[-1]
 
 
+def _walled_both_sides(P: FloatArray, T: FloatArray, obstacles: StaticObstacles) -> np.ndarray:
+    """(k,) whether each point of ``P`` (k, 3), heading along ``T`` (k, 3), has an obstacle
+    surface within :data:`NARROW_M` on its left and another on its right."""
+    rel = obstacles.c_w[None, :, :2] - P[:, None, :2]  # (k, m, 2)
+    dist = np.linalg.norm(rel, axis=2) - obstacles.r_m[None]
+    side = T[:, None, 0] * rel[..., 1] - T[:, None, 1] * rel[..., 0]  # > 0: on the left
+    near = dist < NARROW_M
+    return (near & (side > 0)).any(axis=1) & (near & (side < 0)).any(axis=1)
+
+
 def passage_of(waypoints_w: FloatArray, obstacles: StaticObstacles, step_m: float = 0.05) -> Passage | None:
-    """The first stretch of the path ``waypoints_w`` (k, 3) whose points are closer than
-    :data:`NARROW_M` to an obstacle, or None."""
+    """The first stretch of the path ``waypoints_w`` (k, 3) whose points have an obstacle
+    closer than :data:`NARROW_M` on both sides, or None."""
     W = np.asarray(waypoints_w, dtype=float)
     if W.shape[0] < 2 or not len(obstacles):
         return None
-    pts = [W[:1]]
+    pts, tangents = [W[:1]], [W[1:2] - W[:1]]
     for a, b in zip(W[:-1], W[1:], strict=True):
-        pts.append(_segment_points(a, b, step_m)[1:])
-    P = np.vstack(pts)
+        seg = _segment_points(a, b, step_m)[1:]
+        pts.append(seg)
+        tangents.append(np.repeat((b - a)[None], len(seg), axis=0))
+    P, T = np.vstack(pts), np.vstack(tangents)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
-    narrow = obstacles.clearance(P) < NARROW_M
+    narrow = _walled_both_sides(P, T, obstacles)
     if not narrow.any():
         return None
     i = int(np.argmax(narrow))
@@ -367,9 +401,10 @@ def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray
     its configured path planned around ``obstacles``), and its :class:`Route` for replanning
     (None with ``planner.kind: none`` or no static obstacle)."""
     pts = np.asarray(agent.path(), dtype=float)
-    if agent.planner.kind == "none" or not len(obstacles) or len(pts) < 2:
-        return pts, None
     radius_m = agent.airframe.params().body_radius_m + agent.filter.margin_m
+    walls = obstacles.clustered(2 * (radius_m + agent.planner.clearance_m))
+    if agent.planner.kind == "none" or not len(walls) or len(pts) < 2:  # no wall: the straight path, as ever
+        return pts, None
     route = Route(obstacles, radius_m, agent.planner.settings(), agent.planner.stall_s)
     legs = [route.first(a, b).waypoints_w for a, b in zip(pts[:-1], pts[1:], strict=True)]
     path = np.vstack([legs[0], *(leg[1:] for leg in legs[1:])])

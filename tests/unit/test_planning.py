@@ -77,8 +77,13 @@ def test_a_goal_walled_in_has_no_path_and_says_so(ring_m, count, why):
     np.testing.assert_array_equal(p.waypoints_w, [[-2, 0, 1.0], [2, 0, 1.0]])  # the straight line: the filter stops it
 
 
+def test_an_isolated_pillar_is_left_to_the_filter():
+    p = plan([-2, 0, 1.0], [2, 0, 1.0], pillars([(0.0, 0.0)]), R)
+    assert p.found and p.reason == "straight"  # its live rows pass it on their own
+
+
 def test_a_start_inside_the_clearance_still_gets_a_path():
-    obs = pillars([(0.0, 0.0)])
+    obs = pillars([(0.0, -0.3), (0.0, 0.0), (0.0, 0.3)])  # a short wall
     p = plan([-0.3, 0.0, 1.0], [2.0, 0.0, 1.0], obs, R)  # 0.15 m from the surface: inside R + clearance
     assert p.found and np.array_equal(p.waypoints_w[0], [-0.3, 0.0, 1.0])
     assert keeps(p.waypoints_w[1:], obs, KEEP)
@@ -110,15 +115,17 @@ def test_a_stalled_agent_replans_from_where_it_is_and_a_moving_one_does_not():
     seed=st.integers(0, 1000),
 )
 def test_every_planned_segment_keeps_its_clearance(xy, r, seed):
+    """Walls of two touching pillars each, anywhere: every segment keeps the clearance from
+    every wall (isolated pillars are the filter's)."""
     rng = np.random.default_rng(seed)
-    obs = pillars(xy, r)
+    obs = pillars([c for x, y in xy for c in ((x, y), (x, y + 2 * r))], r)
     a = np.array([-3.5, rng.uniform(-2, 2), 1.0])
     b = np.array([3.5, rng.uniform(-2, 2), 1.0])
     p = plan(a, b, obs, R, PlannerSettings(resolution_m=0.1))
     assert np.all(np.isfinite(p.waypoints_w))
     assert np.array_equal(p.waypoints_w[0], a) and np.array_equal(p.waypoints_w[-1], b)
     if p.found:
-        assert keeps(p.waypoints_w, obs, KEEP)
+        assert keeps(p.waypoints_w, obs.clustered(2 * KEEP), KEEP)
     else:
         assert p.waypoints_w.shape == (2, 3)
 
@@ -191,10 +198,17 @@ def test_of_two_drones_at_the_two_ends_of_a_passage_exactly_one_gives_way(left_m
             p.entry_w - p.points_w[min(5, len(p.points_w) - 1)]
         )
         at.append((p.s_in_m - dist, p.entry_w + dist * back))
+    flying = []  # each flies at its passage's entry at 0.5 m/s
+    for a, (_, x) in zip(agents, at, strict=True):
+        to_entry = a.route.passage.entry_w - x
+        flying.append(0.5 * to_entry / np.linalg.norm(to_entry))
     waits = [
-        gives_way(a.route.passage, s, x, np.array([at[1 - i][1]]), np.zeros((1, 3)))
+        gives_way(a.route.passage, s, x, np.array([at[1 - i][1]]), np.array([flying[1 - i]]))
         for i, (a, (s, x)) in enumerate(zip(agents, at, strict=True))
     ]
+    parked = [gives_way(a.route.passage, s, x, np.array([at[1 - i][1]]), np.zeros((1, 3))) for i, (a, (s, x)) in
+              enumerate(zip(agents, at, strict=True))]  # fmt: skip
+    assert not any(parked)  # an agent at rest beyond the passage (parked at its goal) holds no one back
     assert sum(waits) == 1
     if left_m != right_m:
         assert waits == [left_m > right_m, right_m > left_m]  # the farther one waits

@@ -170,15 +170,19 @@ def plan(
     obstacles: StaticObstacles,
     radius_m: float,
     settings: PlannerSettings | None = None,
+    *,
+    walls_only: bool = True,
 ) -> Plan:
     """A path from ``start_w`` to ``goal_w`` [m, world] that keeps the agent's safety radius
     ``radius_m`` [m] plus the settings' clearance from every static obstacle (module
-    docstring). Never raises for a blocked world: a goal with no free path gives the
-    straight line with ``found`` False."""
+    docstring): the straight line where no wall crosses it (with ``walls_only`` False:
+    where no obstacle does). Never raises for a blocked world: a goal with no free path
+    gives the straight line with ``found`` False."""
     st = settings or PlannerSettings()
     a, b = np.asarray(start_w, dtype=float), np.asarray(goal_w, dtype=float)
     keep = radius_m + st.clearance_m
-    if clear(a, b, obstacles.clustered(2 * keep), keep):  # no wall across the way: the filter passes the rest
+    across = obstacles.clustered(2 * keep) if walls_only else obstacles
+    if clear(a, b, across, keep):  # no wall across the way: the filter passes the rest
         return Plan(np.vstack([a, b]), True, "straight")
     z = 0.5 * (a[2] + b[2])
     near = obstacles.c_w[:, :2]

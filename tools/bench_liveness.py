@@ -186,15 +186,16 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
 
 def free_times(cfg: ScenarioConfig) -> list[float]:
     """Each agent's time [s] at its target speed along the shortest path that keeps its
-    safety radius from the static obstacles (the grid planner with no clearance, 5 cm
-    cells: a few per cent longer than the exact shortest path at most); the straight line
-    where that is clear."""
+    safety radius from every static vertical cylinder, isolated ones too (the grid planner
+    with no clearance, 5 cm cells: a few per cent longer than the exact shortest path at
+    most); the straight line where that is clear."""
     still = StaticObstacles.of(list(cfg.obstacles))
     fine = PlannerSettings(resolution_m=0.05, clearance_m=0.0)
     out = []
     for a in cfg.agents:
         r = a.airframe.params().body_radius_m + a.filter.margin_m
-        out.append(plan(np.array(a.start), np.array(a.final_goal), still, r, fine).length_m / a.speed_mps)
+        shortest = plan(np.array(a.start), np.array(a.final_goal), still, r, fine, walls_only=False)
+        out.append(shortest.length_m / a.speed_mps)
     return out
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swarm.config import TiebreakSettings, resolve
-from swarm.offline.scenario import SwapSettings, circle_swap, doorway, sphere_swap, trap
+from swarm.offline.scenario import SwapSettings, circle_swap, sphere_swap, trap
 
 BODY = 0.07  # Crazyflie bounding radius [m]
 MARGIN = 0.02  # filter margin [m]
@@ -41,7 +41,6 @@ SCENES = {
     "exact_two_drone_swap": lambda: circle_swap(2, 2.0, SwapSettings(duration_s=14.0)),
     "drone_before_a_sphere_field": sphere_field,
     "drone_in_a_u_shaped_trap": trap,  # out through the opening on its planned path (swarm.planning)
-    "four_abreast_through_a_doorway": lambda: doorway(4),
 }
 
 

@@ -160,9 +160,9 @@ class Prepared(NamedTuple):
 
 
 @njit(cache=True)
-def _prepare(check, state, u_ref, obs, settings, inputs):
-    """One filter call's work before the QP, in one compiled call, for ``state`` = (``x``
-    [m], ``v`` [m/s], ``q`` (scalar-last), ``Om`` [rad/s, body]), the reference ``u_ref``,
+def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
+    """One filter call's work before the QP, in one compiled call, for the state ``x`` [m],
+    ``v`` [m/s], ``q`` (scalar-last), ``Om`` [rad/s, body], the reference ``u_ref``,
     the obstacles ``obs`` (an (n,) :data:`swarm.safety.obstacles.OBSTACLE` array),
     ``settings`` = the (1,) arrays (``air``: :data:`swarm.safety.constraints.AIRFRAME`,
     ``params``: :data:`swarm.safety.barriers.ROW_PARAMS`, ``fparams``:
@@ -173,7 +173,6 @@ def _prepare(check, state, u_ref, obs, settings, inputs):
     raises the named error) and the quaternion normalised; then :func:`_select`, the
     floor row, the own dynamics (:func:`swarm.safety.constraints.own_affine`) and
     :func:`swarm.safety.constraints.rows_kernel` at ``u_ref``. Returns a :class:`Prepared`."""
-    x, v, q, Om = state
     air, params, fparams = settings
     lb, ub, C, d = inputs
     fp = fparams[0]
@@ -220,16 +219,6 @@ def _prepare(check, state, u_ref, obs, settings, inputs):
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
     return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight)
-
-
-@dataclass(slots=True)
-class _Call:
-    """One filter call's rows, for the result of whichever QP decides it."""
-
-    t0: float  # perf_counter at the call's start [s]
-    idx: IntArray  # (n,) the obstacles that got a row
-    rows: Rows
-    ins: LinearInputSet  # the input set the call used (with the floor row, when on)
 
 
 def _is_vector(a: object) -> bool:
@@ -432,6 +421,8 @@ class SafetyFilter:
             cfg.floor_gain_per_s,
         )
         self._kernel_settings = (self._own.air, self._params, self._fparams)  # _prepare's settings
+        used = self._floor_set if cfg.floor_z_m is not None else self.input_set
+        self._inputs = (used.lb, used.ub, used.C, used.d)  # _prepare's input set (the floor row refilled in place)
 
     def select(self, state: QuadState, obstacles: ObstacleArrays) -> IntArray:
         """Indices of the obstacles that get a row: every non-neighbour, and neighbours
@@ -476,11 +467,14 @@ class SafetyFilter:
         ins = self.input_set if cfg.floor_z_m is None else self._floor_set
         prep = _prepare(
             validate,
-            (state.x_w, state.v_w, state.q, state.Omega_b),
+            state.x_w,
+            state.v_w,
+            state.q,
+            state.Omega_b,
             u_ref,
             obstacles.rec,
             self._kernel_settings,
-            (ins.lb, ins.ub, ins.C, ins.d),
+            self._inputs,
         )
         if prep.bad != _BAD_NONE:  # the same checks as _prepare's, in Python: one of them raises, naming the field
             state.validated()
@@ -498,7 +492,7 @@ class SafetyFilter:
             bool(prep.any_inside),
             prep.tight,
         )
-        call = _Call(t0, prep.idx, rows, ins)
+        call = (t0, prep.idx, rows, ins)  # for whichever QP decides the call (_result)
         n = prep.idx.shape[0]
         zeros = np.zeros(n)
 
@@ -568,7 +562,7 @@ class SafetyFilter:
 
     def _result(
         self,
-        call: _Call,
+        call: tuple[float, IntArray, Rows, LinearInputSet],
         u: FloatArray,
         u_ref: FloatArray,
         status: FilterStatus,
@@ -577,10 +571,11 @@ class SafetyFilter:
         residuals: tuple[FloatArray, float] | None = None,
         buffered: bool = False,
     ) -> FilterResult:
-        """The call's result for the command ``u``: its residuals at the rows (``residuals``:
-        the reference's, already computed over [input rows; barrier rows]) and which rows bind
-        (against the buffered rows where ``u`` holds them)."""
-        rows, ins = call.rows, call.ins
+        """The result of the call ``call`` = (its start time [s, perf_counter], the obstacles
+        that got a row, the rows, the input set it used) for the command ``u``: its residuals
+        at the rows (``residuals``: the reference's, already computed over [input rows;
+        barrier rows]) and which rows bind (against the buffered rows where ``u`` holds them)."""
+        t0, idx, rows, ins = call
         if residuals is not None:
             c, viol = residuals[0][ins.d.size :], residuals[1]
         else:
@@ -590,13 +585,13 @@ class SafetyFilter:
             u=u,
             u_ref=u_ref,
             status=status,
-            row_index=call.idx,
+            row_index=idx,
             h=rows.h,
             constraint=c,
             active=active,
             inside=rows.inside,
             slack=slack,
-            solve_time_s=time.perf_counter() - call.t0,
+            solve_time_s=time.perf_counter() - t0,
             max_violation=viol,
             buffer=rows.buffer,
             buffered=buffered,

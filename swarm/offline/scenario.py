@@ -297,6 +297,11 @@ def _pillar(name: str, x: float, y: float, r: float, alt: float) -> dict:
     }
 
 
+def _abreast(x_m: float, y_m: np.ndarray, alt_m: float) -> FloatArray:
+    """Points (k, 3) [m, world] at ``x_m``, each ``y_m`` (k,), at altitude ``alt_m``."""
+    return np.column_stack([np.full(len(y_m), x_m), y_m, np.full(len(y_m), alt_m)])
+
+
 def _wall(prefix: str, a: tuple[float, float], b: tuple[float, float], r: float, alt: float) -> list[dict]:
     """Touching pillars of radius ``r`` [m] whose surfaces span the segment from ``a`` to
     ``b`` [m] (centres ``2 r`` apart, the first and last ``r`` inside the ends)."""
@@ -326,8 +331,7 @@ def doorway(
     every straight line runs through the doorway."""
     s = settings or SwapSettings()
     y = (np.arange(n) - (n - 1) / 2) * spacing_m
-    starts = np.column_stack([np.full(n, -distance_m), y, np.full(n, s.altitude_m)])
-    goals = np.column_stack([np.full(n, distance_m), -y, np.full(n, s.altitude_m)])
+    starts, goals = _abreast(-distance_m, y, s.altitude_m), _abreast(distance_m, -y, s.altitude_m)
     raw = _scenario(name or f"doorway_{n}", starts, goals, s, planar=True)
     half = gap_m / 2
     raw["obstacles"] = _wall("wall_l", (0.0, half), (0.0, half_width_m), pillar_radius_m, s.altitude_m) + _wall(
@@ -355,8 +359,7 @@ def corridor(
     flies to the other flow's starts."""
     s = settings or SwapSettings()
     y = (np.arange(n_per_side) - (n_per_side - 1) / 2) * spacing_m
-    left = np.column_stack([np.full(n_per_side, -distance_m), y, np.full(n_per_side, s.altitude_m)])
-    right = np.column_stack([np.full(n_per_side, distance_m), y, np.full(n_per_side, s.altitude_m)])
+    left, right = _abreast(-distance_m, y, s.altitude_m), _abreast(distance_m, y, s.altitude_m)
     starts = np.vstack([left, right])
     goals = np.vstack([right[::-1], left[::-1]])
     raw = _scenario(name or f"corridor_{n_per_side}x2", starts, goals, s, planar=True)
@@ -423,8 +426,7 @@ def forest(
     s = settings or SwapSettings()
     rng = np.random.default_rng(s.seed)
     y = (np.arange(n) - (n - 1) / 2) * spacing_m
-    starts = np.column_stack([np.full(n, -distance_m), y, np.full(n, s.altitude_m)])
-    goals = np.column_stack([np.full(n, distance_m), y, np.full(n, s.altitude_m)])
+    starts, goals = _abreast(-distance_m, y, s.altitude_m), _abreast(distance_m, y, s.altitude_m)
     raw = _scenario(name or f"forest_{n}", starts, goals, s, planar=True)
     half_w = float(np.abs(y).max()) + 1.5
     count = round(density_per_m2 * depth_m * 2 * half_w)

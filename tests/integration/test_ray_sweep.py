@@ -136,12 +136,28 @@ def _wait_ended(leaders: list[int], timeout_s: float) -> None:
     assert not any(_alive(g) for g in leaders)
 
 
-def _wait_for(check, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
+def _wait_for(check, folder: Path, timeout_s: float, what: str) -> None:
+    """Block until ``check()`` holds, looking again each time a file in ``folder`` (made if
+    missing) is written or created (Linux inotify), with a deadline."""
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+    assert fd >= 0, "inotify_init1 failed"
+    try:
+        in_modify, in_close_write, in_create, in_moved_to = 0x2, 0x8, 0x100, 0x80
+        mask = in_modify | in_close_write | in_create | in_moved_to
+        assert libc.inotify_add_watch(fd, str(folder).encode(), mask) >= 0, "inotify_add_watch failed"
+        deadline = time.monotonic() + timeout_s
+        while not check():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"timed out waiting for {what}")
+            if select.select([fd], [], [], left)[0]:
+                os.read(fd, 65536)  # the events themselves are not needed: look again
+    finally:
+        os.close(fd)
 
 
 def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_cluster, tmp_path):
@@ -152,7 +168,7 @@ def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_clus
 
     def kill_first_worker() -> None:
         # once the first point's world and agent are up, kill its Ray worker outright
-        _wait_for(lambda: len(process_groups(first)) >= 3 and (first / "worker.pid").exists(), 120, "the run")
+        _wait_for(lambda: len(process_groups(first)) >= 3 and (first / "worker.pid").exists(), first, 120, "the run")
         killed["groups"] = process_groups(first)
         os.kill(int((first / "worker.pid").read_text()), signal.SIGKILL)
 

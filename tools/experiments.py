@@ -6,6 +6,7 @@ and the settings that made it, ``stamp.json`` per part):
 * ``sweeps``: the obstacle-speed, approach-angle and gain sweeps;
 * ``compare``: the README's table (``swarm compare`` on ``single_static_sphere.yaml``);
 * ``liveness``: EXPERIMENTS.md section 4 (``tools.bench_liveness``, with ORCA);
+* ``liveness_variants``: its variants (the paper's gain, horizon and contact allowances);
 * ``faults``: docs/benchmarks.md's fault table (``tools.bench_faults``);
 * ``filter``, ``swarm``, ``access``, ``scaling``: docs/benchmarks.md's filter, swarm,
   access-control and scaling tables (``tools.bench_filter``, ``tools.bench_swarm``,
@@ -121,6 +122,31 @@ def liveness(out: Path, jobs: int) -> None:
     args = ["--seeds", "2", "--jobs", str(jobs)]
     _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / "liveness.jsonl")
     stamp("liveness", command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
+
+
+LIVENESS_VARIANTS = {
+    "gamma1": ["--gamma", "1"],
+    "gamma1_r3": ["--gamma", "1", "--sensing-radius-m", "3"],
+    "horizon2": ["--horizon-s", "2"],
+    "contact075": ["--contact-s", "0.75"],
+}
+"""EXPERIMENTS.md section 4's variants of the liveness benchmark (without ORCA), each into
+``liveness_<name>.jsonl``: the paper's gain, with its sensing radius, the horizon allowance
+and the contact horizon."""
+
+
+def liveness_variants(out: Path, jobs: int) -> None:
+    del out
+    for name, knobs in LIVENESS_VARIANTS.items():
+        args = ["--seeds", "2", "--jobs", str(jobs), "--no-orca", *knobs]
+        dest = DOCS / f"liveness_{name}.jsonl"
+        _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], dest)
+        stamp(
+            f"liveness_{name}",
+            file=str(dest.relative_to(ROOT)),
+            command=["python", "-m", "tools.bench_liveness", *args],
+            engine=ENGINE.name,
+        )
 
 
 def faults(out: Path, jobs: int) -> None:
@@ -502,6 +528,7 @@ PARTS = {
     "sweeps": sweeps,
     "compare": compare_table,
     "liveness": liveness,
+    "liveness_variants": liveness_variants,
     "faults": faults,
     "filter": filter_bench,
     "swarm": swarm_bench,

@@ -54,6 +54,19 @@ every agent deflects the same way round, and the pair's two rows are mirror imag
 ``D`` and blended to the exact gradient ``w/|w|`` as ``|w|`` grows from ``w_lo`` to
 ``w_hi``: above ``w_hi`` the live row is the exact, unsmoothed C3BF row.
 
+**A clear reference at rest** (still obstacles). Below ``w_lo`` the row of an obstacle
+that is not another agent keeps ``d = d*`` unmoved when ``d*`` is the agent's own
+reference and that reference clears every still obstacle's cone (``reference_clear``:
+:func:`swarm.safety.constraints.free_target` kept it). A hovering drone drifts at a few
+mm/s; where that drift points away from a wall, ``D`` excludes the way through its
+doorway, and each pillar's row, moved into ``D``, forbids accelerating towards its centre:
+together they admit only hovering. Unmoved, ``h_d`` may start below zero, by at most
+``|w| (|p| + s)``; the row then asks ``h_d' + gamma h_d >= 0``, so ``h_d`` comes back at
+rate gamma and ``h >= h_d`` stays above that start, and every acceleration a row admits
+at ``w = 0`` lies outside the cone (``<p + s d*, a> >= 0`` with ``d*`` outside it). What
+this gives up is ``h_d >= 0`` at the start, for relative speeds below ``w_lo``: the exact
+h of such a velocity is at least ``-w_lo (|p| - s)`` (a few 1e-4 m^2/s).
+
 Inside the cone (h < 0) at speed, where the exact row's gradient along the cone's axis is
 about ``r^2 / (2|p|)`` long and only asks to brake, a live row is the barrier
 ``H = (r/|p|)(s w_perp - r w_par)`` (:func:`cone_row`; ``w_par`` the approach speed,
@@ -189,7 +202,8 @@ FAR_GAIN_CONTACT_S = 1.0
 within this [s], all of it for one that is not closing."""
 
 LIVE_W_LO_MPS = 0.005
-"""Below this relative speed [m/s] a live row's direction is the target ``d*`` alone."""
+"""Below this relative speed [m/s] a live row's direction is the target ``d*`` alone (moved
+into ``D`` unless it is a clear reference: module docstring)."""
 LIVE_W_HI_MPS = 0.02
 """From this relative speed [m/s] up a live row is the exact C3BF row (``d = w/|w|``)."""
 _TINY = 1e-12
@@ -335,7 +349,7 @@ def _inside_direction(P, W, pp, s, a, t, d):
 
 
 @njit(cache=True)
-def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):
+def live_direction(P, W, A, s, pp, a, has_ref, side_only, ref_clear, w_lo, w_hi, d):
     """The live row's direction ``d`` (3,) [unit-free, |d| <= 1, in range(P)] into ``d``,
     for the projected ``P`` = p [m], ``W`` = w [m/s], ``A`` = a_ref [m/s^2] of one row
     (``s = sqrt(|P|^2 - r^2) > 0``, ``pp = |P|^2``). See the module docstring.
@@ -343,17 +357,21 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):
     ``has_ref``: ``A`` is the reference's relative acceleration (else no target but the
     side rule for ``side_only`` rows, and ``d* = 0`` for the others); ``side_only``: a
     neighbour, whose target is always the side generator (odd in ``p``, so two agents'
-    rows of one pair agree). Where ``h < 0`` (inside the cone) the fast direction is the
+    rows of one pair agree); ``ref_clear``: ``A`` is the agent's own reference, clear of every
+    still obstacle's cone, which below ``w_lo`` is kept unmoved (module docstring, "A clear
+    reference at rest"). Where ``h < 0`` (inside the cone) the fast direction is the
     boundary generator nearest to ``w`` rather than ``w/|w|``: any ``|d| <= 1`` bounds
     ``h`` from below there. Returns ``<d, W>``."""
     t = np.empty(3)
     aa = A[0] * A[0] + A[1] * A[1] + A[2] * A[2]
+    clear = False  # d* is the agent's own reference, clear of every still obstacle's cone
     # the target d*
     if side_only:
         _generator(P, P, pp, s, a, t, d)
     elif has_ref and aa > _TINY:
         na = math.sqrt(aa)
         if (P[0] * A[0] + P[1] * A[1] + P[2] * A[2]) / na + s >= 0.0:  # outside the cone: the reference itself
+            clear = ref_clear
             for k in range(3):
                 d[k] = A[k] / na
         else:  # inside: the nearest generator, in the plane of p and a_ref
@@ -378,13 +396,19 @@ def live_direction(P, W, A, s, pp, a, has_ref, side_only, w_lo, w_hi, d):
         if du < c0 and d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:  # no target: D's point nearest to 0
             for k in range(3):
                 d[k] = c0 * u[k]
-        elif du < c0:  # move d* into D: the unit vector at <d, u> = c0 nearest to it
+        elif du < c0 and not (clear and nw <= w_lo):  # move d* into D: the unit vector at <d, u> = c0 nearest to it
             for k in range(3):
                 t[k] = d[k] - du * u[k]
             nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
             if nt < 1e-9:
                 _unit_side(W, ww, a, t)
             else:
+                for k in range(3):
+                    t[k] /= nt
+                tu = t[0] * u[0] + t[1] * u[1] + t[2] * u[2]  # once more across u (d* near -u: t is a small difference)
+                for k in range(3):
+                    t[k] -= tu * u[k]
+                nt = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
                 for k in range(3):
                     t[k] /= nt
             q = math.sqrt(max(1.0 - c0 * c0, 0.0))
@@ -437,7 +461,7 @@ def contact_radius(r, pp, pw, T):
 
 
 @njit(cache=True, fastmath=False)
-def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
+def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb, ref_clear):
     """One row for relative ``p`` [m], ``w`` [m/s], safety radius ``r`` [m] and cylinder
     axis ``a`` (zeros for a sphere), under the settings ``par`` (a :data:`ROW_PARAMS`
     record: ``kind``, ``eps``, ``gamma_ho``, ``v_esc``, ``live``, ``w_lo``, ``w_hi``).
@@ -447,7 +471,8 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
 
     With ``par.live`` C3BF rows are live rows (module docstring); ``a_ref`` (3,) [m/s^2,
     world] is the reference's relative acceleration (read when ``has_ref``); ``nb``: the
-    obstacle is another agent (the side rule)."""
+    obstacle is another agent (the side rule); ``ref_clear``: ``a_ref`` is the agent's own
+    reference, clear of every still obstacle's cone (:func:`live_direction`)."""
     kind = par.kind
     ap = a[0] * p[0] + a[1] * p[1] + a[2] * p[2]
     aw = a[0] * w[0] + a[1] * w[1] + a[2] * w[2]
@@ -483,7 +508,7 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb):
             if rho_c == r and nw >= par.w_hi and pw + nw * s < 0.0 and ww - c * c > band * band:
                 h, a_p, b_p, a_w, b_w = cone_row(r, s, pp, pw, ww)  # inside the full cone, moving, off the axis: H
             else:
-                dw = live_direction(P, W, A, s, pp, a, has_ref, nb, par.w_lo, par.w_hi, Y_out[2])
+                dw = live_direction(P, W, A, s, pp, a, has_ref, nb, ref_clear, par.w_lo, par.w_hi, Y_out[2])
                 h, a_p, b_p, a_w, b_w, c_d = pw + s * dw, dw / s, 1.0, 1.0, 0.0, s
                 if g_c > 0.0:  # rho's own gradient: dS = (g / S) dt_c, t_c = N / D (module docstring)
                     D = -pw
@@ -544,7 +569,7 @@ def far_gain(p, w, r):
 
 
 @njit(cache=True)
-def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb):
+def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb, ref_clear):
     """All rows of stacked ``Y = [p; w]`` (n, 2, 3) under ``params`` (a (1,) :data:`ROW_PARAMS`
     array): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
     par = params[0]
@@ -553,7 +578,9 @@ def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb):
     coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        inside[i] = barrier_row(par, Y[i, 0], Y[i, 1], r[i], axis[i], Y_out[i], coef[i], a_ref[i], has_ref, nb[i])
+        inside[i] = barrier_row(
+            par, Y[i, 0], Y[i, 1], r[i], axis[i], Y_out[i], coef[i], a_ref[i], has_ref, nb[i], ref_clear
+        )
     return Y_out, coef, inside
 
 
@@ -596,19 +623,24 @@ def evaluate(
     settings: RowSettings | None = None,
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
+    reference_clear: bool = False,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3) with ``settings`` (default
     :class:`RowSettings`). ``axis_w`` (n, 3) holds unit cylinder axes (zero rows for
     spheres); ``None`` means all spheres. Live C3BF rows take the reference relative
-    accelerations ``a_ref`` (n, 3) [m/s^2, world] (``None``: no reference) and the
-    neighbour flags ``is_neighbour`` (n,)."""
+    accelerations ``a_ref`` (n, 3) [m/s^2, world] (``None``: no reference), the
+    neighbour flags ``is_neighbour`` (n,) and ``reference_clear``: ``a_ref`` is the agent's
+    own reference, clear of every still obstacle's cone (as the filter finds it:
+    ``swarm.safety.constraints.free_target``; module docstring)."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
     params = row_params(kind, settings)
-    Y_used, coef, inside = barrier_rows(params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb)
+    Y_used, coef, inside = barrier_rows(
+        params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb, reference_clear
+    )
     return BarrierRows(Y_used, coef, inside)
 
 
@@ -621,12 +653,22 @@ def evaluate_pw(
     *,
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
+    reference_clear: bool = False,
     **settings: Any,
 ) -> BarrierRows:
     """:func:`evaluate` for separate ``p`` and ``w`` (n, 3), with the fields of
     :class:`RowSettings` given by name."""
     Y = np.stack([p, w], axis=1)
-    return evaluate(kind, Y, r, axis_w, settings=RowSettings(**settings), a_ref=a_ref, is_neighbour=is_neighbour)
+    return evaluate(
+        kind,
+        Y,
+        r,
+        axis_w,
+        settings=RowSettings(**settings),
+        a_ref=a_ref,
+        is_neighbour=is_neighbour,
+        reference_clear=reference_clear,
+    )
 
 
 def cone_h(

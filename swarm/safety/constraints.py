@@ -363,15 +363,17 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     any_static = False
     for i in range(n):
         any_static = any_static or not obs[sel[i]].is_nb
+    ref_clear = False  # the reference itself is clear of every still obstacle's cone
     if with_ref and live and kind == 0 and any_static:  # (only obstacle rows share a target)
         static_ref = free_target(obs, sel, r_own, xv_b, own_ref, par.w_hi)
+        ref_clear = static_ref[0] == own_ref[0] and static_ref[1] == own_ref[1] and static_ref[2] == own_ref[2]
     for i in range(n):
         ob = obs[sel[i]]
         for k in range(3):
             p[k] = ob.c[k] - xv_b[0, k]
             w[k] = ob.cd[k] - xv_b[1, k]
             a_ref[k] = ob.cdd[k] + (own_ref[k] if ob.is_nb else static_ref[k])
-        inside[i] = barrier_row(par, p, w, ob.r + r_own, ob.axis, Y[i], coef[i], a_ref, with_ref, ob.is_nb)
+        inside[i] = barrier_row(par, p, w, ob.r + r_own, ob.axis, Y[i], coef[i], a_ref, with_ref, ob.is_nb, ref_clear)
         any_inside = any_inside or inside[i]
         co = coef[i]
         rel = 0.0

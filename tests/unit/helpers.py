@@ -117,12 +117,14 @@ def live_rows(
     a_ref: np.ndarray | None,
     nb: bool = False,
     horizon_s: float | None = None,
+    reference_clear: bool = False,
     **settings: float | bool,
 ) -> BarrierRows:
     """One live C3BF row (``swarm.safety.barriers.evaluate_pw``) for relative ``p`` [m], ``w`` [m/s],
     safety radius ``r`` [m], cylinder axis ``a`` (zeros: a sphere), the reference's relative
     acceleration ``a_ref`` [m/s^2] (or None), a neighbour or not, with ``horizon_s`` [s] and
-    the other row ``settings`` of ``evaluate`` (``contact_s``, ``free_braking``)."""
+    the other row ``settings`` of ``evaluate`` (``contact_s``, ``free_braking``);
+    ``reference_clear``: ``a_ref`` is the agent's own reference, clear of every cone."""
     return evaluate_pw(
         BarrierKind.C3BF,
         p[None],
@@ -133,5 +135,6 @@ def live_rows(
         a_ref=None if a_ref is None else a_ref[None],
         is_neighbour=np.array([nb]),
         horizon_s=horizon_s,
+        reference_clear=reference_clear,
         **settings,
     )

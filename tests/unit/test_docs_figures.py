@@ -47,3 +47,23 @@ def test_experiments_hand_the_engine_to_the_sweeps_and_the_liveness_benchmark(mo
     assert calls[1] == ("liveness", "ray")
     assert calls[2:] == [("sweep", ("ray", "10.0.0.1:6379"))] * len(ex.SWEEPS) + [("sweeps", "ray")]
     assert ex.Engine().flags() == [] and ex.Engine("ray").flags() == ["--engine", "ray"]
+
+
+def test_the_liveness_variants_are_regenerated_and_stamped_by_the_tool(monkeypatch, tmp_path):
+    """Each variant EXPERIMENTS.md quotes has its data file and a stamp with the commit and the
+    command that made it; the tool's ``liveness_variants`` part runs those commands."""
+    import tools.experiments as ex
+
+    for name, knobs in ex.LIVENESS_VARIANTS.items():
+        stamp = json.loads((DOCS / f"liveness_{name}.stamp.json").read_text())
+        assert len(stamp["commit"]) == 40 and stamp["command"][-len(knobs) :] == knobs, stamp
+        assert (DOCS / f"liveness_{name}.jsonl").read_text().count("\n") > 0
+    calls: list[tuple[str, object]] = []
+    monkeypatch.setattr(ex, "DOCS", tmp_path)
+    monkeypatch.setattr(ex, "ROOT", tmp_path)
+    monkeypatch.setattr(ex, "_tool_lines", lambda module, args, dest: calls.append((dest.name, args)))
+    monkeypatch.setattr(ex, "stamp", lambda part, **settings: calls.append((part, settings["command"][3:])))
+    ex.liveness_variants(tmp_path, 2)
+    for i, (name, knobs) in enumerate(ex.LIVENESS_VARIANTS.items()):
+        args = ["--seeds", "2", "--jobs", "2", "--no-orca", *knobs]
+        assert calls[2 * i : 2 * i + 2] == [(f"liveness_{name}.jsonl", args), (f"liveness_{name}", args)]

@@ -19,6 +19,7 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from swarm.safety.barriers import AXIS_BAND, LIVE_W_HI_MPS, BarrierKind, RowSettings, evaluate_pw
+from swarm.safety.filter import FilterStatus
 from swarm.safety.obstacles import ObstacleArrays
 
 from .helpers import live_rows as live
@@ -107,6 +108,61 @@ def test_any_speed_the_row_keeps_the_exact_h_non_negative_along_the_motion(p, w_
     h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
     scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
     assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+
+
+@settings(max_examples=400, deadline=None)
+@given(p=vec, w_dir=vec, w_size=small, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec, acc=vec)
+def test_below_the_blend_speed_a_clear_reference_is_the_direction_and_bounds_h(p, w_dir, w_size, r, a, a_ref, acc):
+    """A still obstacle's row below ``live_lo_mps`` whose reference clears every cone
+    ("A clear reference at rest"): ``d`` is the reference's own direction whatever the
+    residual ``w``; the row is still a lower bound of the exact h, starts no lower than
+    ``-|w| (|p| + s)``, and along any motion it admits the exact h stays above its start."""
+    p = outside(p, r, a)
+    assume(p is not None and np.linalg.norm(w_dir) > 1e-3)
+    P, A = proj(a, p), proj(a, a_ref)
+    assume(np.linalg.norm(A) > 1e-3)
+    s = math.sqrt(P @ P - r * r)
+    assume(P @ A / np.linalg.norm(A) + s > 1e-6)  # the reference clears the cone
+    w = w_dir / np.linalg.norm(w_dir) * abs(w_size) * 0.0049  # below live_lo_mps
+    rows = live(p, w, r, a, a_ref, reference_clear=True)
+    np.testing.assert_allclose(rows.d[0], A / np.linalg.norm(A), atol=1e-9)
+    h_d, h, W = rows.h[0], exact_h(p, w, r, a), proj(a, w)
+    assert h_d <= h + 1e-12 * (1 + abs(h))
+    assert h_d >= -np.linalg.norm(W) * (np.linalg.norm(P) + s) - 1e-12
+    Lf = rows.dh_dp[0] @ w + GAMMA * h_d
+    acc = satisfying(rows.dh_dw[0], Lf, acc)
+    tau = 1e-4
+    h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
+    scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
+    assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+
+
+def test_a_hovering_drone_drifting_from_a_wall_still_takes_its_doorway():
+    """Measured in the eight-abreast doorway: the last drone hovered 2.2 m before a wall of
+    pillars with a residual drift of 5 mm/s away from it; each pillar's row, its direction
+    moved into the set the drift allows, forbade accelerating towards that pillar, and
+    together they admitted only hovering, though its reference led clear through the gap.
+    Its reference is clear of every cone, so it is taken."""
+    from swarm.model import CommandLevel, QuadModel, QuadState
+    from swarm.safety.filter import FilterConfig, SafetyFilter
+
+    ys = [0.55 + 0.3 * k for k in range(12)]
+    centres = np.array([[0.0, y, 1.0] for y in ys] + [[0.0, -y, 1.0] for y in ys])
+    n = len(centres)
+    zero, up = np.zeros((n, 3)), np.tile([0.0, 0.0, 1.0], (n, 1))
+    walls = ObstacleArrays(centres, zero, zero, np.full(n, 0.15), up, np.zeros(n, dtype=bool))
+    cfg = FilterConfig(level=CommandLevel.ATTITUDE, gamma=2.0, sensing_radius_m=2.5, floor_z_m=0.25)
+    f = SafetyFilter(QuadModel(), cfg)
+    state = QuadState.hover(np.array([-2.1751, 1.6934, 0.9993]))
+    F_ref = np.array([0.0534, -0.0400, 0.2649])  # N, world: towards the doorway at y = 0.1
+    for drift in ([-2.643e-3, 4.231e-3, 0.0], [0.0, 0.0, 0.0]):  # 5.0 mm/s away from the wall, and at rest
+        state.v_w = np.array(drift)
+        res = f.filter(state, F_ref, walls)
+        assert res.status is FilterStatus.OK
+        np.testing.assert_allclose(res.u, F_ref, atol=1e-4)
+    state.v_w = np.array([-2.643e-3, 4.231e-3, 0.0])  # aimed into a pillar, the reference is not clear: still held
+    into = np.array([0.0534, -0.0280, 0.2649])
+    assert np.linalg.norm(f.filter(state, into, walls).u[:2] - into[:2]) > 0.01
 
 
 def cone_H(p, w, r, a):

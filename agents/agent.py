@@ -35,6 +35,7 @@ from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
 from swarm.planning import StaticObstacles, path_for
+from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.shutdown import StopFlag
@@ -260,18 +261,18 @@ class Agent:
             self.missed += sum(1 for n in near if (s := self.table.state(n)) is None or t - s.t_s > timeout_s)
         return self.table.arrays(t)
 
-    def _route(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> bool:
+    def _route(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> FloatArray | None:
         """The route at this tick (swarm.planning.Route): a new path from where the agent is
-        if it has made no progress along its own for a while; then whether it gives way
-        before a narrow passage to the neighbours it hears."""
+        if it has made no progress along its own for a while; then the velocity it holds in
+        place of its path to give way at a narrow passage to the neighbours it hears, or None."""
         if self.route is None:
-            return False
+            return None
         remaining = self.tracker.reference(state.x_w)[2]
         new = self.route.update(t_s, state.x_w, self.goal, remaining)
         if new is not None:
             self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps)
             remaining = self.tracker.reference(state.x_w)[2]
-        return self.route.waits(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
+        return self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
@@ -292,12 +293,12 @@ class Agent:
                 filt = self.filt_land
         if tracker is None:  # a real drone that has landed or been stopped: motors off
             return self._motors_off(x_b, v_b)
-        waits = False
+        held = None
         if tracker is self.tracker:  # the mission's path (not a real drone's take-off or landing)
-            waits = self._route(t, state, neighbours)  # gives way before a narrow passage
+            held = self._route(t, state, neighbours)  # gives way at a narrow passage
             tracker = self.tracker  # (replanned)
-        if waits:
-            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, np.zeros(3))  # hover where it is
+        if held is not None:
+            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, held)  # hover, or back out of the passage
         else:
             F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref

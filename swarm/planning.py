@@ -326,6 +326,17 @@ def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatAr
     return bool(np.any(inside & against) or np.any(far_side))
 
 
+def keeps_passage(along_w: FloatArray) -> bool:
+    """Whether a flow through a passage in the direction ``along_w`` (3,) keeps it when it
+    meets the opposite flow inside: the one heading towards larger x (then y, then z) does,
+    the other backs out. Both agents decide it from their own direction alone, and two
+    opposite directions never both keep it."""
+    for k in range(3):
+        if abs(float(along_w[k])) > 1e-6:
+            return float(along_w[k]) > 0.0
+    return True
+
+
 def _before(others_x_w: FloatArray, x_w: FloatArray) -> np.ndarray:
     """(k,) whether each other position comes before ``x_w`` in (x, y, z) order."""
     out = np.zeros(others_x_w.shape[0], dtype=bool)
@@ -340,7 +351,8 @@ class Route:
     """An agent's path with replanning: :meth:`update` says when the agent has not come
     closer to its goal along the path by ``progress_m`` within ``stall_s`` and gives a new
     plan from where it is (None otherwise). It also keeps the path's first narrow passage
-    (:attr:`passage`, :func:`gives_way`)."""
+    (:attr:`passage`) and says when to give way there (:meth:`hold`: waiting before it,
+    backing out of it at ``back_mps`` [m/s])."""
 
     def __init__(
         self,
@@ -349,9 +361,10 @@ class Route:
         settings: PlannerSettings | None = None,
         stall_s: float = 4.0,
         progress_m: float = 0.3,
+        back_mps: float = 0.3,
     ) -> None:
         self.obstacles, self.radius_m, self.settings = obstacles, radius_m, settings or PlannerSettings()
-        self.stall_s, self.progress_m = stall_s, progress_m
+        self.stall_s, self.progress_m, self.back_mps = stall_s, progress_m, back_mps
         self._best = math.inf  # least remaining path length [m] seen since the last plan
         self._since = 0.0  # sim time [s] of the last progress
         self.replans = 0
@@ -371,22 +384,47 @@ class Route:
         self.length_m = float(np.linalg.norm(np.diff(waypoints_w, axis=0), axis=1).sum())
         self._waiting_since = None
 
-    def waits(
+    def hold(
         self, t_s: float, remaining_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray
-    ) -> bool:
-        """:func:`gives_way` at sim time ``t_s`` [s] on the current path, ``remaining_m`` [m]
-        of it left, for at most :data:`MAX_WAIT_S` at this passage; time spent giving way
-        does not count as a stall."""
-        if self.passage is None:
-            return False
-        if self._waiting_since is not None and t_s - self._waiting_since > MAX_WAIT_S:
-            return False  # waited long enough: go
-        wait = gives_way(self.passage, self.length_m - remaining_m, x_w, others_x_w, others_v_w)
-        if wait:
-            self._since = t_s
-            if self._waiting_since is None:
-                self._waiting_since = t_s
-        return wait
+    ) -> FloatArray | None:
+        """The velocity [m/s, world] the agent flies this tick in place of its path, or None
+        to fly the path, at sim time ``t_s`` [s] on the current path with ``remaining_m``
+        [m] of it left, among the other agents at ``others_x_w`` (k, 3) [m] moving at
+        ``others_v_w`` (k, 3) [m/s]:
+
+        * backing out of its passage at ``back_mps`` along it, while it is in the passage
+          or within ``WAIT_M / 2`` of it and an agent of the opposite flow, which keeps the
+          passage (:func:`keeps_passage`), is in it coming against it;
+        * hovering (zeros) while it gives way before the passage (:func:`gives_way`), or
+          within ``WAIT_M`` of the passage while such an agent is still in it, for at most
+          :data:`MAX_WAIT_S` at this passage.
+
+        Time spent giving way does not count as a stall."""
+        p = self.passage
+        if p is None or not len(others_x_w):
+            return None
+        along = p.exit_w - p.entry_w
+        along = along / max(float(np.linalg.norm(along)), 1e-9)
+        s_m = self.length_m - remaining_m
+        mine = float(np.min(np.linalg.norm(p.points_w - x_w, axis=1)))  # m from the passage
+        inside = np.min(np.linalg.norm(others_x_w[:, None, :] - p.points_w[None], axis=2), axis=1) < NARROW_M
+        against = inside & (others_v_w @ along <= 0.05)
+        out: FloatArray | None = None
+        if against.any() and s_m < p.s_out_m and not keeps_passage(along):
+            if mine < 0.5 * WAIT_M:
+                out = -self.back_mps * along
+            elif mine < WAIT_M:
+                out = np.zeros(3)
+        if out is None:
+            if self._waiting_since is not None and t_s - self._waiting_since > MAX_WAIT_S:
+                return None  # waited long enough: go
+            if not gives_way(p, s_m, x_w, others_x_w, others_v_w):
+                return None
+            out = np.zeros(3)
+        self._since = t_s
+        if self._waiting_since is None:
+            self._waiting_since = t_s
+        return out
 
     def update(self, t_s: float, x_w: FloatArray, goal_w: FloatArray, remaining_m: float) -> Plan | None:
         """At sim time ``t_s`` [s], the agent at ``x_w`` with ``remaining_m`` [m] of path

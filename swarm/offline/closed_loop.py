@@ -161,19 +161,19 @@ def _gives_way(
     goal_w: FloatArray,
     others_x_w: FloatArray,
     others_v_w: FloatArray,
-) -> bool:
+) -> FloatArray | None:
     """The agent's route at this tick, as the agent process runs it: a new path if it has
-    stalled (``trackers[i]`` replaced), then whether it waits before a narrow passage
-    (swarm.planning.gives_way)."""
+    stalled (``trackers[i]`` replaced), then the velocity it holds in place of its path
+    to give way at a narrow passage, or None (swarm.planning.Route.hold)."""
     route = agent.route
     if route is None:
-        return False
+        return None
     remaining = trackers[i].reference(state.x_w)[2]
     new = route.update(t_s, state.x_w, goal_w, remaining)
     if new is not None:
         trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps)
         remaining = trackers[i].reference(state.x_w)[2]
-    return route.waits(t_s, remaining, state.x_w, others_x_w, others_v_w)
+    return route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
 
 
 def simulate_swarm(
@@ -228,8 +228,9 @@ def simulate_swarm(
         setpoints = []
         for i in range(n):
             nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
-            if _gives_way(agents[i], trackers, i, t, states[i], goals[i], xb[others[i]], vb[others[i]]):
-                F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, np.zeros(3))  # wait: hover
+            held = _gives_way(agents[i], trackers, i, t, states[i], goals[i], xb[others[i]], vb[others[i]])
+            if held is not None:  # giving way: hover, or back out of a passage
+                F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, held)
             else:
                 F_ref = reference_thrust(
                     model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak

@@ -63,7 +63,10 @@ at 2 m), and an agent on several cones at once whose outward normals surround it
 command that leaves them all: a least-violation tick, though it is far from contact. With
 the buffer such slips stay outside the cones. ``v``
 fades with the relative speed, so a swarm at rest, or flying side by side, keeps none and
-settles where it is.
+settles where it is. A still obstacle the agent moves away from (``<p, w> > 0``) keeps
+none either: its exact h is at least ``|w| s``, far from its cone, while a live row at a
+few cm/s sits on the boundary of its direction set, where a buffer would forbid braking: an
+agent drifting slowly away from a wall could then neither stop nor turn back.
 """
 
 from __future__ import annotations
@@ -83,6 +86,7 @@ from swarm.safety.barriers import (
     B_W,
     C_D,
     N_COEF,
+    PW,
     RATE,
     WW,
     BarrierKind,
@@ -390,7 +394,9 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         share = par.rho if ob.is_nb else 1.0  # of the drift (module docstring, "Responsibility share")
         share_h = 1.0 if co[H] > 0.0 else share  # of gamma h: the allowance is the agent's, a recovery shared
         gain = max(par.gamma, co[RATE])
-        if par.buffer > 0.0 and not inside[i]:
+        if (
+            par.buffer > 0.0 and not inside[i] and (ob.is_nb or co[PW] <= 0.0)
+        ):  # (not when opening from a still obstacle)
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share_h * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
         if ob.is_nb and live and co[H] > 0.0:

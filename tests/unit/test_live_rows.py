@@ -160,6 +160,11 @@ def test_a_hovering_drone_drifting_from_a_wall_still_takes_its_doorway():
         res = f.filter(state, F_ref, walls)
         assert res.status is FilterStatus.OK
         np.testing.assert_allclose(res.u, F_ref, atol=1e-4)
+    state.v_w = np.array([-5.29e-3, 8.46e-3, 0.0])  # 1 cm/s away: no buffer against receding pillars, so it brakes
+    res = f.filter(state, F_ref, walls)  # (at the rows' own rate, gamma |v|, until the drift is below live_lo_mps)
+    back = -state.v_w / np.linalg.norm(state.v_w)
+    brake_N = 0.5 * cfg.gamma * np.linalg.norm(state.v_w) * QuadModel().params.mass_kg
+    assert res.status is FilterStatus.OK and res.u[:2] @ back[:2] >= brake_N
     state.v_w = np.array([-2.643e-3, 4.231e-3, 0.0])  # aimed into a pillar, the reference is not clear: still held
     into = np.array([0.0534, -0.0280, 0.2649])
     assert np.linalg.norm(f.filter(state, into, walls).u[:2] - into[:2]) > 0.01

@@ -222,3 +222,44 @@ def test_drones_going_the_same_way_through_a_passage_follow_each_other():
     ahead = p.points_w[len(p.points_w) // 2]  # in the passage, moving my way
     assert not gives_way(p, p.s_in_m - 0.5, p.entry_w - [0.5, 0, 0], ahead[None], np.array([[0.8, 0.0, 0.0]]))
     assert gives_way(p, p.s_in_m - 0.5, p.entry_w - [0.5, 0, 0], ahead[None], np.array([[-0.8, 0.0, 0.0]]))
+
+
+@pytest.mark.parametrize("depth", [0.3, 1.0, 1.7])
+def test_of_two_drones_that_meet_inside_a_passage_exactly_one_backs_out(depth):
+    """Two drones of the opposite flows face each other inside the corridor, ``depth`` [m]
+    into it from the left and 0.4 m apart, at rest: each decides from its own direction
+    and what it hears, one backs out along its way at the route's back speed, the other
+    flies its path; once out, the one that backed out hovers beside the mouth."""
+    from swarm.planning import keeps_passage
+
+    agents, _ = _corridor_routes()
+    left, right = agents
+    p_l, p_r = left.route.passage, right.route.passage
+    x_l = p_l.entry_w + depth * (p_l.exit_w - p_l.entry_w) / np.linalg.norm(p_l.exit_w - p_l.entry_w)
+    x_r = x_l + 0.4 * (p_l.exit_w - p_l.entry_w) / np.linalg.norm(p_l.exit_w - p_l.entry_w)
+    rest = np.zeros((1, 3))
+    s_l = p_l.s_in_m + depth
+    s_r = p_r.s_in_m + float(np.linalg.norm(x_r - p_r.entry_w))
+    held_l = left.route.hold(10.0, left.route.length_m - s_l, x_l, x_r[None], rest)
+    held_r = right.route.hold(10.0, right.route.length_m - s_r, x_r, x_l[None], rest)
+    along_l = (p_l.exit_w - p_l.entry_w) / np.linalg.norm(p_l.exit_w - p_l.entry_w)
+    assert keeps_passage(along_l) != keeps_passage(-along_l)
+    assert (held_l is None) != (held_r is None)  # exactly one gives way
+    backing, route, x, along = (
+        (held_r, right.route, x_r, -along_l) if held_l is None else (held_l, left.route, x_l, along_l)
+    )
+    np.testing.assert_allclose(backing, -route.back_mps * along, atol=1e-9)  # back along its own way
+    other = x_l if backing is held_r else x_r
+    beside = route.passage.entry_w - 0.7 * along  # out of the passage, 0.7 m before its mouth
+    np.testing.assert_allclose(route.hold(11.0, route.length_m, beside, other[None], rest), np.zeros(3))
+    assert route.hold(12.0, route.length_m, beside, np.array([[0.0, 5.0, 1.0]]), rest) is None  # the way is clear
+
+
+def test_a_drone_of_the_same_flow_in_the_passage_is_followed_not_backed_from():
+    agents, _ = _corridor_routes()
+    route = agents[0].route
+    p = route.passage
+    along = (p.exit_w - p.entry_w) / np.linalg.norm(p.exit_w - p.entry_w)
+    x = p.entry_w + 0.5 * along
+    ahead = (x + 0.5 * along)[None]
+    assert route.hold(1.0, route.length_m - p.s_in_m - 0.5, x, ahead, 0.8 * along[None]) is None

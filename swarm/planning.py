@@ -394,10 +394,10 @@ class Route:
 
         * backing out of its passage at ``back_mps`` along it, while it is in the passage
           or within ``WAIT_M / 2`` of it and an agent of the opposite flow, which keeps the
-          passage (:func:`keeps_passage`), is in it coming against it;
-        * hovering (zeros) while it gives way before the passage (:func:`gives_way`), or
-          within ``WAIT_M`` of the passage while such an agent is still in it, for at most
-          :data:`MAX_WAIT_S` at this passage.
+          passage (:func:`keeps_passage`), is in it coming against it; then hovering (zeros)
+          within ``WAIT_M`` of the passage while that agent is still in it;
+        * else hovering while it gives way before the passage (:func:`gives_way`), for at
+          most :data:`MAX_WAIT_S` at this passage.
 
         Time spent giving way does not count as a stall."""
         p = self.passage

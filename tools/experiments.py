@@ -333,6 +333,60 @@ def _liveness_table(path: Path) -> str:
     return "\n".join(out)
 
 
+VARIANT_SCENES = [
+    ("circle_32", 1.0, False),
+    ("circle_32", 0.5, False),
+    ("circle_32", 1.0, True),
+    ("circle_32", 0.5, True),
+    ("circle_8", 0.5, True),
+    ("sphere_12_r1.5", 1.0, True),
+    ("sphere_16_r1.5", 1.0, True),
+    ("sphere_16_r1.5", 0.5, True),
+    ("sphere_32_r2", 1.0, True),
+    ("sphere_32_r1.5", 1.0, True),
+    ("sphere_32_r2", 0.5, True),
+    ("sphere_32_r1.5", 0.5, True),
+    ("pillar_8", 0.5, True),
+    ("doorway_8", 1.0, True),
+    ("corridor_4x2", 1.0, True),
+]
+"""The scenes a variant's table sets beside the defaults (scene, rho, exact start)."""
+
+
+def _variant_table(path: Path) -> str:
+    """A variant of the liveness benchmark (``path``) beside the defaults (``liveness.jsonl``):
+    its whole count of failed points and infeasible ticks, then the scenes of
+    :data:`VARIANT_SCENES`, each with its mean / worst time ratio and infeasible ticks."""
+    base = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness.jsonl")}
+    var = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path)}
+
+    def ratio(r: dict | None) -> str:
+        if r is None:
+            return "-"
+        pair = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f} / {r['worst_time_ratio']:.2f}"
+        return pair if r["success_rate"] == 1.0 else f"fails ({r['success_rate']:.2f}), {pair}"
+
+    def whole(rows: dict) -> str:
+        failed = sum(r["success_rate"] < 1.0 for r in rows.values())
+        ticks = sum(r["infeasible_ticks"] or 0 for r in rows.values())
+        return f"{failed} of {len(rows)} points fail, {ticks} infeasible ticks"
+
+    out = [
+        "| scene | rho | start | mean / worst time ratio, defaults | same, this variant | "
+        "infeasible ticks, defaults | same, this variant |",
+        "|---|---|---|---|---|---|---|",
+        f"| whole benchmark | | | {whole(base)} | {whole(var)} | | |",
+    ]
+    for key in VARIANT_SCENES:
+        b, v = base.get(key), var.get(key)
+        if b is None and v is None:
+            continue
+        ticks = [str(r["infeasible_ticks"]) if r is not None else "-" for r in (b, v)]
+        start = "exact" if key[2] else "perturbed"
+        out.append(f"| {key[0]} | {key[1]:g} | {start} | {ratio(b)} | {ratio(v)} | {ticks[0]} | {ticks[1]} |")
+    return "\n".join(out)
+
+
 def _sweep_table(path: Path) -> str:
     """One sweep's ``results.csv`` as a table: its axes, then the outcome of each run."""
     import csv
@@ -491,6 +545,7 @@ GENERATED = {
     "faults": (DOCS / "bench_faults.jsonl", _faults_table),
     "paper": (DOCS / "paper.json", _paper_table),
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
+    **{f"liveness_{n}": (DOCS / f"liveness_{n}.jsonl", _variant_table) for n in LIVENESS_VARIANTS},
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     "access": (DOCS / "bench_access.jsonl", _access_table),

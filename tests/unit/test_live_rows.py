@@ -37,6 +37,19 @@ def exact_h(p, w, r, a):
     return P @ W + np.linalg.norm(W) * math.sqrt(P @ P - r * r)
 
 
+def assert_h_keeps_along_an_admitted_motion(rows, p, w, r, a, acc):
+    """Along a relative acceleration that satisfies the row ``h_d' + gamma h_d >= 0`` (``d``
+    held; ``acc`` moved onto its half-space), the exact h after a short time stays above
+    ``h_d (1 - gamma tau)`` to second order."""
+    h_d = rows.h[0]
+    Lf = rows.dh_dp[0] @ w + GAMMA * h_d
+    acc = satisfying(rows.dh_dw[0], Lf, acc)
+    tau = 1e-4
+    h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
+    scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
+    assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+
+
 @settings(max_examples=400, deadline=None)
 @given(p=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=vec, acc=vec, nb=st.booleans())
 # a reference 4e-10 rad off the cone's axis, across a cylinder: the generator's side was
@@ -101,13 +114,7 @@ def test_any_speed_the_row_keeps_the_exact_h_non_negative_along_the_motion(p, w_
     assert h_d <= h + 1e-12 * (1 + abs(h))  # (1): h >= h_d
     if h >= 0:
         assert h_d >= -1e-12 * (1 + np.linalg.norm(p) * np.linalg.norm(w))  # d was chosen in D
-    # a relative acceleration that satisfies the row h_d' + gamma h_d >= 0 (d held)
-    Lf = rows.dh_dp[0] @ w + GAMMA * h_d
-    acc = satisfying(rows.dh_dw[0], Lf, acc)
-    tau = 1e-4
-    h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
-    scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
-    assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+    assert_h_keeps_along_an_admitted_motion(rows, p, w, r, a, acc)
 
 
 @settings(max_examples=400, deadline=None)
@@ -129,12 +136,7 @@ def test_below_the_blend_speed_a_clear_reference_is_the_direction_and_bounds_h(p
     h_d, h, W = rows.h[0], exact_h(p, w, r, a), proj(a, w)
     assert h_d <= h + 1e-12 * (1 + abs(h))
     assert h_d >= -np.linalg.norm(W) * (np.linalg.norm(P) + s) - 1e-12
-    Lf = rows.dh_dp[0] @ w + GAMMA * h_d
-    acc = satisfying(rows.dh_dw[0], Lf, acc)
-    tau = 1e-4
-    h_tau = exact_h(p + tau * w + 0.5 * tau * tau * acc, w + tau * acc, r, a)
-    scale = (1 + np.linalg.norm(w) + np.linalg.norm(acc)) ** 2 * (1 + np.linalg.norm(p))
-    assert h_tau >= h_d * (1 - GAMMA * tau) - 50 * scale * tau * tau
+    assert_h_keeps_along_an_admitted_motion(rows, p, w, r, a, acc)
 
 
 def test_a_hovering_drone_drifting_from_a_wall_still_takes_its_doorway():

@@ -126,12 +126,24 @@ def _segment_points(a: FloatArray, b: FloatArray, step_m: float) -> FloatArray:
     return a[None] + s * (b - a)[None]
 
 
-def clear(a: FloatArray, b: FloatArray, obstacles: StaticObstacles, keep_m: float, step_m: float = 0.02) -> bool:
+def clear(a: FloatArray, b: FloatArray, obstacles: StaticObstacles, keep_m: float) -> bool:
     """Whether the segment from ``a`` to ``b`` [m, world] keeps ``keep_m`` from every
-    obstacle surface (checked every ``step_m``)."""
+    obstacle surface, exactly: each obstacle's nearest point of the segment, in the plane
+    across its axis (a sphere's: in space)."""
     if not len(obstacles):
         return True
-    return bool(obstacles.clearance(_segment_points(a, b, step_m)).min() >= keep_m)
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    ax = obstacles.axis_w  # (m, 3), zero rows for spheres
+
+    def across(v: FloatArray) -> FloatArray:  # (m, 3): v without its part along each axis
+        return v - np.sum(v * ax, axis=-1, keepdims=True) * ax
+
+    d = across(np.broadcast_to(b - a, ax.shape))
+    rel = across(obstacles.c_w - a)
+    dd = np.sum(d * d, axis=1)
+    t = np.clip(np.divide(np.sum(rel * d, axis=1), dd, out=np.zeros_like(dd), where=dd > 0.0), 0.0, 1.0)
+    gap = np.linalg.norm(rel - t[:, None] * d, axis=1) - obstacles.r_m
+    return bool(gap.min() >= keep_m)
 
 
 class _Grid:
@@ -196,7 +208,12 @@ def plan(
             f"planner: a {grid.nx} x {grid.ny} grid exceeds max_cells = {st.max_cells}; use a coarser resolution_m"
         )
     centres = grid.centres()
-    free = obstacles.clearance(centres) >= keep
+    # a cell is free where the grid's edges from it keep the clearance too: a chord of an
+    # edge's length (the diagonal's) between two points at sqrt(R^2 + (L/2)^2) from a centre
+    # comes no nearer than R = r + keep to it
+    half = 0.5 * math.sqrt(2.0) * st.resolution_m
+    reach = np.sqrt((obstacles.r_m + keep) ** 2 + half * half) - obstacles.r_m  # (m,) m from each surface
+    free = _clear_of_each(obstacles, centres, reach)
     if not free.any():
         return Plan(np.vstack([a, b]), False, "no free cell")
     g = grid.graph(free)
@@ -220,6 +237,13 @@ def plan(
     frac = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way[:, :2], axis=0), axis=1))])
     way[:, 2] = a[2] + (b[2] - a[2]) * frac / max(frac[-1], 1e-9)  # altitude from start to goal along the path
     return Plan(way, True, "planned")
+
+
+def _clear_of_each(obstacles: StaticObstacles, points_w: FloatArray, reach_m: FloatArray) -> np.ndarray:
+    """(k,) whether each point (k, 3) is at least ``reach_m[i]`` [m] from obstacle i's surface."""
+    d = obstacles.c_w[None, :, :] - points_w[:, None, :]
+    d = d - np.sum(d * obstacles.axis_w[None], axis=2, keepdims=True) * obstacles.axis_w[None]
+    return np.all(np.linalg.norm(d, axis=2) - obstacles.r_m[None, :] >= reach_m[None, :], axis=1)
 
 
 def _shorten(pts: list[FloatArray], obstacles: StaticObstacles, keep_m: float) -> FloatArray:

@@ -469,7 +469,7 @@ def _swarm_table(path: Path) -> str:
         "CPU per agent tick (us)",
         "received per agent tick (bytes)",
         "p99 tick latency (ms)",
-        "collisions",
+        "contacts / inside the safety radius",
     ]
     rows = [
         [
@@ -482,7 +482,7 @@ def _swarm_table(path: Path) -> str:
             _maybe(r.get("cpu_us_per_agent_tick"), ".0f"),
             _maybe(r.get("rx_bytes_per_agent_tick"), ".0f"),
             _maybe(r["p99_tick_latency_ms"], ".1f"),
-            str(r["collisions"]),
+            f"{r['collisions']} / {r.get('margin_violations', '-')}",
         ]
         for r in _jsonl(path)
     ]

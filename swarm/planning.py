@@ -83,9 +83,19 @@ class StaticObstacles:
         points_w = np.asarray(points_w, dtype=float).reshape(-1, 3)
         if not len(self):
             return np.full(points_w.shape[0], math.inf)
-        d = self.c_w[None, :, :] - points_w[:, None, :]  # (k, m, 3)
-        d = d - np.sum(d * self.axis_w[None], axis=2, keepdims=True) * self.axis_w[None]
-        return (np.linalg.norm(d, axis=2) - self.r_m[None, :]).min(axis=1)
+        return self.gaps(points_w).min(axis=1)
+
+    def gaps(self, points_w: FloatArray) -> FloatArray:
+        """(k, m) distance [m] from each point (k, 3) to each obstacle's surface, across its
+        axis (negative inside it)."""
+        d = _across(self.c_w[None, :, :] - np.asarray(points_w, dtype=float).reshape(-1, 3)[:, None, :], self.axis_w)
+        return np.linalg.norm(d, axis=2) - self.r_m[None, :]
+
+
+def _across(v: FloatArray, axes_w: FloatArray) -> FloatArray:
+    """``v`` (..., m, 3) without its part along each unit axis of ``axes_w`` (m, 3) (zero
+    rows, spheres: ``v`` itself)."""
+    return v - np.sum(v * axes_w, axis=-1, keepdims=True) * axes_w
 
 
 @dataclass(frozen=True)
@@ -133,13 +143,8 @@ def clear(a: FloatArray, b: FloatArray, obstacles: StaticObstacles, keep_m: floa
     if not len(obstacles):
         return True
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    ax = obstacles.axis_w  # (m, 3), zero rows for spheres
-
-    def across(v: FloatArray) -> FloatArray:  # (m, 3): v without its part along each axis
-        return v - np.sum(v * ax, axis=-1, keepdims=True) * ax
-
-    d = across(np.broadcast_to(b - a, ax.shape))
-    rel = across(obstacles.c_w - a)
+    d = _across(np.broadcast_to(b - a, obstacles.axis_w.shape), obstacles.axis_w)  # (m, 3)
+    rel = _across(obstacles.c_w - a, obstacles.axis_w)
     dd = np.sum(d * d, axis=1)
     t = np.clip(np.divide(np.sum(rel * d, axis=1), dd, out=np.zeros_like(dd), where=dd > 0.0), 0.0, 1.0)
     gap = np.linalg.norm(rel - t[:, None] * d, axis=1) - obstacles.r_m
@@ -213,7 +218,7 @@ def plan(
     # comes no nearer than R = r + keep to it
     half = 0.5 * math.sqrt(2.0) * st.resolution_m
     reach = np.sqrt((obstacles.r_m + keep) ** 2 + half * half) - obstacles.r_m  # (m,) m from each surface
-    free = _clear_of_each(obstacles, centres, reach)
+    free = np.all(obstacles.gaps(centres) >= reach[None, :], axis=1)
     if not free.any():
         return Plan(np.vstack([a, b]), False, "no free cell")
     g = grid.graph(free)
@@ -237,13 +242,6 @@ def plan(
     frac = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(way[:, :2], axis=0), axis=1))])
     way[:, 2] = a[2] + (b[2] - a[2]) * frac / max(frac[-1], 1e-9)  # altitude from start to goal along the path
     return Plan(way, True, "planned")
-
-
-def _clear_of_each(obstacles: StaticObstacles, points_w: FloatArray, reach_m: FloatArray) -> np.ndarray:
-    """(k,) whether each point (k, 3) is at least ``reach_m[i]`` [m] from obstacle i's surface."""
-    d = obstacles.c_w[None, :, :] - points_w[:, None, :]
-    d = d - np.sum(d * obstacles.axis_w[None], axis=2, keepdims=True) * obstacles.axis_w[None]
-    return np.all(np.linalg.norm(d, axis=2) - obstacles.r_m[None, :] >= reach_m[None, :], axis=1)
 
 
 def _shorten(pts: list[FloatArray], obstacles: StaticObstacles, keep_m: float) -> FloatArray:
@@ -292,6 +290,17 @@ class Passage:
     def exit_w(self) -> FloatArray:
         return self.points_w[-1]
 
+    @property
+    def along_w(self) -> FloatArray:
+        """(3,) unit direction from the entry to the exit."""
+        along = self.exit_w - self.entry_w
+        return along / max(float(np.linalg.norm(along)), 1e-9)
+
+    def holds(self, others_x_w: FloatArray) -> np.ndarray:
+        """(k,) whether each position (k, 3) [m, world] is in the passage (within
+        :data:`NARROW_M` of one of its points)."""
+        return np.min(np.linalg.norm(others_x_w[:, None, :] - self.points_w[None], axis=2), axis=1) < NARROW_M
+
 
 def _walled_both_sides(P: FloatArray, T: FloatArray, obstacles: StaticObstacles) -> np.ndarray:
     """(k,) whether each point of ``P`` (k, 3), heading along ``T`` (k, 3), has an obstacle
@@ -324,7 +333,14 @@ def passage_of(waypoints_w: FloatArray, obstacles: StaticObstacles, step_m: floa
     return Passage(P[i:j], float(s[i]), float(s[j - 1]))
 
 
-def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray) -> bool:
+def gives_way(
+    passage: Passage,
+    s_m: float,
+    x_w: FloatArray,
+    others_x_w: FloatArray,
+    others_v_w: FloatArray,
+    inside: np.ndarray | None = None,
+) -> bool:
     """Whether an agent ``s_m`` [m] along its path, at ``x_w`` [m, world], waits before its
     ``passage`` for the other agents at ``others_x_w`` (k, 3) moving at ``others_v_w`` (k,
     3) [m/s, world]: it does while, within :data:`WAIT_M` of the entry, another agent in
@@ -333,14 +349,13 @@ def gives_way(passage: Passage, s_m: float, x_w: FloatArray, others_x_w: FloatAr
     whose position is first in (x, y, z) order). Agents that go the same way follow each
     other. Every agent decides from positions and velocities it hears, by the same rule,
     so two agents at the two ends of a passage never both go (docs/design.md, "Reference
-    paths")."""
+    paths"). ``inside``: ``passage.holds(others_x_w)`` when the caller has it already."""
     if not (passage.s_in_m - WAIT_M <= s_m < passage.s_in_m) or not len(others_x_w):
         return False
-    along = passage.exit_w - passage.entry_w
-    along = along / max(float(np.linalg.norm(along)), 1e-9)
     mine = float(np.linalg.norm(x_w - passage.entry_w))
-    inside = np.min(np.linalg.norm(others_x_w[:, None, :] - passage.points_w[None], axis=2), axis=1) < NARROW_M
-    against = others_v_w @ along <= 0.05  # not moving through the passage my way
+    if inside is None:
+        inside = passage.holds(others_x_w)
+    against = others_v_w @ passage.along_w <= 0.05  # not moving through the passage my way
     to_exit = np.linalg.norm(others_x_w - passage.exit_w, axis=1)
     to_entry = np.linalg.norm(others_x_w - passage.entry_w, axis=1)
     towards = (passage.exit_w - others_x_w) / np.maximum(to_exit, 1e-9)[:, None]
@@ -427,11 +442,10 @@ class Route:
         p = self.passage
         if p is None or not len(others_x_w):
             return None
-        along = p.exit_w - p.entry_w
-        along = along / max(float(np.linalg.norm(along)), 1e-9)
+        along = p.along_w
         s_m = self.length_m - remaining_m
         mine = float(np.min(np.linalg.norm(p.points_w - x_w, axis=1)))  # m from the passage
-        inside = np.min(np.linalg.norm(others_x_w[:, None, :] - p.points_w[None], axis=2), axis=1) < NARROW_M
+        inside = p.holds(others_x_w)
         against = inside & (others_v_w @ along <= 0.05)
         out: FloatArray | None = None
         if against.any() and s_m < p.s_out_m and not keeps_passage(along):
@@ -442,7 +456,7 @@ class Route:
         if out is None:
             if self._waiting_since is not None and t_s - self._waiting_since > MAX_WAIT_S:
                 return None  # waited long enough: go
-            if not gives_way(p, s_m, x_w, others_x_w, others_v_w):
+            if not gives_way(p, s_m, x_w, others_x_w, others_v_w, inside):
                 return None
             out = np.zeros(3)
         self._since = t_s

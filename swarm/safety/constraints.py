@@ -394,9 +394,8 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         share = par.rho if ob.is_nb else 1.0  # of the drift (module docstring, "Responsibility share")
         share_h = 1.0 if co[H] > 0.0 else share  # of gamma h: the allowance is the agent's, a recovery shared
         gain = max(par.gamma, co[RATE])
-        if (
-            par.buffer > 0.0 and not inside[i] and (ob.is_nb or co[PW] <= 0.0)
-        ):  # (not when opening from a still obstacle)
+        receding = not ob.is_nb and co[PW] > 0.0  # moving away from a still obstacle: no buffer
+        if par.buffer > 0.0 and not inside[i] and not receding:
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share_h * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
         if ob.is_nb and live and co[H] > 0.0:

@@ -120,7 +120,9 @@ def test_a_buffered_row_keeps_the_exact_h_a_buffer_above_its_condition(p, w, r_o
     r = r_obstacle + filt.r_own_m  # the row's safety radius [m]
     p = outside(p, r, np.zeros(3))
     assume(p is not None)
-    assume(np.linalg.norm(w) > 0.05 and exact_h(p, w, r) > 1e-3 and p @ w < 0.0)
+    assume(
+        np.linalg.norm(w) > 0.05 and exact_h(p, w, r) > 1e-3 and p @ w < -1e-9 * np.linalg.norm(p) * np.linalg.norm(w)
+    )
     state = QuadState.hover(np.zeros(3))
     state.v_w = -w  # w = c' - x_b' with the sphere at rest
     obstacle = one_obstacle(p + filt._own(state).xv_b[0], np.zeros(3), r_obstacle)

@@ -306,7 +306,9 @@ class Agent:
         row_ids: list[str] = []
         h_rows = np.zeros(0)
         if me.filter.enabled:
-            res = filt.filter(state, u_ref, rows)
+            to_goal = math.dist(state.x_w.tolist(), self.goal.tolist())  # m
+            home = tracker is self.tracker and to_goal <= self.cfg.goal_tolerance_m
+            res = filt.filter(state, u_ref, rows, at_home=home)  # (design.md, "Agents at home")
             names = self.obstacle_ids + self.neighbour_ids(neighbours)
             row_ids = [names[i] for i in res.row_index.tolist()]
             h_rows = res.h

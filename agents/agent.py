@@ -306,9 +306,7 @@ class Agent:
         row_ids: list[str] = []
         h_rows = np.zeros(0)
         if me.filter.enabled:
-            to_goal = math.dist(state.x_w.tolist(), self.goal.tolist())  # m
-            home = tracker is self.tracker and to_goal <= self.cfg.goal_tolerance_m
-            res = filt.filter(state, u_ref, rows, at_home=home)  # (design.md, "Agents at home")
+            res = filt.filter(state, u_ref, rows)
             names = self.obstacle_ids + self.neighbour_ids(neighbours)
             row_ids = [names[i] for i in res.row_index.tolist()]
             h_rows = res.h

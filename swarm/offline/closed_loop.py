@@ -190,11 +190,9 @@ def simulate_swarm(
     every tick each agent filters its tracker's thrust vector (attitude level) against
     the obstacles and every other agent's body centre and velocity of that tick (no
     acceleration, as a roster gives; an agent whose last filter call was not a clean
-    solve is an obstacle row, as the roster's ``solo`` makes it; an agent within
-    ``goal_tolerance_m`` of its goal filters ``at_home``, as the agent process does), then
-    the firmware's attitude loop and RK4 physics run ``physics_hz / control_hz`` steps.
-    Ends early once every agent has been within ``goal_tolerance_m`` of its goal. No I/O;
-    the benchmark and tests use it."""
+    solve is an obstacle row, as the roster's ``solo`` makes it), then the firmware's attitude loop and RK4 physics
+    run ``physics_hz / control_hz`` steps. Ends early once every agent has been within
+    ``goal_tolerance_m`` of its goal. No I/O; the benchmark and tests use it."""
     for i, a in enumerate(agents):
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
@@ -238,8 +236,7 @@ def simulate_swarm(
                     model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
                 )
             if agents[i].filtered:
-                home = bool(np.linalg.norm(states[i].x_w - goals[i]) <= goal_tolerance_m)  # (as the agent process)
-                res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]), at_home=home)
+                res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
                 u, status = res.u, res.status
             else:
                 u, status = F_ref, FilterStatus.OK

@@ -227,7 +227,6 @@ ROW_PARAMS = np.dtype(
         ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
         ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
         ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
-        ("at_home", "?"),  # live rows of an agent at home: speeding up earns a still obstacle's buffered row nothing
         ("t_contact", "f8"),  # live neighbour rows: contact time [s] beyond which the radius relaxes (0: never)
         ("free_brake", "?"),  # live neighbour rows: free braking (module docstring)
     ],
@@ -278,7 +277,6 @@ def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | Non
         st.w_hi_mps,
         0.0 if st.horizon_s is None else 1.0 / st.horizon_s,
         st.buffer_mps if live else 0.0,
-        False,
         st.contact_s if live else 0.0,
         st.free_braking and live,
     )

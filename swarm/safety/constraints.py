@@ -67,17 +67,6 @@ settles where it is. A still obstacle the agent moves away from (``<p, w> > 0``)
 none either: its exact h is at least ``|w| s``, far from its cone, while a live row at a
 few cm/s sits on the boundary of its direction set, where a buffer would forbid braking: an
 agent drifting slowly away from a wall could then neither stop nor turn back.
-
-**At home** (``params.at_home``: ``SafetyFilter.filter(at_home=True)``, an agent holding its
-goal). h is of degree 1 in w, so speeding up along w adds ``(h / |W|^2) <W, W'>`` to h',
-and a buffered row with h just above 0 is met by speeding up: that threw a drone at its goal
-back through a corridor (docs/design.md, "Agents at home"). At home a still obstacle's
-buffered row with h > 0 counts none of it:
-
-    h' - (h / |W|^2) <W, W'> + g h >= buffer,   W' = c'' + a0 + A u (projected)         (B')
-
-It no longer implies the row (braking lowers h), so the buffered QP keeps the row itself and
-adds this one below the rows (``Rows.buffered``): the guarantees are the rows', as ever.
 """
 
 from __future__ import annotations
@@ -354,9 +343,6 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     inside = np.empty(n, dtype=np.bool_)
     Lf = np.empty(n)
     tight = np.zeros(n)
-    S = np.zeros((n, m))  # (B')'s extra input gain per row (module docstring)
-    s0 = np.zeros(n)  # and its extra drift
-    sloped = np.zeros(n, dtype=np.bool_)  # the rows whose buffered form is (B')
     A = np.empty((k_in + n, m))
     b = np.empty(k_in + n)
     A[:k_in] = C
@@ -412,13 +398,6 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         if par.buffer > 0.0 and not inside[i] and not receding:
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share_h * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
-            if par.at_home and not ob.is_nb and co[H] > 0.0 and tight[i] > 0.0:  # (B')
-                sloped[i] = True
-                slope = co[H] / co[WW]  # s: times W, what speeding up along W adds to dh/dW
-                for j in range(m):
-                    S[i, j] = slope * (Y[i, 1, 0] * Aa[0, j] + Y[i, 1, 1] * Aa[1, j] + Y[i, 1, 2] * Aa[2, j])
-                for k in range(3):
-                    s0[i] += slope * Y[i, 1, k] * (ob.cdd[k] + Aa[k, m])
         if ob.is_nb and live and co[H] > 0.0:
             k_far = far_gain(p, w, ob.r + r_own)
             gain *= k_far
@@ -430,23 +409,12 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
             for j in range(m):
                 acc -= A[row, j] * u_ref[j]
             c_ref[row] = acc
-            if row < k_in:
-                if acc < 0.0:
-                    ref_ok = False
-                continue
-            i = row - k_in
-            if sloped[i]:  # (B') and the row itself
-                for j in range(m):
-                    acc -= S[i, j] * u_ref[j]
-                if acc - s0[i] < tight[i] or c_ref[row] < 0.0:
-                    ref_ok = False
-            elif acc < tight[i]:
+            if acc < (tight[row - k_in] if row >= k_in else 0.0):
                 ref_ok = False
         for j in range(m):
             if not lb[j] <= u_ref[j] <= ub[j]:
                 ref_ok = False
-    ks = np.nonzero(sloped)[0]
-    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside, tight, ks, S[ks], s0[ks]
+    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside, tight
 
 
 @dataclass(slots=True)
@@ -462,31 +430,7 @@ class Rows:
     ref_ok: bool  # that reference satisfies every row and input bound
     k_in: int  # number of input rows on top
     any_inside: bool  # some row is already inside its safety radius
-    buffer: FloatArray  # (n,) what each row's buffered form asks beyond it: b - buffer is the buffered rows' b,
-    home_rows: IntArray  # (k,) but for these rows (B', module docstring), whose buffered form is
-    home_gain: FloatArray  # (k, m)  (G + home_gain) u <= b - buffer - home_drift,
-    home_drift: FloatArray  # (k,)   asked beside the row itself
-
-    def buffered(self) -> tuple[FloatArray, FloatArray]:
-        """``(A, b_all)`` of the buffered QP: each row's buffered form in its place, but
-        for :attr:`home_rows`, kept as they are with their buffered forms added below."""
-        k, rows = self.k_in, self.home_rows
-        b = self.b_all.copy()
-        b[k:] -= self.buffer
-        if not rows.size:
-            return self.A, b
-        b[k + rows] = self.b_all[k + rows]
-        A_home = self.A[k + rows] + self.home_gain
-        b_home = self.b_all[k + rows] - self.buffer[rows] - self.home_drift
-        return np.vstack([self.A, A_home]), np.concatenate([b, b_home])
-
-    def buffer_at(self, u: FloatArray) -> FloatArray:
-        """(n,) what each row's buffered form asks of its constraint value at the command ``u``."""
-        if not self.home_rows.size:
-            return self.buffer
-        out = self.buffer.copy()
-        out[self.home_rows] += self.home_drift + self.home_gain @ u
-        return out
+    buffer: FloatArray  # (n,) what each row's buffered form asks beyond it: b - buffer is the buffered rows' b
 
     @property
     def G(self) -> FloatArray:
@@ -552,7 +496,7 @@ def assemble_with(
         C, d = np.zeros((0, m)), _NO_REF
     else:
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, ks, S, s0 = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
         obstacles.rec,
         np.arange(len(obstacles)) if sel is None else sel,
         params,
@@ -564,9 +508,7 @@ def assemble_with(
         C,
         d,
     )
-    return Rows(
-        BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight, ks, S, s0
-    )
+    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight)
 
 
 __all__ = [

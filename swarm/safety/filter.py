@@ -157,9 +157,6 @@ class Prepared(NamedTuple):
     ref_ok: bool
     any_inside: bool
     tight: FloatArray
-    home_rows: IntArray
-    home_gain: FloatArray
-    home_drift: FloatArray
 
 
 @njit(cache=True)
@@ -212,19 +209,16 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
                 False,
                 False,
                 z1,
-                np.zeros(0, dtype=np.intp),
-                np.zeros((0, m)),
-                z1,
             )
     idx, fixed = _select(obs, x, fp.r2, fp.max_rows)
     if fp.floor:
         j = C.shape[0] - 1
         _floor_row(air[0], fp, C[j], d, j, x[2], v[2], qn, ub)
     xv_b, Aa = own_affine(air, x, v, qn, Om)
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, ks, S, s0 = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
-    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, ks, S, s0)
+    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight)
 
 
 def _is_vector(a: object) -> bool:
@@ -427,10 +421,6 @@ class SafetyFilter:
             cfg.floor_gain_per_s,
         )
         self._kernel_settings = (self._own.air, self._params, self._fparams)  # _prepare's settings
-        home = self._params.copy()
-        home[0]["at_home"] = True
-        self._params_home = home
-        self._kernel_settings_home = (self._own.air, home, self._fparams)  # (at_home=True)
         used = self._floor_set if cfg.floor_z_m is not None else self.input_set
         self._inputs = (used.lb, used.ub, used.C, used.d)  # _prepare's input set (the floor row refilled in place)
 
@@ -450,32 +440,19 @@ class SafetyFilter:
         u_ref: FloatArray | None = None,
         input_set: LinearInputSet | None = None,
         sel: IntArray | None = None,
-        *,
-        at_home: bool = False,
     ) -> Rows:
         """The barrier rows for ``obstacles`` (all of them, or those ``sel`` indexes); with
         ``u_ref`` also their residuals at it (against ``input_set``, default the filter's).
         Live rows depend on the reference (their direction at low speed, free braking), so
-        the rows a command was filtered against are ``rows(state, obstacles, u_ref,
-        at_home=...)`` with the same ``at_home`` as that :meth:`filter` call."""
+        the rows a command was filtered against are ``rows(state, obstacles, u_ref)``."""
         own = self._own(state)
-        params = self._params_home if at_home else self._params
-        return assemble_with(own, obstacles, params, u_ref=u_ref, input_set=input_set or self.input_set, sel=sel)
+        return assemble_with(own, obstacles, self._params, u_ref=u_ref, input_set=input_set or self.input_set, sel=sel)
 
     def filter(
-        self,
-        state: QuadState,
-        u_ref: FloatArray,
-        obstacles: ObstacleArrays,
-        *,
-        validate: bool = True,
-        at_home: bool = False,
+        self, state: QuadState, u_ref: FloatArray, obstacles: ObstacleArrays, *, validate: bool = True
     ) -> FilterResult:
         """Filter ``u_ref`` against ``obstacles``. With ``validate`` the state and
-        reference are checked and a bad one raises :class:`InputError`. ``at_home``: the
-        agent holds its goal, and speeding up earns a still obstacle's buffered row nothing
-        (``swarm.safety.constraints``, "At home"; docs/design.md, "Agents at home"); the rows,
-        and so the guarantees, are the same."""
+        reference are checked and a bad one raises :class:`InputError`."""
         t0 = time.perf_counter()
         cfg, m = self.config, self.m
         if validate and not (
@@ -496,7 +473,7 @@ class SafetyFilter:
             state.Omega_b,
             u_ref,
             obstacles.rec,
-            self._kernel_settings_home if at_home else self._kernel_settings,
+            self._kernel_settings,
             self._inputs,
         )
         if prep.bad != _BAD_NONE:  # the same checks as _prepare's, in Python: one of them raises, naming the field
@@ -514,9 +491,6 @@ class SafetyFilter:
             ins.d.size,
             bool(prep.any_inside),
             prep.tight,
-            prep.home_rows,
-            prep.home_gain,
-            prep.home_drift,
         )
         call = (t0, prep.idx, rows, ins)  # for whichever QP decides the call (_result)
         n = prep.idx.shape[0]
@@ -532,8 +506,9 @@ class SafetyFilter:
         status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
         has_buffer = bool(rows.buffer.any())
         if has_buffer:  # the buffered rows first; the rows themselves only if those cannot all hold
-            At, bt = rows.buffered()
-            sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, At, bt))
+            bt = bb.copy()
+            bt[ins.d.size :] -= rows.buffer
+            sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bt))
             if sol.status is QPStatus.OPTIMAL:
                 return self._result(call, sol.x, u_ref, status, zeros, buffered=True)
         sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb))  # rows from the kernel
@@ -605,8 +580,7 @@ class SafetyFilter:
             c, viol = residuals[0][ins.d.size :], residuals[1]
         else:
             c, viol = _residuals(rows.G, rows.b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
-        buffer = rows.buffer_at(u)
-        active = c - buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
+        active = c - rows.buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
         return FilterResult(
             u=u,
             u_ref=u_ref,
@@ -619,6 +593,6 @@ class SafetyFilter:
             slack=slack,
             solve_time_s=time.perf_counter() - t0,
             max_violation=viol,
-            buffer=buffer,
+            buffer=rows.buffer,
             buffered=buffered,
         )

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -268,6 +269,9 @@ TIE_M = 0.05
 """Two agents whose distances to the passage differ by less than this [m] are tied."""
 COMING_MPS = 0.1
 """An agent beyond the passage counts once it flies towards it faster than this [m/s]."""
+AGAINST_MPS = 0.05
+"""An agent in the passage comes against one before it unless it flies through it that one's
+way faster than this [m/s] (a stopped agent comes against it)."""
 MAX_WAIT_S = 8.0
 """An agent gives way at most this long [s] per passage, then goes (two agents whose
 passages differ can each see the other first)."""
@@ -290,9 +294,9 @@ class Passage:
     def exit_w(self) -> FloatArray:
         return self.points_w[-1]
 
-    @property
+    @cached_property
     def along_w(self) -> FloatArray:
-        """(3,) unit direction from the entry to the exit."""
+        """(3,) unit direction from the entry to the exit (computed once per passage)."""
         along = self.exit_w - self.entry_w
         return along / max(float(np.linalg.norm(along)), 1e-9)
 
@@ -355,7 +359,7 @@ def gives_way(
     mine = float(np.linalg.norm(x_w - passage.entry_w))
     if inside is None:
         inside = passage.holds(others_x_w)
-    against = others_v_w @ passage.along_w <= 0.05  # not moving through the passage my way
+    against = others_v_w @ passage.along_w <= AGAINST_MPS  # not moving through the passage my way
     to_exit = np.linalg.norm(others_x_w - passage.exit_w, axis=1)
     to_entry = np.linalg.norm(others_x_w - passage.entry_w, axis=1)
     towards = (passage.exit_w - others_x_w) / np.maximum(to_exit, 1e-9)[:, None]
@@ -446,7 +450,7 @@ class Route:
         s_m = self.length_m - remaining_m
         mine = float(np.min(np.linalg.norm(p.points_w - x_w, axis=1)))  # m from the passage
         inside = p.holds(others_x_w)
-        against = inside & (others_v_w @ along <= 0.05)
+        against = inside & (others_v_w @ along <= AGAINST_MPS)
         out: FloatArray | None = None
         if against.any() and s_m < p.s_out_m and not keeps_passage(along):
             if mine < 0.5 * WAIT_M:

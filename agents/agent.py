@@ -34,7 +34,7 @@ from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
-from swarm.planning import StaticObstacles, path_for
+from swarm.planning import StaticObstacles, filter_config_for, path_for
 from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -56,12 +56,13 @@ class Agent:
         me = self.me = cfg.agent(agent_id)
         self.model = QuadModel(me.quad_params())
         self.level = me.command_level
-        fc = me.filter.filter_config(self.level)
+        still = StaticObstacles.of(list(cfg.obstacles))
+        fc = filter_config_for(me, still, self.level)
         self.filt = SafetyFilter(self.model, fc)
         # a real drone lands through its floor: landing filters with the floor off
         self.filt_land = SafetyFilter(self.model, replace(fc, floor_z_m=None)) if me.backend == "crazyflie" else None
         # the path around the static obstacles (swarm.planning), replanned when it stalls
-        path_w, self.route = path_for(me, StaticObstacles.of(list(cfg.obstacles)))
+        path_w, self.route = path_for(me, still)
         self.tracker = PathTracker(path_w, me.speed_mps)
         self.att = AttitudeController(self.model)
         f = cfg.failure

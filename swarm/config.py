@@ -80,11 +80,14 @@ class FilterSettings(_Strict):
     live: bool = True
     # s: live rows' horizon allowance (docs/design.md, "The barrier math"); null: the cone alone
     horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
+    # s: the obstacle rows' own horizon allowance (not other agents'); null: the planner's
+    # planner.obstacle_horizon_s on a path planned round walls, else horizon_s
+    obstacle_horizon_s: float | None = Field(None, gt=0, allow_inf_nan=False)
     # m/s: live rows' velocity buffer (docs/design.md, "The barrier math"); 0: the rows alone
     buffer_mps: float = Field(0.1, ge=0, allow_inf_nan=False)
     # s: live neighbour rows' contact horizon (docs/design.md, "The barrier math"); 0: the cone alone
     contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
-    # live neighbour rows leave the braking of a relative velocity free (swarm.safety.barriers, "Free braking")
+    # live rows leave the braking of a relative velocity free (swarm.safety.barriers, "Free braking")
     free_braking: bool = True
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
@@ -100,6 +103,7 @@ class FilterSettings(_Strict):
             floor_z_m=self.floor_z_m,
             live=self.live,
             horizon_s=self.horizon_s,
+            obstacle_horizon_s=self.obstacle_horizon_s,
             buffer_mps=self.buffer_mps,
             contact_s=self.contact_s,
             free_braking=self.free_braking,
@@ -207,6 +211,9 @@ class PlannerConfig(_Strict):
     resolution_m: float = Field(0.1, gt=0, le=1)  # m: the grid's cell
     clearance_m: float = Field(0.1, ge=0, le=2)  # m: kept from obstacles beyond the safety radius
     stall_s: float = Field(4.0, gt=0)  # s: replan from where the agent is after this long without progress
+    # s: on a path planned round walls, the filter's obstacle rows relax the cones of obstacles more
+    # than about this far in time with the horizon allowance (filter.obstacle_horizon_s); None: never
+    obstacle_horizon_s: float | None = Field(3.0, gt=0, allow_inf_nan=False)
 
     def settings(self) -> PlannerSettings:
         return PlannerSettings(resolution_m=self.resolution_m, clearance_m=self.clearance_m)

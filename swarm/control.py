@@ -128,6 +128,10 @@ class PathTracker:
 
 CORNER_SPEED_MIN = 0.2
 """The slowest a tracker takes a corner, as a fraction of its target speed."""
+SKIP_AHEAD_M = 1.0
+"""A tracker moves on to a later segment that starts within this much path [m] ahead of
+its closest point when that segment is nearer: an agent pushed past a replanned path's
+first short legs does not fly back to them."""
 
 
 def corner_speeds(W: FloatArray, speed_mps: float) -> FloatArray:
@@ -165,12 +169,38 @@ def _path_point(W, seg, segment, x):
         if t >= 1.0 and i < last:
             segment += 1
             continue
+        # a later segment that starts within SKIP_AHEAD_M of path ahead and lies nearer
+        best = _dist2_to(W, i, t, x)
+        ahead = (1.0 - t) * L
+        k = i + 1
+        while k <= last and ahead <= SKIP_AHEAD_M:
+            Lk = seg_len[k]
+            tk = 0.0
+            if Lk > 1e-9:
+                for j in range(3):
+                    tk += (x[j] - W[k, j]) * (W[k + 1, j] - W[k, j])
+                tk = min(max(tk / (Lk * Lk), 0.0), 1.0)
+            dk = _dist2_to(W, k, tk, x)
+            if dk < best:
+                best, i, t, L, segment = dk, k, tk, Lk, k
+            ahead += Lk
+            k += 1
         for j in range(3):
             d = W[i + 1, j] - W[i, j]
             c[j] = W[i, j] + t * d
             if L > 1e-9:
                 tangent[j] = d / L
         return segment, c, tangent, (1.0 - t) * L + tail[i]
+
+
+@njit(cache=True)
+def _dist2_to(W, i, t, x):
+    """Squared distance [m^2] from ``x`` to the point ``t`` (0 to 1) along segment ``i`` of ``W``."""
+    out = 0.0
+    for j in range(3):
+        d = W[i, j] + t * (W[i + 1, j] - W[i, j]) - x[j]
+        out += d * d
+    return out
 
 
 @njit(cache=True)

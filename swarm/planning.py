@@ -22,7 +22,7 @@ path for ``stall_s``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING
 
@@ -35,6 +35,8 @@ if TYPE_CHECKING:
     import networkx as nx
 
     from swarm.config import AgentConfig
+    from swarm.model import CommandLevel
+    from swarm.safety.filter import FilterConfig
 
 
 @dataclass(frozen=True)
@@ -270,8 +272,8 @@ TIE_M = 0.05
 COMING_MPS = 0.1
 """An agent beyond the passage counts once it flies towards it faster than this [m/s]."""
 AGAINST_MPS = 0.05
-"""An agent in the passage comes against one before it unless it flies through it that one's
-way faster than this [m/s] (a stopped agent comes against it)."""
+"""An agent in the passage moving along it slower than this [m/s] either way is stopped
+there; faster against another's way, it comes against that one."""
 MAX_WAIT_S = 8.0
 """An agent gives way at most this long [s] per passage, then goes (two agents whose
 passages differ can each see the other first)."""
@@ -348,9 +350,12 @@ def gives_way(
     """Whether an agent ``s_m`` [m] along its path, at ``x_w`` [m, world], waits before its
     ``passage`` for the other agents at ``others_x_w`` (k, 3) moving at ``others_v_w`` (k,
     3) [m/s, world]: it does while, within :data:`WAIT_M` of the entry, another agent in
-    the passage comes against it, or one outside it on the far side, flying towards it, is
-    nearer its end of the passage than this agent is to its own (a tie goes to the agent
-    whose position is first in (x, y, z) order). Agents that go the same way follow each
+    the passage flies through it against it, or one is nearer its end of the passage than
+    this agent is to its own (a tie goes to the agent whose position is first in (x, y, z)
+    order) and is either stopped in the passage or outside it on the far side, flying
+    towards it, unless an agent in the passage flies through it this agent's way (then it
+    follows). Two agents waiting at the two mouths, each inside the other's passage, thus
+    never both wait. Agents that go the same way follow each
     other. Every agent decides from positions and velocities it hears, by the same rule,
     so two agents at the two ends of a passage never both go (docs/design.md, "Reference
     paths"). ``inside``: ``passage.holds(others_x_w)`` when the caller has it already."""
@@ -359,14 +364,18 @@ def gives_way(
     mine = float(np.linalg.norm(x_w - passage.entry_w))
     if inside is None:
         inside = passage.holds(others_x_w)
-    against = others_v_w @ passage.along_w <= AGAINST_MPS  # not moving through the passage my way
+    v_along = others_v_w @ passage.along_w
     to_exit = np.linalg.norm(others_x_w - passage.exit_w, axis=1)
     to_entry = np.linalg.norm(others_x_w - passage.entry_w, axis=1)
     towards = (passage.exit_w - others_x_w) / np.maximum(to_exit, 1e-9)[:, None]
     coming = np.sum(others_v_w * towards, axis=1) > COMING_MPS  # flying at its end (not parked at a goal)
     first = (to_exit < mine - TIE_M) | ((np.abs(to_exit - mine) <= TIE_M) & _before(others_x_w, x_w))
     far_side = (to_exit < to_entry) & ~inside & coming & first
-    return bool(np.any(inside & against) or np.any(far_side))
+    in_against = inside & (v_along < -AGAINST_MPS)  # flying through it against this agent
+    in_stopped = inside & (np.abs(v_along) <= AGAINST_MPS) & first  # stopped in it, nearer its end
+    if np.any(inside & (v_along > AGAINST_MPS)):  # its own way's flow holds the passage: follow it
+        return bool(np.any(in_against))
+    return bool(np.any(in_against) or np.any(in_stopped) or np.any(far_side))
 
 
 def keeps_passage(along_w: FloatArray) -> bool:
@@ -450,7 +459,8 @@ class Route:
         s_m = self.length_m - remaining_m
         mine = float(np.min(np.linalg.norm(p.points_w - x_w, axis=1)))  # m from the passage
         inside = p.holds(others_x_w)
-        against = inside & (others_v_w @ along <= AGAINST_MPS)
+        ahead = (others_x_w - x_w) @ along > 0.0  # between it and the passage's exit
+        against = inside & ahead & (others_v_w @ along <= AGAINST_MPS)
         out: FloatArray | None = None
         if against.any() and s_m < p.s_out_m and not keeps_passage(along):
             if mine < 0.5 * WAIT_M:
@@ -480,15 +490,44 @@ class Route:
         return self.first(x_w, goal_w, t_s)
 
 
+def _safety_radius_m(agent: AgentConfig) -> float:
+    return agent.airframe.params().body_radius_m + agent.filter.margin_m
+
+
+def plans_round_walls(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
+    """Whether the agent flies a path planned round walls among ``obstacles`` (obstacles
+    closer together than two of its clearances), with a :class:`Route`; else it flies its
+    configured path straight."""
+    walls = obstacles.clustered(2 * (_safety_radius_m(agent) + agent.planner.clearance_m))
+    return agent.planner.kind != "none" and bool(len(walls)) and len(agent.path()) >= 2
+
+
+def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float | None:
+    """The time horizon [s] of the agent's obstacle rows' horizon allowance: its
+    ``filter.obstacle_horizon_s``, else its ``planner.obstacle_horizon_s`` when it plans
+    round walls, else None (the rows then keep ``filter.horizon_s``). On a planned path the
+    path takes the agent round the walls; the far pillars' cones along a corridor or a
+    doorway's line of sight would otherwise hold its velocity to a slit between them,
+    where the velocity buffer asks it to speed up (docs/design.md, "Reference paths")."""
+    if agent.filter.obstacle_horizon_s is not None:
+        return agent.filter.obstacle_horizon_s
+    return agent.planner.obstacle_horizon_s if plans_round_walls(agent, obstacles) else None
+
+
+def filter_config_for(agent: AgentConfig, obstacles: StaticObstacles, level: CommandLevel) -> FilterConfig:
+    """The agent's filter settings at command ``level`` among the static ``obstacles``: its
+    configured ones, with :func:`obstacle_horizon_s`."""
+    return replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
+
+
 def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray, Route | None]:
     """The waypoints (k, 3) [m, world] a configured agent flies from its start (each leg of
     its configured path planned around ``obstacles``), and its :class:`Route` for replanning
-    (None with ``planner.kind: none`` or no static obstacle)."""
+    (None unless it :func:`plans_round_walls`)."""
     pts = np.asarray(agent.path(), dtype=float)
-    radius_m = agent.airframe.params().body_radius_m + agent.filter.margin_m
-    walls = obstacles.clustered(2 * (radius_m + agent.planner.clearance_m))
-    if agent.planner.kind == "none" or not len(walls) or len(pts) < 2:  # no wall: the straight path, as ever
+    if not plans_round_walls(agent, obstacles):  # no wall: the straight path, as ever
         return pts, None
+    radius_m = _safety_radius_m(agent)
     route = Route(obstacles, radius_m, agent.planner.settings(), agent.planner.stall_s)
     legs = [route.first(a, b).waypoints_w for a, b in zip(pts[:-1], pts[1:], strict=True)]
     path = np.vstack([legs[0], *(leg[1:] for leg in legs[1:])])

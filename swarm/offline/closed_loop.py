@@ -21,7 +21,7 @@ from swarm.control import (
 from swarm.errors import InputError
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
-from swarm.planning import Route, StaticObstacles, path_for
+from swarm.planning import Route, StaticObstacles, filter_config_for, path_for
 from swarm.rotation import FloatArray, quat_to_R
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -285,7 +285,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                a.filter.filter_config(CommandLevel.ATTITUDE),
+                filter_config_for(a, still, CommandLevel.ATTITUDE),
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,
@@ -344,8 +344,8 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         goal = np.asarray(a.final_goal, dtype=float)
         t_goal = log.time_to_goal_s[i]
         if (
-            deadlock_at(
-                log.t_s, x[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s
+            deadlock_at(  # from the centre of mass, as the arrival and the runtime's metrics
+                log.t_s, com[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s
             )
             is not None
         ):

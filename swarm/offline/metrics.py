@@ -10,7 +10,10 @@ Safety figures, all from the measured (ground-truth) states:
   radius the filter keeps (body radii plus the margin), with the deepest slip;
 * ``min_h``: the exact C3BF barrier (:func:`swarm.safety.barriers.cone_h`) of every pair and
   agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
-  sensing radius), its smallest value and the ticks it was negative; the ticks a
+  sensing radius), plus the horizon allowance where the agent's rows of that kind have one
+  (``filter.horizon_s``; for obstacles ``swarm.planning.obstacle_horizon_s``: on a path
+  planned round walls the row keeps ``h_tau``, not the cone), its smallest value and the
+  ticks it was negative; the ticks a
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
   counted apart. The rows' own values (lower bounds of h, and other barriers) are
   ``min_row_h``, as each agent reported them, escape rows left out;
@@ -31,7 +34,8 @@ from swarm.config import ScenarioConfig
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
-from swarm.safety.barriers import cone_h
+from swarm.planning import StaticObstacles, obstacle_horizon_s
+from swarm.safety.barriers import cone_h, horizon_allowance
 from swarm.safety.obstacles import ObstacleArrays
 
 SUMMARY_KEYS = (
@@ -124,6 +128,11 @@ class SafetyFigures:
         self.body_m = np.array([a.airframe.params().body_radius_m for a in cfg.agents])  # (n,) m
         self.margin_m = np.array([a.filter.margin_m for a in cfg.agents])  # (n,) m
         self.sensing_m = np.array([a.filter.sensing_radius_m for a in cfg.agents])  # (n,) m
+        still = StaticObstacles.of(list(cfg.obstacles))
+        # (n,) 1/s: the horizon allowance of each agent's neighbour rows and obstacle rows (0: the cone)
+        self.inv_tau_nb = np.array([1.0 / a.filter.horizon_s if a.filter.horizon_s else 0.0 for a in cfg.agents])
+        tau_obs = [obstacle_horizon_s(a, still) for a in cfg.agents]
+        self.inv_tau_obs = np.array([1.0 / t if t else nb for t, nb in zip(tau_obs, self.inv_tau_nb, strict=True)])
         n = len(self.ids)
         self.min_h = np.full(n, math.inf)  # (n,) m^2/s: smallest exact h of a row the agent had
         self.negative = np.zeros(n, dtype=int)  # (n,) ticks with a row's exact h < 0
@@ -155,6 +164,7 @@ class SafetyFigures:
             r = r + np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
             h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))
             h, inside = h.reshape(m, m), inside.reshape(m, m)
+            h = h + horizon_allowance(p, r) * self.inv_tau_nb[idx][:, None]
             np.fill_diagonal(h, math.inf)
             np.fill_diagonal(inside, False)
             seen = np.linalg.norm(c_w[None, :, :] - x_w[:, None, :], axis=2) <= self.sensing_m[idx][:, None]
@@ -171,6 +181,7 @@ class SafetyFigures:
             axis = np.broadcast_to(obs.axis_w[None, :, :], (m, o, 3))
             h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1), axis.reshape(-1, 3))
             h, inside = h.reshape(m, o), inside.reshape(m, o)
+            h = h + horizon_allowance(p, r, axis) * self.inv_tau_obs[idx][:, None]
             for i, j in zip(*np.nonzero(inside), strict=True):
                 gap = float(surface_clearance(c_w[i][None, :], ObstacleArrays.of_records(obs.rec[[j]]))[0, 0])
                 self._violation(self.ids[idx[i]], obstacle_ids[j], float(own_m[i] - gap))

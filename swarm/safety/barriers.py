@@ -110,6 +110,14 @@ can at most reach 0, where ``h_tau = <p, w> >= 0`` (no approach): the same bound
 the cone's grazing contact. Its w-gradient is the cone's, so a row still asks to turn
 off the collision course rather than to brake.
 
+Obstacle rows alone may have their own horizon (``filter.obstacle_horizon_s``), and an agent
+flying a path planned round walls has one by default (``swarm.planning.obstacle_horizon_s``,
+3 s): in a corridor or a doorway's line of sight the cones of pillars far along the way leave
+the velocity a slit a few degrees wide, which the velocity buffer can only widen by speeding up
+(agents flew 2.5 to 3 m/s through a corridor at 0.8 m/s, and one parked by a mouth was thrown
+back through it); their allowance opens the slit while contact is far, and keeps nothing of it
+near a pillar. The path takes the agent round the walls; the row keeps it collision-free.
+
 **Contact horizon** (live neighbour rows, opt-in: ``filter.contact_s = T``). The cone
 also forbids a collision course however slowly it closes: a crowd at rest converging on a
 sphere's centre, every pair closing head on at a few cm/s, gets rows as hard as pairs
@@ -132,7 +140,7 @@ hence ``rho = r`` and ``h_T = h``, and ``h_T >= 0`` there asks ``<p, w> >= 0`` a
 does. What it lets through, like ORCA's time horizon, is a slow approach, never a fast
 one; obstacles keep the cone (``nb`` rows only).
 
-**Free braking** (live neighbour rows, on by default: ``filter.free_braking``). The cone's
+**Free braking** (live rows, on by default: ``filter.free_braking``). The cone's
 ``h = |w| (<p, u> + s)``, ``u = w/|w|``, is the relative speed times an angular margin, so
 braking a relative velocity without turning it lowers h in proportion: ``h' + gamma k h >= 0``
 lets a relative speed decay no faster than ``exp(-gamma k t)`` (with ``rho < 1`` the agent's
@@ -150,8 +158,11 @@ invariant with lambda chosen per tick; for ``h > 0`` it asks ``h' >= -(gamma k -
 <w, w'> / |w|^2) h``, a class-K bound (``|w| >= w_hi`` and ``w'`` is bounded by the inputs).
 A row takes ``lambda = max(0, min(1, 1 - v_c / BRAKE_CLOSING_MPS))`` (``v_c = -<p, w>/|p|`` the
 closing speed) where its reference's relative acceleration brakes (``<w, a_ref> < 0``), it is
-a neighbour's, outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair
-closing fast keeps the paper's row: there braking is what the cone must price. The
+outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair closing fast
+keeps the paper's row: there braking is what the cone must price. An obstacle's row too: an
+agent creeping at a few cm/s towards the slit between two pillars' cones, within their
+velocity buffers, could otherwise neither brake (h falls with |w|) nor turn, and held that
+creep for good. The
 lambda of a row is held for the tick. A tick whose braking carries ``w`` through zero (the
 plain row would have capped the braking near ``gamma |w|``) leaves ``h >= -|w+| (|p| - s)``,
 ``w+`` the relative velocity after it, no larger than the tick's change of velocity; the next
@@ -226,9 +237,10 @@ ROW_PARAMS = np.dtype(
         ("w_lo", "f8"),  # live rows: below this relative speed [m/s] the target alone
         ("w_hi", "f8"),  # live rows: from this relative speed [m/s] the exact C3BF row
         ("inv_tau", "f8"),  # live rows: 1 / the time horizon [1/s] (0: no horizon allowance)
+        ("inv_tau_obs", "f8"),  # live obstacle rows (not other agents): 1 / their time horizon [1/s] (0: inv_tau)
         ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
         ("t_contact", "f8"),  # live neighbour rows: contact time [s] beyond which the radius relaxes (0: never)
-        ("free_brake", "?"),  # live neighbour rows: free braking (module docstring)
+        ("free_brake", "?"),  # live rows: free braking (module docstring)
     ],
     align=True,
 )
@@ -240,7 +252,8 @@ its fields by name; a structured array passes into a kernel as fast as a plain o
 class RowSettings:
     """What every row of one filter shares: the filter's settings in the rows' terms.
     ``live`` applies to C3BF rows only; ``horizon_s``, ``buffer_mps`` to live rows;
-    ``contact_s`` and ``free_braking`` to live neighbour rows."""
+    ``contact_s`` to live neighbour rows; ``free_braking`` to live rows; ``obstacle_horizon_s``
+    to live obstacle rows."""
 
     gamma: float = 1.0  # class-K gain [1/s]
     rho: float = 1.0  # responsibility share of neighbour rows, (0, 1]
@@ -252,9 +265,10 @@ class RowSettings:
     w_lo_mps: float = LIVE_W_LO_MPS  # live rows: below this relative speed [m/s] the target alone
     w_hi_mps: float = LIVE_W_HI_MPS  # live rows: from this relative speed [m/s] the exact C3BF row
     horizon_s: float | None = None  # live rows: the horizon allowance's time [s] (None: none)
+    obstacle_horizon_s: float | None = None  # live obstacle rows: their horizon allowance's time [s] (None: horizon_s)
     buffer_mps: float = 0.0  # live rows: the velocity buffer [m/s] (0: none)
     contact_s: float = 0.0  # live neighbour rows: the contact horizon [s] (0: none)
-    free_braking: bool = False  # live neighbour rows: free braking
+    free_braking: bool = False  # live rows: free braking
 
 
 def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | None = None) -> np.ndarray:
@@ -276,6 +290,7 @@ def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | Non
         st.w_lo_mps,
         st.w_hi_mps,
         0.0 if st.horizon_s is None else 1.0 / st.horizon_s,
+        0.0 if st.obstacle_horizon_s is None else 1.0 / st.obstacle_horizon_s,
         st.buffer_mps if live else 0.0,
         st.contact_s if live else 0.0,
         st.free_braking and live,
@@ -517,12 +532,13 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb, ref_clear)
                     a_p += k_c * (2.0 - r / rp) * D
                     b_p += k_c * N
                     a_w += k_c * N
-            if par.inv_tau > 0.0:  # the horizon allowance (module docstring): h + (|p|^2 - r^2) / (2 tau)
-                h += 0.5 * s2 * par.inv_tau
-                a_p += par.inv_tau
+            inv_tau = par.inv_tau_obs if not nb and par.inv_tau_obs > 0.0 else par.inv_tau
+            if inv_tau > 0.0:  # the horizon allowance (module docstring): h + (|p|^2 - r^2) / (2 tau)
+                h += 0.5 * s2 * inv_tau
+                a_p += inv_tau
                 if h >= 0.0:  # (the recovery gain is for rows that are violated)
                     rate = 0.0
-            if par.free_brake and nb and has_ref and nw >= par.w_hi and h >= 0.0:  # B = h / |w|^lambda
+            if par.free_brake and has_ref and nw >= par.w_hi and h >= 0.0:  # B = h / |w|^lambda
                 lam = min(1.0, max(0.0, 1.0 + c / BRAKE_CLOSING_MPS))  # (c = -v_c)
                 if lam > 0.0 and W[0] * A[0] + W[1] * A[1] + W[2] * A[2] < 0.0:
                     b_w -= lam * h / ww
@@ -669,6 +685,17 @@ def evaluate_pw(
         is_neighbour=is_neighbour,
         reference_clear=reference_clear,
     )
+
+
+def horizon_allowance(p: FloatArray, r: FloatArray, axis_w: FloatArray | None = None) -> FloatArray:
+    """``(|p|^2 - r^2) / 2`` [m^2] of each row (0 inside the safety radius), ``p`` and the
+    axes as in :func:`cone_h`: times ``1 / tau`` it is what the horizon allowance adds to
+    a row's h (module docstring, "Horizon allowance")."""
+    p = np.asarray(p, dtype=float)
+    if axis_w is not None:
+        a = np.asarray(axis_w, dtype=float)
+        p = p - np.sum(p * a, axis=-1, keepdims=True) * a
+    return 0.5 * np.maximum(np.sum(p * p, axis=-1) - np.asarray(r, dtype=float) ** 2, 0.0)
 
 
 def cone_h(

@@ -296,7 +296,7 @@ class FilterConfig:
     to a tenth of it from ``2 T``, so a slow approach is not held as hard as a fast one.
     0: none."""
     free_braking: bool = True
-    """Live neighbour rows: free braking (``swarm.safety.barriers``, "Free braking"): where the
+    """Live rows: free braking (``swarm.safety.barriers``, "Free braking"): where the
     reference brakes a relative velocity, outside the cone and not closing fast, the row
     is the condition of ``h / |w|^lambda`` (``lambda`` up to 1, fading with the closing
     speed), which leaves braking free, rather than of h."""
@@ -304,6 +304,11 @@ class FilterConfig:
     """Live rows: the time horizon ``tau`` [s] of the horizon allowance, which adds
     ``(|p|^2 - r^2) / (2 tau)`` to every live row's h (``swarm.safety.barriers``, "Horizon
     allowance"), or None: the cone alone (the default)."""
+    obstacle_horizon_s: float | None = None
+    """Live obstacle rows (not other agents): their own time horizon [s] of the horizon
+    allowance, or None: ``horizon_s``. An agent flying a path planned round walls gets its
+    planner's (``swarm.planning.filter_config_for``): the path takes it round the walls,
+    and the cones of pillars far along it no longer hold its velocity to a slit."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
@@ -318,9 +323,10 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"FilterConfig.{name}: must be a finite number >= 0, got {v!r}")
-        h_s = self.horizon_s
-        if h_s is not None and not (isinstance(h_s, (int, float)) and math.isfinite(h_s) and h_s > 0):
-            raise InputError(f"FilterConfig.horizon_s: must be a finite number > 0 or None, got {h_s!r}")
+        for name in ("horizon_s", "obstacle_horizon_s"):
+            h_s = getattr(self, name)
+            if h_s is not None and not (isinstance(h_s, (int, float)) and math.isfinite(h_s) and h_s > 0):
+                raise InputError(f"FilterConfig.{name}: must be a finite number > 0 or None, got {h_s!r}")
         if not (0.0 < self.rho <= 1.0):
             raise InputError(f"FilterConfig.rho: must be in (0, 1], got {self.rho!r}")
         if not (0.0 <= self.live_lo_mps < self.live_hi_mps and math.isfinite(self.live_hi_mps)):
@@ -407,6 +413,7 @@ class SafetyFilter:
                 w_lo_mps=cfg.live_lo_mps,
                 w_hi_mps=cfg.live_hi_mps,
                 horizon_s=cfg.horizon_s,
+                obstacle_horizon_s=cfg.obstacle_horizon_s,
                 buffer_mps=cfg.buffer_mps,
                 contact_s=cfg.contact_s,
                 free_braking=cfg.free_braking,

@@ -90,3 +90,25 @@ def test_right_hand_bias_turns_right_of_the_heading_for_agents_ahead_only():
     assert np.linalg.norm(right_hand_bias(x, heading, crowd, 2.0, 0.3)) == pytest.approx(0.3)  # capped
     arriving = 0.1 * heading  # the tracker slows to 0.1 m/s near the goal, cruising at 1 m/s
     assert np.linalg.norm(right_hand_bias(x, arriving, crowd, 2.0, 0.3, cruise_mps=1.0)) == pytest.approx(0.03)
+
+
+def test_a_tracker_moves_on_past_short_legs_it_was_pushed_beyond_but_not_through_a_wall():
+    """A replanned path's first legs can be short steps from where the agent was to the
+    grid; an agent carried past them tracks the leg it is at (within SKIP_AHEAD_M of path),
+    not the start. A later leg that is nearer only across a wall (a U-turn, more path than
+    that ahead) is not taken."""
+    from swarm.control import SKIP_AHEAD_M
+
+    W = np.array([[0.0, 0.0, 1.0], [-0.1, 0.05, 1.0], [-0.1, -0.2, 1.0], [0.2, -0.3, 1.0], [3.0, -0.3, 1.0]])
+    tr = PathTracker(W, 0.8)
+    c, tangent, remaining = tr.reference(np.array([0.6, -0.25, 1.0]))
+    np.testing.assert_allclose(c, [0.6, -0.3, 1.0], atol=1e-12)
+    np.testing.assert_allclose(tangent, [1.0, 0.0, 0.0], atol=1e-12)
+    assert remaining == pytest.approx(2.4)
+    assert tr.segment == 3
+    U = np.array([[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [2.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
+    assert np.linalg.norm(np.diff(U, axis=0), axis=1)[:2].sum() - 0.1 > SKIP_AHEAD_M
+    tr = PathTracker(U, 0.8)
+    c, tangent, _ = tr.reference(np.array([0.1, 0.6, 1.0]))  # nearer the last leg, across the U
+    np.testing.assert_allclose(c, [0.1, 0.0, 1.0], atol=1e-12)
+    assert tr.segment == 0

@@ -1,6 +1,6 @@
-"""Free braking of live neighbour rows (swarm.safety.barriers, "Free braking") by its definition.
+"""Free braking of live rows (swarm.safety.barriers, "Free braking") by its definition.
 
-A live neighbour row outside its cone, above the blend speed, whose reference's relative
+A live row (a neighbour's or an obstacle's) outside its cone, above the blend speed, whose reference's relative
 acceleration brakes ``w`` (``<w, a_ref> < 0``) is the condition of ``B = h / |w|^lambda``,
 ``lambda = max(0, min(1, 1 - v_c / BRAKE_CLOSING_MPS))`` (``v_c = -<p, w>/|p|``), times
 ``|w|^lambda``; every other row is the plain live row:
@@ -8,9 +8,9 @@ acceleration brakes ``w`` (``<w, a_ref> < 0``) is the condition of ``B = h / |w|
 * its gradient is ``|w|^lambda`` times B's (finite differences), and a relative
   acceleration that satisfies it satisfies the exact ``B' + gamma B >= 0``;
 * braking along ``w`` leaves a row with ``lambda = 1`` unchanged;
-* on the cone (``h = 0``) it is the plain row, so ``h >= 0`` stays invariant; obstacles,
-  rows inside the cone, references that do not brake and pairs closing fast keep the
-  plain row;
+* on the cone (``h = 0``) it is the plain row, so ``h >= 0`` stays invariant; rows
+  inside the cone, references that do not brake and pairs closing fast keep the plain
+  row; an obstacle's row is a neighbour's, as above the blend speed both are the cone's;
 * a drift away from a neighbour may be braked as fast as the reference asks (the plain
   row forbids it), and the filter, at rho 0.5 among hovering neighbours, passes such a
   reference unchanged;
@@ -58,14 +58,14 @@ def rows(p, w, r, a_ref, free=True, nb=True):
 
 
 @settings(max_examples=500, deadline=None)
-@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a_ref=vec, acc=vec)
-def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, a_ref, acc):
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a_ref=vec, acc=vec, nb=st.booleans())
+def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, a_ref, acc, nb):
     p = outside(p, r, SPHERE)
     assume(p is not None)
     assume(np.linalg.norm(w) >= 2 * LIVE_W_HI_MPS)
     assume(exact_h(p, w, r) >= 1e-6)  # outside the cone
     lam = lam_of(p, w, a_ref)
-    row = rows(p, w, r, a_ref)
+    row = rows(p, w, r, a_ref, nb=nb)
     scale = np.linalg.norm(w) ** lam
     assert row.h[0] == pytest.approx(exact_h(p, w, r), rel=1e-9, abs=1e-12)
     num = central_gradients(lambda p, w: exact_B(p, w, r, lam), p, w)  # |w|^lambda times B's gradient
@@ -83,14 +83,14 @@ def test_the_row_is_the_exact_condition_of_h_over_a_power_of_the_speed(p, w, r, 
 
 
 @settings(max_examples=300, deadline=None)
-@given(p=vec, w=vec, r=st.floats(0.05, 1.0), brake=st.floats(0.1, 5.0), other=vec)
-def test_braking_along_w_is_free_where_lambda_is_one(p, w, r, brake, other):
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), brake=st.floats(0.1, 5.0), other=vec, nb=st.booleans())
+def test_braking_along_w_is_free_where_lambda_is_one(p, w, r, brake, other, nb):
     p = outside(p, r, SPHERE)
     assume(p is not None)
     assume(np.linalg.norm(w) >= 2 * LIVE_W_HI_MPS and p @ w >= 0)  # receding or sliding past: lambda = 1
     assume(exact_h(p, w, r) >= 1e-6)
     a_ref = -brake * w / np.linalg.norm(w)
-    row = rows(p, w, r, a_ref)
+    row = rows(p, w, r, a_ref, nb=nb)
     assert row.dh_dw[0] @ w == pytest.approx(0.0, abs=1e-9 * (1 + np.linalg.norm(p)) * (1 + np.linalg.norm(w)))
     # so a braking component added to any admitted acceleration keeps it admitted
     acc = satisfying(row.dh_dw[0], row.dh_dp[0] @ w + GAMMA * row.h[0], other)
@@ -103,12 +103,14 @@ def test_braking_along_w_is_free_where_lambda_is_one(p, w, r, brake, other):
 def test_every_other_row_is_the_plain_live_row(p, w, r, a_ref):
     p = outside(p, r, SPHERE)
     assume(p is not None)
-    plain = rows(p, w, r, a_ref, free=False)
-    np.testing.assert_array_equal(rows(p, w, r, a_ref, nb=False).coef, rows(p, w, r, a_ref, free=False, nb=False).coef)
     h = exact_h(p, w, r)
     nw = np.linalg.norm(w)
-    if a_ref is None or nw < LIVE_W_HI_MPS or h < 0 or lam_of(p, w, a_ref) == 0.0:
-        np.testing.assert_array_equal(rows(p, w, r, a_ref).coef, plain.coef)
+    for nb in (True, False):
+        plain = rows(p, w, r, a_ref, free=False, nb=nb)
+        if a_ref is None or nw < LIVE_W_HI_MPS or h < 0 or lam_of(p, w, a_ref) == 0.0:
+            np.testing.assert_array_equal(rows(p, w, r, a_ref, nb=nb).coef, plain.coef)
+    if nw >= LIVE_W_HI_MPS:  # the cone's row either way: an obstacle's is a neighbour's
+        np.testing.assert_array_equal(rows(p, w, r, a_ref, nb=False).coef, rows(p, w, r, a_ref).coef)
 
 
 @settings(max_examples=300, deadline=None)

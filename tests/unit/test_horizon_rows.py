@@ -131,3 +131,25 @@ def test_the_horizon_is_checked_where_it_is_set():
     for bad in (0.0, -1.0, math.inf, math.nan):
         with pytest.raises(InputError, match="horizon_s"):
             FilterConfig(horizon_s=bad)
+
+
+@settings(max_examples=200, deadline=None)
+@given(p=vec, w=vec, r=st.floats(0.05, 1.0), a=axis_or_none, a_ref=st.one_of(st.none(), vec), tau=tau_s, tau_all=tau_s)
+def test_the_obstacle_horizon_is_the_horizon_of_obstacle_rows_alone(p, w, r, a, a_ref, tau, tau_all):
+    """``obstacle_horizon_s`` gives an obstacle row the allowance ``horizon_s`` would, and
+    leaves a neighbour's row as it is (with ``horizon_s`` as well: its own for each)."""
+    p = outside(p, r, a)
+    assume(p is not None)
+    for nb in (False, True):
+        obs_only = live_rows(p, w, r, a, a_ref, nb, obstacle_horizon_s=tau)
+        expect = live_rows(p, w, r, a, a_ref, nb, horizon_s=None if nb else tau)
+        np.testing.assert_array_equal(obs_only.coef, expect.coef)
+        both = live_rows(p, w, r, a, a_ref, nb, horizon_s=tau_all, obstacle_horizon_s=tau)
+        expect = live_rows(p, w, r, a, a_ref, nb, horizon_s=tau_all if nb else tau)
+        np.testing.assert_array_equal(both.coef, expect.coef)
+
+
+def test_the_obstacle_horizon_is_checked_where_it_is_set():
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(InputError, match="obstacle_horizon_s"):
+            FilterConfig(obstacle_horizon_s=bad)

@@ -281,3 +281,76 @@ def test_a_drone_of_the_same_flow_in_the_passage_is_followed_not_backed_from():
     x = p.entry_w + 0.5 * along
     ahead = (x + 0.5 * along)[None]
     assert route.hold(1.0, route.length_m - p.s_in_m - 0.5, x, ahead, 0.8 * along[None]) is None
+
+
+def test_two_drones_stopped_at_the_two_mouths_do_not_both_wait():
+    """Each stopped just before its own mouth, inside the other's passage (a wait that used
+    to hold both flows until MAX_WAIT_S): the one nearer its mouth goes."""
+    from swarm.planning import gives_way
+
+    agents, _ = _corridor_routes()
+    at = []
+    for a, dist in zip(agents, (0.05, 0.15), strict=True):
+        p = a.route.passage
+        at.append((p.s_in_m - dist, p.entry_w - dist * p.along_w))
+    for a, (_, x) in zip(agents[::-1], at, strict=True):
+        assert a.route.passage.holds(x[None])[0]  # each inside the other's passage
+    rest = np.zeros((1, 3))
+    waits = [
+        gives_way(a.route.passage, s, x, at[1 - i][1][None], rest)
+        for i, (a, (s, x)) in enumerate(zip(agents, at, strict=True))
+    ]
+    assert waits == [False, True]
+
+
+def test_a_drone_follows_its_flow_past_one_stopped_at_the_far_mouth():
+    from swarm.planning import gives_way
+
+    agents, _ = _corridor_routes()
+    p = agents[0].route.passage
+    x = p.entry_w - 0.5 * p.along_w
+    mate = p.points_w[len(p.points_w) // 2]  # in the passage, flying this way
+    far = p.exit_w + 0.05 * p.along_w  # stopped at the far mouth, nearer its end than x is to its own
+    others = np.array([mate, far])
+    assert gives_way(p, p.s_in_m - 0.5, x, far[None], np.zeros((1, 3)))  # alone it holds this one back
+    assert not gives_way(p, p.s_in_m - 0.5, x, others, np.array([0.8 * p.along_w, np.zeros(3)]))
+    coming = np.array([0.8 * p.along_w, -0.5 * p.along_w])  # unless it flies in against the flow
+    assert gives_way(p, p.s_in_m - 0.5, x, np.array([mate, p.exit_w - 0.3 * p.along_w]), coming)
+
+
+def test_a_drone_stopped_behind_in_the_passage_does_not_turn_the_flow_back():
+    """A drone of the flow that backs out, inside the passage: one stopped ahead of it makes it
+    back out; one of its own flow stopped behind it (backing out itself, or slowed) does not,
+    so a flow inside a corridor does not turn round behind its last drone."""
+    from swarm.planning import keeps_passage
+
+    agents, _ = _corridor_routes()
+    route = next(a.route for a in agents if not keeps_passage(a.route.passage.along_w))
+    p = route.passage
+    x = p.entry_w + 1.0 * p.along_w
+    remaining = route.length_m - p.s_in_m - 1.0
+    rest = np.zeros((1, 3))
+    behind, ahead = x - 0.5 * p.along_w, x + 0.5 * p.along_w
+    assert route.hold(1.0, remaining, x, behind[None], rest) is None
+    assert route.hold(1.0, remaining, x, behind[None], -0.3 * p.along_w[None]) is None
+    np.testing.assert_allclose(route.hold(1.0, remaining, x, ahead[None], rest), -route.back_mps * p.along_w)
+
+
+def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_then():
+    from swarm.offline.scenario import circle_swap
+    from swarm.planning import filter_config_for, obstacle_horizon_s
+
+    walled = resolve(corridor(1))
+    still = StaticObstacles.of(list(walled.obstacles))
+    a = walled.agents[0]
+    assert obstacle_horizon_s(a, still) == a.planner.obstacle_horizon_s == 3.0
+    assert filter_config_for(a, still, CommandLevel.ATTITUDE).obstacle_horizon_s == 3.0
+    for off in ({"obstacle_horizon_s": None}, {"kind": "none"}):
+        assert obstacle_horizon_s(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
+    mine = a.model_copy(update={"filter": a.filter.model_copy(update={"obstacle_horizon_s": 5.0})})
+    assert obstacle_horizon_s(mine, still) == 5.0  # the filter's own setting wins
+    open_space = resolve(circle_swap(4))
+    assert obstacle_horizon_s(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
+    assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
+        0
+    ].filter.filter_config(CommandLevel.ATTITUDE)

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from swarm.config import resolve
 from swarm.errors import ConfigError
 from swarm.offline.metrics import compute, deadlock_at
+from swarm.offline.scenario import items_to_arrays, obstacle_items
 from swarm.safety.barriers import cone_h
 
 vec = st.lists(st.floats(-3, 3, allow_nan=False), min_size=3, max_size=3).map(np.array)
@@ -172,3 +173,49 @@ def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
     assert o.min_h == pytest.approx(float(h.min()))  # both in sensing range throughout (2 m apart at most)
     assert o.negative_h_ticks == 2 * int((h < 0).sum())  # each agent's tick counts
     assert o.margin_violations == int(bool((np.linalg.norm(p, axis=1) < r).any()))
+
+
+def test_simulate_swarm_s_deadlock_is_judged_at_the_centre_of_mass_as_its_arrival():
+    """An agent that hovers 0.14 m from its goal (tolerance 0.15) with its body centre 0.16 m
+    away arrived: it is neither late nor deadlocked (the runtime's metrics use the centre of
+    mass too)."""
+    from swarm.offline.closed_loop import SwarmLog, outcome
+    from swarm.safety.filter import FilterStatus as S
+
+    cfg = resolve(
+        {"version": 1, "name": "d", "duration_s": 5.0, "goal_tolerance_m": 0.15,
+         "agents": [{"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1]}]}, "d.yaml"
+    )  # fmt: skip
+    t = np.arange(0.0, 5.0, 0.1)
+    com = np.tile([[0.86, 0.0, 1.0]], (len(t), 1))[:, None, :]
+    body = com + np.array([-0.02, 0.0, 0.0])  # 0.16 m from the goal
+    still = np.zeros_like(com)
+    log = SwarmLog(t, body, still, [[S.OK]] * len(t), math.inf, math.inf, [0.0], x_w=com, v_b_w=still)
+    o = outcome(cfg, log)
+    assert o.reached == 1 and o.deadlocked == 0
+
+
+def test_an_agent_on_a_path_round_walls_is_judged_by_the_barrier_its_obstacle_rows_keep():
+    """In a corridor the agents' obstacle rows keep ``h_tau`` (the obstacle horizon): the
+    figures add its allowance to the exact cone h of every agent-obstacle, and to nothing
+    else; without walls or with the horizon off they are the cone's."""
+    from swarm.offline.metrics import SafetyFigures
+    from swarm.offline.scenario import corridor
+
+    cfg = resolve(corridor(1))
+    tau = cfg.agents[0].planner.obstacle_horizon_s
+    fig = SafetyFigures(cfg)
+    np.testing.assert_allclose(fig.inv_tau_obs, 1.0 / tau)
+    np.testing.assert_allclose(fig.inv_tau_nb, 0.0)
+    raw = corridor(1)
+    raw["defaults"]["planner"] = {"obstacle_horizon_s": None}
+    np.testing.assert_allclose(SafetyFigures(resolve(raw)).inv_tau_obs, 0.0)
+    np.testing.assert_allclose(SafetyFigures(_cfg()).inv_tau_obs, 0.0)  # open space
+    # one agent flying straight at a pillar 2 m off: the cone's h plus (|p|^2 - r^2) / (2 tau)
+    o = cfg.obstacles[0]
+    x = np.array([[o.center[0] - 2.0, o.center[1], 1.0]])
+    fig.add([0], x, x, np.array([[1.0, 0.0, 0.0]]), items_to_arrays(obstacle_items([o], 0.0)), [o.id])
+    r = o.radius_m + 0.07 + cfg.agents[0].filter.margin_m
+    s2 = 4.0 - r * r
+    assert fig.min_h[0] == pytest.approx(-2.0 + math.sqrt(s2) + s2 / (2 * tau))
+    assert fig.negative[0] == 0  # on the cone's collision course, within the row's allowance

@@ -112,3 +112,16 @@ def test_a_tracker_moves_on_past_short_legs_it_was_pushed_beyond_but_not_through
     c, tangent, _ = tr.reference(np.array([0.1, 0.6, 1.0]))  # nearer the last leg, across the U
     np.testing.assert_allclose(c, [0.1, 0.0, 1.0], atol=1e-12)
     assert tr.segment == 0
+
+
+def test_an_agent_carried_back_behind_a_leg_it_reached_is_not_sped_up_to_catch_it():
+    """Backed out of a corridor 1.2 m behind the leg it was on: the tracker asks the target
+    speed along the leg and corrects across it, not kp times the 1.2 m on top."""
+    W = np.array([[3.0, 0.3, 1.0], [1.0, 0.0, 1.0], [-2.4, 0.0, 1.0]])
+    tr = PathTracker(W, 0.8)
+    tr.desired_velocity(np.array([0.9, 0.0, 1.0]))  # it reached the corridor's leg
+    assert tr.segment == 1
+    v = tr.desired_velocity(np.array([2.2, 0.1, 1.0]))  # backed out behind its start
+    np.testing.assert_allclose(v, [-0.8, -1.5 * 0.1, 0.0], atol=1e-12)
+    fresh = PathTracker(W, 0.8)  # never reached it: the first leg, as ever
+    assert np.linalg.norm(fresh.desired_velocity(np.array([2.2, 0.1, 1.0]))) < 1.0

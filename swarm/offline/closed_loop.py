@@ -343,7 +343,7 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
     for i, a in enumerate(cfg.agents):
         goal = np.asarray(a.final_goal, dtype=float)
         t_goal = log.time_to_goal_s[i]
-        if (
+        if t_goal is None and (  # arrived (its last step can end the run before it is logged): no deadlock
             deadlock_at(  # from the centre of mass, as the arrival and the runtime's metrics
                 log.t_s, com[:, i], log.v_w[:, i], goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s
             )

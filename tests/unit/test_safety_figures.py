@@ -178,7 +178,7 @@ def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
 def test_simulate_swarm_s_deadlock_is_judged_at_the_centre_of_mass_as_its_arrival():
     """An agent that hovers 0.14 m from its goal (tolerance 0.15) with its body centre 0.16 m
     away arrived: it is neither late nor deadlocked (the runtime's metrics use the centre of
-    mass too)."""
+    mass too); nor is one whose arrival ended the run before a tick logged it."""
     from swarm.offline.closed_loop import SwarmLog, outcome
     from swarm.safety.filter import FilterStatus as S
 
@@ -193,6 +193,12 @@ def test_simulate_swarm_s_deadlock_is_judged_at_the_centre_of_mass_as_its_arriva
     log = SwarmLog(t, body, still, [[S.OK]] * len(t), math.inf, math.inf, [0.0], x_w=com, v_b_w=still)
     o = outcome(cfg, log)
     assert o.reached == 1 and o.deadlocked == 0
+    # stalled short of it in every logged tick, arrived in the step that ended the run: a yield
+    far = com + np.array([-0.5, 0.0, 0.0])
+    log = SwarmLog(t, far, still, [[S.OK]] * len(t), math.inf, math.inf, [5.0], x_w=far, v_b_w=still)
+    assert outcome(cfg, log).deadlocked == 0
+    log = SwarmLog(t, far, still, [[S.OK]] * len(t), math.inf, math.inf, [None], x_w=far, v_b_w=still)
+    assert outcome(cfg, log).deadlocked == 1  # never arrived: deadlocked
 
 
 def test_an_agent_on_a_path_round_walls_is_judged_by_the_barrier_its_obstacle_rows_keep():

@@ -338,7 +338,7 @@ def test_a_drone_stopped_behind_in_the_passage_does_not_turn_the_flow_back():
 
 def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_then():
     from swarm.offline.scenario import circle_swap
-    from swarm.planning import filter_config_for, obstacle_horizon_s
+    from swarm.planning import HORIZON_SPEED_PER_GAIN_M, filter_config_for, obstacle_horizon_s
 
     walled = resolve(corridor(1))
     still = StaticObstacles.of(list(walled.obstacles))
@@ -349,6 +349,9 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
         assert obstacle_horizon_s(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
     mine = a.model_copy(update={"filter": a.filter.model_copy(update={"obstacle_horizon_s": 5.0})})
     assert obstacle_horizon_s(mine, still) == 5.0  # the filter's own setting wins
+    paper = a.model_copy(update={"filter": a.filter.model_copy(update={"gamma": 1.0})})  # 0.8 m/s at gain 1
+    assert a.speed_mps / a.filter.gamma <= HORIZON_SPEED_PER_GAIN_M < paper.speed_mps / paper.filter.gamma
+    assert obstacle_horizon_s(paper, still) is None
     open_space = resolve(circle_swap(4))
     assert obstacle_horizon_s(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
     assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[

@@ -445,9 +445,10 @@ class Route:
         ``others_v_w`` (k, 3) [m/s]:
 
         * backing out of its passage at ``back_mps`` along it, while it is in the passage
-          or within ``WAIT_M / 2`` of it and an agent of the opposite flow, which keeps the
-          passage (:func:`keeps_passage`), is in it coming against it; then hovering (zeros)
-          within ``WAIT_M`` of the passage while that agent is still in it;
+          or within ``WAIT_M / 2`` of it, its own flow does not keep the passage
+          (:func:`keeps_passage`) and an agent ahead of it in the passage comes against it
+          or stands still there (one behind it, of its own flow, does not); then hovering
+          (zeros) within ``WAIT_M`` of the passage while that agent is still in it;
         * else hovering while it gives way before the passage (:func:`gives_way`), for at
           most :data:`MAX_WAIT_S` at this passage.
 

@@ -159,13 +159,7 @@ def _path_point(W, seg, segment, x):
     while True:
         i = segment
         L = seg_len[i]
-        if L > 1e-9:
-            t = 0.0
-            for j in range(3):
-                t += (x[j] - W[i, j]) * (W[i + 1, j] - W[i, j])
-            t = min(max(t / (L * L), 0.0), 1.0)
-        else:
-            t = 1.0
+        t = _along(W, L, i, x)
         if t >= 1.0 and i < last:
             segment += 1
             continue
@@ -175,11 +169,7 @@ def _path_point(W, seg, segment, x):
         k = i + 1
         while k <= last and ahead <= SKIP_AHEAD_M:
             Lk = seg_len[k]
-            tk = 0.0
-            if Lk > 1e-9:
-                for j in range(3):
-                    tk += (x[j] - W[k, j]) * (W[k + 1, j] - W[k, j])
-                tk = min(max(tk / (Lk * Lk), 0.0), 1.0)
+            tk = _along(W, Lk, k, x)
             dk = _dist2_to(W, k, tk, x)
             if dk < best:
                 best, i, t, L, segment = dk, k, tk, Lk, k
@@ -191,6 +181,18 @@ def _path_point(W, seg, segment, x):
             if L > 1e-9:
                 tangent[j] = d / L
         return segment, c, tangent, (1.0 - t) * L + tail[i]
+
+
+@njit(cache=True)
+def _along(W, L, i, x):
+    """Where along segment ``i`` of ``W`` (length ``L`` [m]) the point nearest ``x`` lies,
+    from 0 at its start to 1 at its end (1 for a segment of no length)."""
+    if L <= 1e-9:
+        return 1.0
+    t = 0.0
+    for j in range(3):
+        t += (x[j] - W[i, j]) * (W[i + 1, j] - W[i, j])
+    return min(max(t / (L * L), 0.0), 1.0)
 
 
 @njit(cache=True)

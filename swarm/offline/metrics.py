@@ -164,7 +164,8 @@ class SafetyFigures:
             r = r + np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
             h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))
             h, inside = h.reshape(m, m), inside.reshape(m, m)
-            h = h + horizon_allowance(p, r) * self.inv_tau_nb[idx][:, None]
+            if self.inv_tau_nb[idx].any():  # (none without filter.horizon_s)
+                h = h + horizon_allowance(p, r) * self.inv_tau_nb[idx][:, None]
             np.fill_diagonal(h, math.inf)
             np.fill_diagonal(inside, False)
             seen = np.linalg.norm(c_w[None, :, :] - x_w[:, None, :], axis=2) <= self.sensing_m[idx][:, None]
@@ -181,7 +182,8 @@ class SafetyFigures:
             axis = np.broadcast_to(obs.axis_w[None, :, :], (m, o, 3))
             h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1), axis.reshape(-1, 3))
             h, inside = h.reshape(m, o), inside.reshape(m, o)
-            h = h + horizon_allowance(p, r, axis) * self.inv_tau_obs[idx][:, None]
+            if self.inv_tau_obs[idx].any():  # (none in open space)
+                h = h + horizon_allowance(p, r, axis) * self.inv_tau_obs[idx][:, None]
             for i, j in zip(*np.nonzero(inside), strict=True):
                 gap = float(surface_clearance(c_w[i][None, :], ObstacleArrays.of_records(obs.rec[[j]]))[0, 0])
                 self._violation(self.ids[idx[i]], obstacle_ids[j], float(own_m[i] - gap))

@@ -34,7 +34,7 @@ from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
-from swarm.planning import StaticObstacles, filter_config_for, path_for
+from swarm.planning import StaticObstacles, filter_config_for, follows, path_for
 from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -57,12 +57,12 @@ class Agent:
         self.model = QuadModel(me.quad_params())
         self.level = me.command_level
         still = StaticObstacles.of(list(cfg.obstacles))
-        fc = filter_config_for(me, still, self.level)
+        # the path around the static obstacles (swarm.planning), replanned when it stalls
+        path_w, self.route = path_for(me, still)
+        fc = filter_config_for(me, still, self.level, self.route)
         self.filt = SafetyFilter(self.model, fc)
         # a real drone lands through its floor: landing filters with the floor off
         self.filt_land = SafetyFilter(self.model, replace(fc, floor_z_m=None)) if me.backend == "crazyflie" else None
-        # the path around the static obstacles (swarm.planning), replanned when it stalls
-        path_w, self.route = path_for(me, still)
         self.tracker = PathTracker(path_w, me.speed_mps)
         self.att = AttitudeController(self.model)
         f = cfg.failure
@@ -301,7 +301,10 @@ class Agent:
         if held is not None:
             F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, held)  # hover, or back out of the passage
         else:
-            F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair)
+            others_v = neighbours.c_dot_w if follows(self.route) else None  # a lane's queue is followed
+            F_ref = reference_thrust(
+                model, tracker, state.x_w, state.v_w, x_b, neighbours.c_w, me.tiebreak.pair, others_v
+            )
         u_ref = self.att.from_thrust_vector(state, F_ref, me.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         rows = ObstacleArrays.concat([self.obstacles, neighbours]) if len(self.obstacles) else neighbours
         row_ids: list[str] = []

@@ -257,6 +257,11 @@ def _tracker_thrust(W, seg, segment, x, v, speed, gains, mass, g):
     return segment, a
 
 
+FOLLOW_FRACTION = 0.5
+"""An agent ahead flying along this agent's commanded velocity at least this fraction of its
+speed is followed, not turned from, by the right-hand tie-break."""
+
+
 def right_hand_bias(
     x_w: FloatArray,
     heading_w: FloatArray,
@@ -264,6 +269,7 @@ def right_hand_bias(
     trigger_m: float,
     speed_mps: float,
     cruise_mps: float | None = None,
+    others_v_w: FloatArray | None = None,
 ) -> FloatArray:
     """The right-hand rule, a deadlock tie-break [m/s, world].
 
@@ -273,10 +279,14 @@ def right_hand_bias(
     the sum is capped at ``speed_mps``. With ``cruise_mps`` (the agent's target speed
     [m/s]) it is scaled by ``|heading| / cruise_mps`` (at most 1), so it fades out as the
     tracker slows down to the goal: an agent that has arrived is not pushed around its goal
-    by its neighbours there. Every agent turning right is consistent: two agents head-on pass
-    left shoulder to left shoulder, and a symmetric swap turns into a roundabout instead of a
-    stall. It only changes the reference; the filter still guarantees safety (docs/design.md,
-    "The barrier math").
+    by its neighbours there. With ``others_v_w`` (k, 3) [m/s, world], the others'
+    velocities, an agent in front flying this one's way (along ``heading_w`` at least
+    :data:`FOLLOW_FRACTION` of its speed) does not count: it is followed, as a queue into a
+    corridor's lane is, where turning right from the agent ahead pushed the followers out of
+    the queue and into the wall beside the mouth. Every agent turning right is consistent:
+    two agents head-on pass left shoulder to left shoulder, and a symmetric swap turns into a
+    roundabout instead of a stall. It only changes the reference; the filter still
+    guarantees safety (docs/design.md, "The barrier math").
     """
     out = np.zeros(3)
     hx, hy = float(heading_w[0]), float(heading_w[1])
@@ -287,6 +297,8 @@ def right_hand_bias(
     d_w = others_w - x_w
     dist = np.linalg.norm(d_w, axis=1)
     ahead = (d_w[:, 0] * hx + d_w[:, 1] * hy > 0) & (dist < trigger_m)
+    if others_v_w is not None:  # followed, not turned from: the agents ahead flying my way
+        ahead &= (others_v_w[:, 0] * hx + others_v_w[:, 1] * hy) < FOLLOW_FRACTION * n * n
     weight = min(float(np.sum(1.0 - dist[ahead] / trigger_m)), 1.0)
     if cruise_mps is not None and cruise_mps > 0:
         weight *= min(1.0, n / cruise_mps)
@@ -301,16 +313,18 @@ def reference_thrust(
     x_b_w: FloatArray,
     others_w: FloatArray,
     tiebreak: tuple[float, float] | None,
+    others_v_w: FloatArray | None = None,
 ) -> FloatArray:
     """An agent's reference thrust vector [N, world]: the tracker's, with the right-hand
     tie-break (``tiebreak`` = (trigger [m], speed [m/s]); None: none) turning its
     commanded velocity (:func:`turned`) for the other agents' body centres ``others_w``
-    (k, 3) [m] seen from the body centre ``x_b_w`` [m]."""
+    (k, 3) [m] seen from the body centre ``x_b_w`` [m], moving at ``others_v_w`` (k, 3)
+    [m/s] (None: not known, every agent in front counts)."""
     if tiebreak is None:
         return tracker.thrust_vector(model, x_w, v_w)  # (the whole tracker in one call)
     v_des = tracker.desired_velocity(x_w)
-    v_des = turned(v_des, right_hand_bias(x_b_w, v_des, others_w, tiebreak[0], tiebreak[1], tracker.speed_mps))
-    return tracker.thrust_vector(model, x_w, v_w, v_des)
+    bias = right_hand_bias(x_b_w, v_des, others_w, tiebreak[0], tiebreak[1], tracker.speed_mps, others_v_w)
+    return tracker.thrust_vector(model, x_w, v_w, turned(v_des, bias))
 
 
 def turned(v_w: FloatArray, bias_w: FloatArray) -> FloatArray:

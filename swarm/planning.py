@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarm.errors import InputError
-from swarm.rotation import FloatArray
+from swarm.rotation import FloatArray, IntArray
 
 if TYPE_CHECKING:
     import networkx as nx
@@ -109,6 +109,7 @@ class PlannerSettings:
     clearance_m: float = 0.1  # kept from obstacles beyond the agent's safety radius
     pad_m: float = 2.0  # the grid reaches this far beyond the start, the goal and the obstacles
     max_cells: int = 250_000  # larger grids are refused (a coarser resolution is needed)
+    lanes: bool = True  # two-lane passages flown in the right-hand lane (keep_right); False: all in turn
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "pad_m"):
@@ -281,12 +282,13 @@ passages differ can each see the other first)."""
 
 @dataclass(frozen=True)
 class Passage:
-    """The first narrow stretch of a path: its sample points ``points_w`` (k, 3) [m, world]
+    """A narrow stretch of a path: its sample points ``points_w`` (k, 3) [m, world]
     and where it starts and ends, ``s_in_m`` and ``s_out_m`` [m] of path from the start."""
 
     points_w: FloatArray
     s_in_m: float
     s_out_m: float
+    lanes: bool = False  # it has two lanes (has_lanes), each flow in its right-hand one
 
     @property
     def entry_w(self) -> FloatArray:
@@ -308,35 +310,191 @@ class Passage:
         return np.min(np.linalg.norm(others_x_w[:, None, :] - self.points_w[None], axis=2), axis=1) < NARROW_M
 
 
-def _walled_both_sides(P: FloatArray, T: FloatArray, obstacles: StaticObstacles) -> np.ndarray:
-    """(k,) whether each point of ``P`` (k, 3), heading along ``T`` (k, 3), has an obstacle
-    surface within :data:`NARROW_M` on its left and another on its right."""
+def _sides(P: FloatArray, T: FloatArray, obstacles: StaticObstacles) -> tuple[FloatArray, FloatArray]:
+    """(k,) distances [m] from each point of ``P`` (k, 3), heading along ``T`` (k, 3), to
+    the nearest obstacle surface on its left and on its right (inf where there is none)."""
     rel = obstacles.c_w[None, :, :2] - P[:, None, :2]  # (k, m, 2)
     dist = np.linalg.norm(rel, axis=2) - obstacles.r_m[None]
     side = T[:, None, 0] * rel[..., 1] - T[:, None, 1] * rel[..., 0]  # > 0: on the left
-    near = dist < NARROW_M
-    return (near & (side > 0)).any(axis=1) & (near & (side < 0)).any(axis=1)
+    left = np.where(side > 0, dist, math.inf).min(axis=1)
+    right = np.where(side < 0, dist, math.inf).min(axis=1)
+    return left, right
 
 
-def passage_of(waypoints_w: FloatArray, obstacles: StaticObstacles, step_m: float = 0.05) -> Passage | None:
-    """The first stretch of the path ``waypoints_w`` (k, 3) whose points have an obstacle
-    closer than :data:`NARROW_M` on both sides, or None."""
-    W = np.asarray(waypoints_w, dtype=float)
-    if W.shape[0] < 2 or not len(obstacles):
-        return None
-    pts, tangents = [W[:1]], [W[1:2] - W[:1]]
-    for a, b in zip(W[:-1], W[1:], strict=True):
+def _sampled(waypoints_w: FloatArray, step_m: float) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:
+    """The path ``waypoints_w`` (k, 3) sampled every ``step_m`` [m] or less: the points (n,
+    3) [m, world], their unit headings (n, 3), their path length [m] from the start (n,)
+    and the leg each point ends or lies on (n,) (the first point: leg 0)."""
+    W = waypoints_w
+    pts, tangents, legs = [W[:1]], [W[1:2] - W[:1]], [np.zeros(1, dtype=np.intp)]
+    for k, (a, b) in enumerate(zip(W[:-1], W[1:], strict=True)):
         seg = _segment_points(a, b, step_m)[1:]
         pts.append(seg)
         tangents.append(np.repeat((b - a)[None], len(seg), axis=0))
+        legs.append(np.full(len(seg), k, dtype=np.intp))
     P, T = np.vstack(pts), np.vstack(tangents)
+    T = T / np.maximum(np.linalg.norm(T, axis=1), 1e-12)[:, None]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
-    narrow = _walled_both_sides(P, T, obstacles)
-    if not narrow.any():
-        return None
-    i = int(np.argmax(narrow))
-    j = i + int(np.argmin(narrow[i:])) if not narrow[i:].all() else len(P)
-    return Passage(P[i:j], float(s[i]), float(s[j - 1]))
+    return P, T, s, np.concatenate(legs)
+
+
+def _stretches(narrow: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of True in ``narrow`` as (first, one past the last) index pairs."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], narrow.astype(np.int8), [0]])))
+    return [(int(i), int(j)) for i, j in zip(edges[::2], edges[1::2], strict=True)]
+
+
+LANE_MARGIN_M = 0.04
+"""A narrow passage has two lanes where two agents abreast, each at a third of what the
+width leaves (:func:`lane_wall_m`), keep at least this [m] beyond their safety radii from
+its walls and from each other."""
+LANE_MIN_LENGTH_M = 2.0
+"""Only a narrow stretch at least this long [m] is flown in lanes: a shorter one (a doorway)
+is crossed in turn in a moment, and a crowd going one way uses its whole width."""
+
+
+def lane_wall_m(width_m: float | FloatArray, radius_m: float) -> float | FloatArray:
+    """How far [m] from its right-hand wall an agent of safety radius ``radius_m`` [m] flies in
+    a passage ``width_m`` [m] wide between surfaces, so that its spare distance to the wall
+    and to an agent of the same radius in the other lane are equal: ``a - r = w - 2 a - 2 r``."""
+    return (width_m - radius_m) / 3.0
+
+
+def has_lanes(width_m: FloatArray, length_m: float, radius_m: float) -> bool:
+    """Whether a narrow stretch ``length_m`` [m] long, ``width_m`` (k,) [m] wide at its
+    points, is flown in two lanes by agents of safety radius ``radius_m`` [m]: it is at least
+    :data:`LANE_MIN_LENGTH_M` long and two lanes keep :data:`LANE_MARGIN_M` everywhere."""
+    spare = lane_wall_m(float(np.min(width_m)), radius_m) - radius_m
+    return bool(length_m >= LANE_MIN_LENGTH_M and spare >= LANE_MARGIN_M)
+
+
+def keep_right(
+    waypoints_w: FloatArray, obstacles: StaticObstacles, radius_m: float, step_m: float = 0.05
+) -> FloatArray:
+    """The path ``waypoints_w`` (k, 3) [m, world] with every narrow stretch that has two lanes
+    (:func:`has_lanes`) flown in its right-hand lane, :func:`lane_wall_m` from the wall on
+    the right: opposite flows then pass each other there, each in its lane, rather than
+    take the passage in turn. The lane reaches :data:`LANE_LEAD_M` beyond each end of its
+    stretch, on its own line, and is entered and left by the straightest way that keeps
+    ``radius_m`` from every obstacle (a stretch with no such way is flown as planned). Paths
+    with no such stretch come back as they are."""
+    W = np.asarray(waypoints_w, dtype=float)
+    if W.shape[0] < 2 or not len(obstacles):
+        return W
+    P, T, s, legs = _sampled(W, step_m)
+    left, right = _sides(P, T, obstacles)
+    narrow = (left < NARROW_M) & (right < NARROW_M)
+    out: list[FloatArray] = []
+    done = 0  # waypoints W[:done] are in ``out``
+    for i, j in _stretches(narrow):
+        width = left[i:j] + right[i:j]
+        if not has_lanes(width, float(s[j - 1] - s[i]), radius_m):
+            continue
+        normal = np.column_stack([T[i:j, 1], -T[i:j, 0], np.zeros(j - i)])  # (k, 3) unit, to the right
+        lane = _simplified(P[i:j] + (right[i:j] - lane_wall_m(width, radius_m))[:, None] * normal, LANE_TOL_M)
+        before, after = int(legs[i]), int(legs[j - 1]) + 1  # W[before] precedes the stretch, W[after] follows it
+        lane = _led(lane, W[before], W[after], obstacles, radius_m)
+        way_in, way_out = clear(W[before], lane[0], obstacles, radius_m), clear(lane[-1], W[after], obstacles, radius_m)
+        if before < done or not (way_in and way_out):
+            continue  # no straight way into or out of the lane: the stretch as planned
+        out.extend(W[done : before + 1])
+        out.extend(lane)
+        done = after
+    if not out:
+        return W
+    out.extend(W[done:])
+    return _tidy(np.array(out, dtype=float))
+
+
+LANE_TOL_M = 0.01
+"""A lane's waypoints stay within this [m] of the lane."""
+LANE_LEAD_M = 0.25
+"""A lane is entered this far [m] before its narrow stretch, on its own line, and left this far
+after it, where that is clear: a flow's agents are in their lane before they meet the other
+flow, not still converging on it at the mouth (two agents half-way there are on a collision
+course)."""
+
+
+def _led(
+    lane: FloatArray, before_w: FloatArray, after_w: FloatArray, obstacles: StaticObstacles, radius_m: float
+) -> FloatArray:
+    """``lane`` (k, 3) [m] extended by :data:`LANE_LEAD_M` at each end along its direction over
+    its first (last) metre, where the extension keeps ``radius_m`` from every obstacle and
+    the path's point before (``before_w``) or after it (``after_w``) is more than two leads
+    away."""
+    ends = []
+    for pts, other in ((lane, before_w), (lane[::-1], after_w)):
+        reach = np.linalg.norm(pts - pts[0], axis=1)
+        far = pts[int(np.argmax(reach >= 1.0))] if reach.max() >= 1.0 else pts[-1]
+        d = (pts[0] - far) / max(float(np.linalg.norm(pts[0] - far)), 1e-9)
+        lead = pts[0] + LANE_LEAD_M * d
+        ok = float(np.linalg.norm(other - pts[0])) > 2 * LANE_LEAD_M and clear(lead, pts[0], obstacles, radius_m)
+        ends.append(lead if ok else None)
+    first, last = ends
+    return np.vstack([x for x in (first, *lane, last) if x is not None])
+
+
+def _simplified(P: FloatArray, tol_m: float) -> FloatArray:
+    """Few of the points ``P`` (k, 3), from the first to the last, such that every point of
+    ``P`` lies within ``tol_m`` [m] of the polyline through them."""
+    out, i, k = [P[0]], 0, len(P)
+    while i < k - 1:
+        j = k - 1
+        while j > i + 1 and _deviation(P[i : j + 1]) > tol_m:
+            j -= 1
+        out.append(P[j])
+        i = j
+    return np.array(out)
+
+
+def _deviation(P: FloatArray) -> float:
+    """The largest distance [m] of the points ``P`` (k, 3) from the segment between the first and last."""
+    a, d = P[0], P[-1] - P[0]
+    t = np.clip((P - a) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+    return float(np.linalg.norm(P - a - t[:, None] * d, axis=1).max())
+
+
+def _tidy(W: FloatArray) -> FloatArray:
+    """``W`` (k, 3) without inner points within a millimetre of the one before or where the
+    path turns back (a lane's first point can lie a little behind the corner it replaces)."""
+    out = [W[0]]
+    for k in range(1, len(W) - 1):
+        if np.linalg.norm(W[k] - out[-1]) > 1e-3 and float((W[k] - out[-1]) @ (W[k + 1] - W[k])) > 0.0:
+            out.append(W[k])
+    out.append(W[-1])
+    return np.array(out)
+
+
+def narrow_stretches(
+    waypoints_w: FloatArray, obstacles: StaticObstacles, radius_m: float | None = None, step_m: float = 0.05
+) -> list[Passage]:
+    """The stretches of the path ``waypoints_w`` (k, 3) whose points have an obstacle closer
+    than :data:`NARROW_M` on both sides, in order; with ``radius_m`` (the agent's safety
+    radius [m]) each says whether the path flies it in the right-hand lane of two
+    (:func:`has_lanes`, :func:`keep_right`; most of its points within ``3 LANE_TOL_M`` of
+    the lane)."""
+    W = np.asarray(waypoints_w, dtype=float)
+    if W.shape[0] < 2 or not len(obstacles):
+        return []
+    P, T, s, _ = _sampled(W, step_m)
+    left, right = _sides(P, T, obstacles)
+    out = []
+    for i, j in _stretches((left < NARROW_M) & (right < NARROW_M)):
+        width = left[i:j] + right[i:j]
+        lanes = radius_m is not None and has_lanes(width, float(s[j - 1] - s[i]), radius_m)
+        if lanes:
+            in_lane = np.abs(right[i:j] - lane_wall_m(width, radius_m)) <= 3 * LANE_TOL_M  # type: ignore[arg-type]
+            lanes = bool(np.mean(in_lane) >= 0.8)
+        out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), lanes))
+    return out
+
+
+def passage_of(
+    waypoints_w: FloatArray, obstacles: StaticObstacles, radius_m: float | None = None, step_m: float = 0.05
+) -> Passage | None:
+    """The first of the path's :func:`narrow_stretches` that has no two lanes (where agents
+    must take turns), or None."""
+    return next((p for p in narrow_stretches(waypoints_w, obstacles, radius_m, step_m) if not p.lanes), None)
 
 
 def gives_way(
@@ -411,7 +569,7 @@ class Route:
         obstacles: StaticObstacles,
         radius_m: float,
         settings: PlannerSettings | None = None,
-        stall_s: float = 4.0,
+        stall_s: float = 2.0,
         progress_m: float = 0.3,
         back_mps: float = 0.3,
     ) -> None:
@@ -420,19 +578,24 @@ class Route:
         self._best = math.inf  # least remaining path length [m] seen since the last plan
         self._since = 0.0  # sim time [s] of the last progress
         self.replans = 0
-        self.passage: Passage | None = None  # the current path's first narrow passage
+        self.passage: Passage | None = None  # the current path's first narrow passage without two lanes
+        self.lanes = False  # the current path flies a lane of a two-lane passage (keep_right)
         self.length_m = 0.0  # the current path's length [m]
         self._waiting_since: float | None = None  # sim time [s] it began to give way at this passage
 
     def first(self, start_w: FloatArray, goal_w: FloatArray, t_s: float = 0.0) -> Plan:
         self._best, self._since = math.inf, t_s
         p = plan(start_w, goal_w, self.obstacles, self.radius_m, self.settings)
+        if self.settings.lanes:
+            p = replace(p, waypoints_w=keep_right(p.waypoints_w, self.obstacles, self.radius_m))
         self.follow(p.waypoints_w)
         return p
 
     def follow(self, waypoints_w: FloatArray) -> None:
         """The path now flown (its passage and length)."""
-        self.passage = passage_of(waypoints_w, self.obstacles)
+        stretches = narrow_stretches(waypoints_w, self.obstacles, self.radius_m if self.settings.lanes else None)
+        self.passage = next((p for p in stretches if not p.lanes), None)
+        self.lanes = any(p.lanes for p in stretches)
         self.length_m = float(np.linalg.norm(np.diff(waypoints_w, axis=0), axis=1).sum())
         self._waiting_since = None
 
@@ -528,10 +691,38 @@ def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float 
     return agent.planner.obstacle_horizon_s if plans_round_walls(agent, obstacles) else None
 
 
-def filter_config_for(agent: AgentConfig, obstacles: StaticObstacles, level: CommandLevel) -> FilterConfig:
+LANE_CONTACT_S = 0.75
+"""The contact horizon [s] (``FilterConfig.contact_s``, at least) of an agent whose path flies a
+lane: an agent of the other flow, passing in the next lane, is a few degrees outside its cone
+while far; a neighbour more than this from contact relaxes its radius instead of turning it."""
+
+
+def filter_config_for(
+    agent: AgentConfig, obstacles: StaticObstacles, level: CommandLevel, route: Route | None = None
+) -> FilterConfig:
     """The agent's filter settings at command ``level`` among the static ``obstacles``: its
-    configured ones, with :func:`obstacle_horizon_s`."""
-    return replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
+    configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
+    flying a lane (:func:`keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
+    and no velocity buffer. A lane runs a few centimetres beyond the safety radius from a
+    wall and from the other flow's lane, on purpose; the buffer, which asks every row for
+    about 0.1 m/s of velocity margin, pushed drones off their lanes towards the middle (into
+    the other flow's) or sped them up to 3 m/s (docs/design.md, "Reference paths")."""
+    cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
+    if route is not None and route.lanes:
+        cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
+    return cfg
+
+
+def follows(route: Route | None) -> bool:
+    """Whether the right-hand tie-break of an agent on ``route`` follows the agents ahead
+    flying its way rather than turn from them (``swarm.control.right_hand_bias``): on a path
+    through a lane (:func:`keep_right`). A lane is single file with a wall on its right; turning
+    right from the agent ahead pushed a flow's followers out of its queue at the corridor's
+    mouth and into the wall beside it (12 corridor runs: 11.3 s mean arrival against 9.0 s
+    following). The lanes themselves keep opposite flows apart, which is what the tie-break
+    is for. Elsewhere the tie-break is as it was: a crowd abreast at a doorway was slower
+    following (mean time ratio 1.02 to 1.08)."""
+    return route is not None and route.lanes
 
 
 def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray, Route | None]:

@@ -21,7 +21,7 @@ from swarm.control import (
 from swarm.errors import InputError
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
-from swarm.planning import Route, StaticObstacles, filter_config_for, path_for
+from swarm.planning import Route, StaticObstacles, filter_config_for, follows, path_for
 from swarm.rotation import FloatArray, quat_to_R
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -233,7 +233,14 @@ def simulate_swarm(
                 F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, held)
             else:
                 F_ref = reference_thrust(
-                    model, trackers[i], states[i].x_w, states[i].v_w, xb[i], xb[others[i]], agents[i].tiebreak
+                    model,
+                    trackers[i],
+                    states[i].x_w,
+                    states[i].v_w,
+                    xb[i],
+                    xb[others[i]],
+                    agents[i].tiebreak,
+                    vb[others[i]] if follows(agents[i].route) else None,
                 )
             if agents[i].filtered:
                 res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
@@ -285,7 +292,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                filter_config_for(a, still, CommandLevel.ATTITUDE),
+                filter_config_for(a, still, CommandLevel.ATTITUDE, route),
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,

@@ -14,13 +14,20 @@ from swarm.offline.scenario import corridor
 pytestmark = pytest.mark.integration
 
 
-def test_two_drones_of_opposite_flows_take_the_corridor_in_turn(start_run):
-    """One drone each way through a corridor too narrow to pass in: both arrive, one after the
-    other, without contact or a slip into the safety radius."""
-    h = start_run(resolve(corridor(1)), "corridor")
+@pytest.mark.parametrize("lanes", [True, False], ids=["lanes", "in_turn"])
+def test_two_drones_of_opposite_flows_pass_in_the_corridor_s_lanes_or_take_it_in_turn(start_run, lanes):
+    """One drone each way through a corridor two lanes wide: with lanes (the default) each flies
+    its right-hand lane and they pass each other inside; with ``planner.lanes: false`` they take
+    it in turn. Both arrive either way, without contact or a slip into the safety radius."""
+    raw = corridor(1)
+    raw["defaults"]["planner"] = {"lanes": lanes}
+    h = start_run(resolve(raw), "corridor")
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["margin_violations"] == 0, m
     arrivals = sorted(a["time_to_goal_s"] for a in m["agents"].values())
     assert all(a["reached_goal"] for a in m["agents"].values()), m["agents"]
-    assert arrivals[1] - arrivals[0] > 1.0  # in turn: the corridor (2 m) is not passed side by side
+    if lanes:
+        assert arrivals[1] - arrivals[0] < 0.5  # passed each other: neither waited
+    else:
+        assert arrivals[1] - arrivals[0] > 1.0  # in turn: the corridor (2 m) is not passed side by side

@@ -92,6 +92,22 @@ def test_right_hand_bias_turns_right_of_the_heading_for_agents_ahead_only():
     assert np.linalg.norm(right_hand_bias(x, arriving, crowd, 2.0, 0.3, cruise_mps=1.0)) == pytest.approx(0.03)
 
 
+def test_with_their_velocities_the_tie_break_follows_agents_ahead_flying_its_way():
+    """A lane's queue: the agent ahead flying this one's way (at least FOLLOW_FRACTION of its
+    commanded speed along it) is followed; one stopped, crossing or coming against it still
+    turns it right; without velocities every agent ahead counts, as before."""
+    from swarm.control import FOLLOW_FRACTION, right_hand_bias
+
+    x, heading = np.zeros(3), np.array([0.8, 0.0, 0.0])
+    ahead = np.array([[0.5, 0.0, 0.0]])
+    turning = right_hand_bias(x, heading, ahead, 1.2, 0.5)
+    assert turning[1] < 0
+    same_way = np.array([[0.8 * FOLLOW_FRACTION + 1e-6, 0.0, 0.0]])
+    assert not right_hand_bias(x, heading, ahead, 1.2, 0.5, others_v_w=same_way).any()
+    for v in ([0.8 * FOLLOW_FRACTION - 1e-3, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.8, 0.0], [-0.8, 0.0, 0.0]):
+        np.testing.assert_allclose(right_hand_bias(x, heading, ahead, 1.2, 0.5, others_v_w=np.array([v])), turning)
+
+
 def test_a_tracker_moves_on_past_short_legs_it_was_pushed_beyond_but_not_through_a_wall():
     """A replanned path's first legs can be short steps from where the agent was to the
     grid; an agent carried past them tracks the leg it is at (within SKIP_AHEAD_M of path),

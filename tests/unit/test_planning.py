@@ -17,7 +17,7 @@ from swarm.control import PathTracker, reference_thrust
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.offline.closed_loop import SwarmAgent, scenario_swarm, simulate_swarm
 from swarm.offline.scenario import corridor, doorway, forest, trap
-from swarm.planning import PlannerSettings, Route, StaticObstacles, clear, plan
+from swarm.planning import LANE_MARGIN_M, PlannerSettings, Route, StaticObstacles, clear, plan
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
 
@@ -194,11 +194,15 @@ def test_every_scene_among_walls_is_valid_and_planned_round_its_walls(make):
     for spec, a in zip(cfg.agents, agents, strict=True):
         path = np.vstack([a.start_w, a.path_w])
         assert np.array_equal(path[-1], spec.goal)
-        assert keeps(path[1:-1], still, KEEP) if len(path) > 3 else True
+        lane = a.route is not None and a.route.lanes
+        keep = R + LANE_MARGIN_M if lane else KEEP  # a lane keeps its margin, not the clearance
+        assert keeps(path[1:-1], still, keep - 0.005) if len(path) > 3 else True
 
 
 def _corridor_routes() -> tuple[list, list]:
-    cfg = resolve(corridor(1))  # one drone each way
+    raw = corridor(1)  # one drone each way, the corridor taken in turn (no lanes)
+    raw["defaults"]["planner"] = {"lanes": False}
+    cfg = resolve(raw)
     agents, _ = scenario_swarm(cfg)
     return agents, [np.vstack([a.start_w, a.path_w]) for a in agents]
 
@@ -357,3 +361,78 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
     assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
         0
     ].filter.filter_config(CommandLevel.ATTITUDE)
+
+
+def _lane_offsets(path: np.ndarray, x_lo: float, x_hi: float) -> np.ndarray:
+    """The y [m] of the path ``path`` (k, 3) sampled along x in [x_lo, x_hi] (a path along x there)."""
+    from swarm.planning import _sampled
+
+    P = _sampled(path, 0.01)[0]
+    keep = (P[:, 0] >= x_lo) & (P[:, 0] <= x_hi)
+    return P[keep, 1]
+
+
+def test_opposite_flows_fly_a_two_lane_corridor_each_in_its_right_hand_lane():
+    """The corridor is 0.5 m between pillar surfaces: each flow's lane keeps (w - r) / 3 from
+    the wall on its right, so the lanes keep the safety radius plus LANE_MARGIN_M from the
+    walls and from each other; neither flow's route gives way there."""
+    from swarm.planning import LANE_MARGIN_M, lane_wall_m
+
+    cfg = resolve(corridor(4))
+    agents, _ = scenario_swarm(cfg)
+    r = cfg.agents[0].airframe.params().body_radius_m + cfg.agents[0].filter.margin_m
+    wall = lane_wall_m(0.5, r)
+    assert wall - r >= LANE_MARGIN_M and (0.5 - 2 * wall) - 2 * r >= LANE_MARGIN_M
+    for spec, a in zip(cfg.agents, agents, strict=True):
+        path = np.vstack([a.start_w, a.path_w])
+        east = spec.goal[0] > spec.start[0]
+        y = _lane_offsets(path, -0.8, 0.8)  # inside the corridor, along its side walls
+        assert len(y)
+        np.testing.assert_allclose(y, -(0.25 - wall) if east else 0.25 - wall, atol=0.015)  # the right-hand lane
+        assert a.route.lanes and a.route.passage is None  # no turn to wait for
+        assert keeps(path[1:-1], StaticObstacles.of(list(cfg.obstacles)), r)
+
+
+def test_lanes_are_for_long_passages_wide_enough_and_can_be_turned_off():
+    from swarm.planning import LANE_MARGIN_M, LANE_MIN_LENGTH_M, has_lanes, keep_right, lane_wall_m
+
+    r = 0.09
+    wide_enough = 3 * (r + LANE_MARGIN_M) + r  # lane_wall_m(w, r) - r == LANE_MARGIN_M
+    assert lane_wall_m(wide_enough, r) - r == pytest.approx(LANE_MARGIN_M)
+    assert has_lanes(np.full(5, wide_enough + 1e-6), LANE_MIN_LENGTH_M, r)
+    assert not has_lanes(np.array([wide_enough + 0.1, wide_enough - 1e-3]), LANE_MIN_LENGTH_M, r)  # narrowest point
+    assert not has_lanes(np.full(5, 1.0), LANE_MIN_LENGTH_M - 0.01, r)  # a doorway: crossed in turn
+    door = resolve(doorway(6))  # its gap is a short stretch: paths as planned, the gap taken in turn
+    still = StaticObstacles.of(list(door.obstacles))
+    for a in scenario_swarm(door)[0]:
+        path = np.vstack([a.start_w, a.path_w])
+        np.testing.assert_array_equal(keep_right(path, still, r), path)
+        assert not a.route.lanes and a.route.passage is not None
+    agents, _ = _corridor_routes()  # planner.lanes false: the corridor in turn, on its centre line
+    for a in agents:
+        assert not a.route.lanes and a.route.passage is not None
+        assert np.abs(_lane_offsets(np.vstack([a.start_w, a.path_w]), -0.8, 0.8)).max() < 0.07
+
+
+def test_a_lane_flying_agent_gets_the_lane_contact_horizon_and_no_buffer_and_only_it():
+    from swarm.planning import LANE_CONTACT_S, filter_config_for, follows, path_for
+
+    cfg = resolve(corridor(1))
+    still = StaticObstacles.of(list(cfg.obstacles))
+    a = cfg.agents[0]
+    _, route = path_for(a, still)
+    assert route is not None and route.lanes and follows(route)
+    assert not follows(None)
+    lane = filter_config_for(a, still, CommandLevel.ATTITUDE, route)
+    assert lane.contact_s == LANE_CONTACT_S and lane.buffer_mps == 0.0
+    plain = filter_config_for(a, still, CommandLevel.ATTITUDE)
+    assert plain.contact_s == a.filter.contact_s == 0.0 and plain.buffer_mps == a.filter.buffer_mps > 0
+    longer = a.model_copy(update={"filter": a.filter.model_copy(update={"contact_s": 2.0})})
+    assert filter_config_for(longer, still, CommandLevel.ATTITUDE, route).contact_s == 2.0  # a longer one kept
+    raw = corridor(1)
+    raw["defaults"]["planner"] = {"lanes": False}
+    off = resolve(raw)
+    _, in_turn = path_for(off.agents[0], still)
+    assert not follows(in_turn)  # the tie-break turns from every agent ahead, as in the open
+    turn = filter_config_for(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
+    assert turn.contact_s == 0.0 and turn.buffer_mps == a.filter.buffer_mps

@@ -465,36 +465,43 @@ def _tidy(W: FloatArray) -> FloatArray:
     return np.array(out)
 
 
+def _flown_in_lane(width_m: FloatArray, right_m: FloatArray, length_m: float, radius_m: float | None) -> bool:
+    """Whether a walled stretch ``length_m`` [m] long, ``width_m`` (k,) [m] wide, whose path
+    points are ``right_m`` (k,) [m] from the wall on their right, is flown in the right-hand
+    lane of two by an agent of safety radius ``radius_m`` (see :func:`narrow_stretches`)."""
+    if radius_m is None or not has_lanes(width_m, length_m + 2 * LANE_LEAD_M, radius_m):
+        return False
+    return float(np.mean(np.abs(right_m - lane_wall_m(width_m, radius_m)) <= 3 * LANE_TOL_M)) >= 0.8
+
+
 def narrow_stretches(
     waypoints_w: FloatArray, obstacles: StaticObstacles, radius_m: float | None = None, step_m: float = 0.05
 ) -> list[Passage]:
     """The stretches of the path ``waypoints_w`` (k, 3) whose points have an obstacle closer
-    than :data:`NARROW_M` on both sides, in order; with ``radius_m`` (the agent's safety
-    radius [m]) each says whether the path flies it in the right-hand lane of two
-    (:func:`has_lanes`, :func:`keep_right`; most of its points within ``3 LANE_TOL_M`` of
-    the lane)."""
+    than :data:`NARROW_M` on both sides (one-lane passages, ``lanes`` False), in order; with
+    ``radius_m`` (the agent's safety radius [m]), the stretches the path flies in the
+    right-hand lane of two (:func:`keep_right`) instead, with ``lanes`` True. A lane runs off
+    its passage's middle, so a lane stretch is judged by the passage's width (less than
+    twice :data:`NARROW_M` between walls on both sides), :func:`has_lanes` (its length with
+    :data:`LANE_LEAD_M` at each end as slack: a lane's own stretch is a little shorter or
+    longer than the one it was made from) and most of its points within ``3 LANE_TOL_M`` of
+    the lane; a one-lane stretch within it is no passage."""
     W = np.asarray(waypoints_w, dtype=float)
     if W.shape[0] < 2 or not len(obstacles):
         return []
     P, T, s, _ = _sampled(W, step_m)
     left, right = _sides(P, T, obstacles)
+    width = left + right
+    lane = np.zeros(len(P), dtype=bool)
     out = []
-    for i, j in _stretches((left < NARROW_M) & (right < NARROW_M)):
-        width = left[i:j] + right[i:j]
-        lanes = radius_m is not None and has_lanes(width, float(s[j - 1] - s[i]), radius_m)
+    for i, j in _stretches(width < 2 * NARROW_M) if radius_m is not None else ():
+        lanes = _flown_in_lane(width[i:j], right[i:j], float(s[j - 1] - s[i]), radius_m)
         if lanes:
-            in_lane = np.abs(right[i:j] - lane_wall_m(width, radius_m)) <= 3 * LANE_TOL_M  # type: ignore[arg-type]
-            lanes = bool(np.mean(in_lane) >= 0.8)
-        out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), lanes))
-    return out
-
-
-def passage_of(
-    waypoints_w: FloatArray, obstacles: StaticObstacles, radius_m: float | None = None, step_m: float = 0.05
-) -> Passage | None:
-    """The first of the path's :func:`narrow_stretches` that has no two lanes (where agents
-    must take turns), or None."""
-    return next((p for p in narrow_stretches(waypoints_w, obstacles, radius_m, step_m) if not p.lanes), None)
+            lane[i:j] = True
+            out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), True))
+    for i, j in _stretches((left < NARROW_M) & (right < NARROW_M) & ~lane):
+        out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), False))
+    return sorted(out, key=lambda p: p.s_in_m)
 
 
 def gives_way(

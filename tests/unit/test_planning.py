@@ -436,3 +436,43 @@ def test_a_lane_flying_agent_gets_the_lane_contact_horizon_and_no_buffer_and_onl
     assert not follows(in_turn)  # the tie-break turns from every agent ahead, as in the open
     turn = filter_config_for(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
     assert turn.contact_s == 0.0 and turn.buffer_mps == a.filter.buffer_mps
+
+
+def _corridor_walls(angle: float, width_m: float, length_m: float) -> StaticObstacles:
+    """Two walls of overlapping pillars (radius 0.15 m, 0.2 m apart) along the unit axis at
+    ``angle`` [rad] through the origin, ``width_m`` apart at the pillars' tips."""
+    axis, side = np.array([math.cos(angle), math.sin(angle), 0.0]), np.array([-math.sin(angle), math.cos(angle), 0.0])
+    s = np.arange(-length_m / 2, length_m / 2 + 1e-9, 0.2)
+    c = [a * axis + k * (width_m / 2 + 0.15) * side + [0, 0, 1.0] for a in s for k in (1.0, -1.0)]
+    return StaticObstacles(np.array(c), np.full(len(c), 0.15), np.tile([0.0, 0.0, 1.0], (len(c), 1)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(angle=st.floats(0.0, 2 * math.pi), width=st.floats(0.3, 0.85), length=st.floats(1.0, 3.0))
+def test_lanes_keep_their_margin_from_the_walls_and_each_other_whatever_the_corridor(angle, width, length):
+    """Any corridor of pillars, any heading: where it has lanes, each way's path keeps the
+    safety radius plus LANE_MARGIN_M from the walls and, abreast, from the other way's lane
+    (less the lane's 1 cm tolerance); where it has none, the path comes back unchanged."""
+    from swarm.planning import LANE_TOL_M, _sampled, keep_right, narrow_stretches
+
+    walls = _corridor_walls(angle, width, length)
+    axis = np.array([math.cos(angle), math.sin(angle), 0.0])
+    way = np.array([-(length / 2 + 1.5) * axis, (length / 2 + 1.5) * axis]) + [0.0, 0.0, 1.0]
+    ways = [way, way[::-1].copy()]  # along the centre line, each way
+    lanes = [keep_right(w, walls, R) for w in ways]
+    stretch = narrow_stretches(ways[0], walls, R)
+    if not any(p.lanes for p in narrow_stretches(lanes[0], walls, R)):
+        for way, lane in zip(ways, lanes, strict=True):
+            np.testing.assert_array_equal(lane, way)
+        assert not any(p.lanes for p in stretch)
+        return
+    inner = []
+    for lane in lanes:
+        P = _sampled(lane, 0.01)[0]
+        along = P @ axis
+        P = P[np.abs(along) <= length / 2 - 0.2]  # inside the corridor, by its walls
+        assert len(P)
+        assert walls.clearance(P).min() >= R + LANE_MARGIN_M - LANE_TOL_M - 1e-6
+        inner.append(P)
+    gap = np.linalg.norm(inner[0][:, None, :] - inner[1][None, :, :], axis=2).min()
+    assert gap >= 2 * R + LANE_MARGIN_M - 2 * LANE_TOL_M - 1e-6

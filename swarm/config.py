@@ -210,7 +210,7 @@ class PlannerConfig(_Strict):
     kind: Literal["grid", "none"] = "grid"  # grid: planned where the straight path is blocked; none: straight
     resolution_m: float = Field(0.1, gt=0, le=1)  # m: the grid's cell
     clearance_m: float = Field(0.1, ge=0, le=2)  # m: kept from obstacles beyond the safety radius
-    stall_s: float = Field(2.0, gt=0)  # s: replan from where the agent is after this long without progress
+    stall_s: float = Field(4.0, gt=0)  # s: replan from where the agent is after this long without progress
     # a long narrow passage wide enough for two is flown in its right-hand lane (opposite flows pass);
     # false: every narrow passage is taken in turn
     lanes: bool = True

@@ -576,7 +576,7 @@ class Route:
         obstacles: StaticObstacles,
         radius_m: float,
         settings: PlannerSettings | None = None,
-        stall_s: float = 2.0,
+        stall_s: float = 4.0,
         progress_m: float = 0.3,
         back_mps: float = 0.3,
     ) -> None:

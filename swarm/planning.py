@@ -465,11 +465,11 @@ def _tidy(W: FloatArray) -> FloatArray:
     return np.array(out)
 
 
-def _flown_in_lane(width_m: FloatArray, right_m: FloatArray, length_m: float, radius_m: float | None) -> bool:
+def _flown_in_lane(width_m: FloatArray, right_m: FloatArray, length_m: float, radius_m: float) -> bool:
     """Whether a walled stretch ``length_m`` [m] long, ``width_m`` (k,) [m] wide, whose path
     points are ``right_m`` (k,) [m] from the wall on their right, is flown in the right-hand
     lane of two by an agent of safety radius ``radius_m`` (see :func:`narrow_stretches`)."""
-    if radius_m is None or not has_lanes(width_m, length_m + 2 * LANE_LEAD_M, radius_m):
+    if not has_lanes(width_m, length_m + 2 * LANE_LEAD_M, radius_m):
         return False
     return float(np.mean(np.abs(right_m - lane_wall_m(width_m, radius_m)) <= 3 * LANE_TOL_M)) >= 0.8
 
@@ -494,11 +494,11 @@ def narrow_stretches(
     width = left + right
     lane = np.zeros(len(P), dtype=bool)
     out = []
-    for i, j in _stretches(width < 2 * NARROW_M) if radius_m is not None else ():
-        lanes = _flown_in_lane(width[i:j], right[i:j], float(s[j - 1] - s[i]), radius_m)
-        if lanes:
-            lane[i:j] = True
-            out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), True))
+    if radius_m is not None:
+        for i, j in _stretches(width < 2 * NARROW_M):
+            if _flown_in_lane(width[i:j], right[i:j], float(s[j - 1] - s[i]), radius_m):
+                lane[i:j] = True
+                out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), True))
     for i, j in _stretches((left < NARROW_M) & (right < NARROW_M) & ~lane):
         out.append(Passage(P[i:j], float(s[i]), float(s[j - 1]), False))
     return sorted(out, key=lambda p: p.s_in_m)

@@ -34,7 +34,7 @@ from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
-from swarm.planning import StaticObstacles, filter_config_for, follows, path_for
+from swarm.planning import StaticObstacles, corner_cut_m, filter_config_for, follows, path_for
 from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -63,7 +63,7 @@ class Agent:
         self.filt = SafetyFilter(self.model, fc)
         # a real drone lands through its floor: landing filters with the floor off
         self.filt_land = SafetyFilter(self.model, replace(fc, floor_z_m=None)) if me.backend == "crazyflie" else None
-        self.tracker = PathTracker(path_w, me.speed_mps)
+        self.tracker = PathTracker(path_w, me.speed_mps, cut_m=corner_cut_m(self.route))
         self.att = AttitudeController(self.model)
         f = cfg.failure
         self.table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
@@ -271,7 +271,7 @@ class Agent:
         remaining = self.tracker.reference(state.x_w)[2]
         new = self.route.update(t_s, state.x_w, self.goal, remaining)
         if new is not None:
-            self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps)
+            self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps, cut_m=self.route.cut_m)
             remaining = self.tracker.reference(state.x_w)[2]
         return self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
 

@@ -1,4 +1,4 @@
-"""Reference control: PD tracking of a path at a constant target speed, a geometric SO(3)
+"""Reference control: tracking of a path at a constant target speed, a geometric SO(3)
 attitude controller (Lee et al. 2010) and Crazyflie commander setpoints.
 
 The tracker outputs a desired thrust vector ``F_ref`` [N, world]. At the attitude
@@ -20,20 +20,35 @@ from swarm.errors import InputError
 from swarm.model import QuadModel, QuadState, check_finite, thrust_vector_to_setpoint
 from swarm.rotation import E3, FloatArray, R_to_euler, quat_to_R, quat_to_R_into, vee
 
+_GAIN_FIELDS = (
+    "kp_per_s",
+    "kd_per_s",
+    "brake_mps2",
+    "kc_per_s",
+    "max_horizontal_accel_mps2",
+    "max_vertical_accel_mps2",
+)
+"""The fields of :class:`TrackingGains`, in the order of :data:`TRACKING`'s."""
+
 
 @dataclass(frozen=True)
 class TrackingGains:
     """Outer-loop gains of the path tracker."""
 
-    kp_per_s: float = 1.5
-    """Position error to velocity command [1/s] (cross-track and final approach)."""
-    kd_per_s: float = 3.0
+    kp_per_s: float = 3.0
+    """Position error to velocity command [1/s] at the goal."""
+    kc_per_s: float = 1.5
+    """Cross-track error to velocity command [1/s]; corners are cut within ``speed / kc``
+    of path ahead."""
+    kd_per_s: float = 4.5
     """Velocity error to acceleration command [1/s]."""
+    brake_mps2: float = 1.5
+    """The deceleration [m/s^2] the tracker plans with to slow for a corner and stop at the goal."""
     max_horizontal_accel_mps2: float = 4.0
     max_vertical_accel_mps2: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("kp_per_s", "kd_per_s", "max_horizontal_accel_mps2", "max_vertical_accel_mps2"):
+        for name in _GAIN_FIELDS:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"TrackingGains.{name}: must be a finite number > 0, got {v!r}")
@@ -41,8 +56,10 @@ class TrackingGains:
 
 TRACKING = np.dtype(
     [
-        ("kp", "f8"),  # 1/s: position gain (cross-track, and the taper near the end)
+        ("kp", "f8"),  # 1/s: position gain at the goal
         ("kd", "f8"),  # 1/s: velocity gain
+        ("brake", "f8"),  # m/s^2: planned deceleration
+        ("kc", "f8"),  # 1/s: cross-track gain (and look-ahead speed / kc)
         ("a_h", "f8"),  # m/s^2: largest horizontal acceleration
         ("a_v", "f8"),  # m/s^2: largest vertical acceleration
     ],
@@ -52,61 +69,100 @@ TRACKING = np.dtype(
 
 
 class PathTracker:
-    """PD tracking of a polyline at a constant target speed.
+    """Pure-pursuit tracking of a polyline at a constant target speed.
 
-    The commanded velocity is the target speed along the current segment (tapering as
-    ``kp * remaining path length`` near the end) plus ``kp`` times the cross-track error;
-    the commanded acceleration is ``kd`` times the velocity error, clipped. The segment
-    index only moves forward, so a detour around an obstacle does not skip or repeat.
+    The commanded velocity runs along the chord from the agent's closest path point to the
+    path point ``speed / kc`` of path further (:meth:`aim`), or nearer where that chord would
+    cut a corner by more than ``cut_m`` [m] (0: the path's own tangent, every corner flown as
+    it turns), plus ``kc`` times the error across the chord. Its size along the chord is the
+    target speed, braking at ``brake_mps2`` to each corner's speed (:func:`corner_speeds`)
+    and to a stop at the goal, where it ends as ``kp`` times the distance left. The commanded
+    acceleration is ``kd`` times the velocity error plus the braking's own deceleration
+    (feedforward), clipped. The segment index only moves forward, so a detour around an
+    obstacle does not skip or repeat.
     """
 
-    def __init__(self, waypoints_w: object, speed_mps: float, gains: TrackingGains | None = None) -> None:
+    def __init__(
+        self, waypoints_w: object, speed_mps: float, gains: TrackingGains | None = None, cut_m: float = 0.0
+    ) -> None:
         W = check_finite("waypoints_w", waypoints_w)
         if W.ndim != 2 or W.shape[1] != 3 or W.shape[0] < 1:
             raise InputError(f"waypoints_w: expected shape (k >= 1, 3), got {W.shape}")
         if not (math.isfinite(speed_mps) and speed_mps > 0):
             raise InputError(f"speed_mps: must be a finite number > 0, got {speed_mps!r}")
+        if not (math.isfinite(cut_m) and cut_m >= 0):
+            raise InputError(f"cut_m: must be a finite number >= 0, got {cut_m!r}")
         if W.shape[0] == 1:
             W = np.vstack([W, W])
         self.W = W
         self.speed_mps = float(speed_mps)
+        self.cut_m = float(cut_m)
         self.gains = gains or TrackingGains()
         seg_len = np.linalg.norm(np.diff(W, axis=0), axis=1)
         tail = np.concatenate([np.cumsum(seg_len[::-1])[::-1][1:], [0.0]])  # m of path after each segment
-        # per segment (k-1, 3): its length [m], the path after it [m], the speed [m/s] at its end
-        self._seg = np.column_stack([seg_len, tail, corner_speeds(W, self.speed_mps)])
+        head = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])  # m of path before each segment
+        # per segment (k-1, 4): its length [m], the path after it [m], the speed [m/s] at its
+        # end, the path before it [m]
+        self._seg = np.column_stack([seg_len, tail, corner_speeds(W, self.speed_mps), head])
         g = self.gains
         self._gains = np.zeros(1, dtype=TRACKING)  # the gains as the compiled kernels read them
-        self._gains[0] = (g.kp_per_s, g.kd_per_s, g.max_horizontal_accel_mps2, g.max_vertical_accel_mps2)
+        self._gains[0] = tuple(getattr(g, name) for name in _GAIN_FIELDS)
         self.segment = 0
 
     @property
     def goal_w(self) -> FloatArray:
         return self.W[-1]
 
+    def aim(self, x_w: FloatArray) -> FloatArray:
+        """The path point [m, world] the tracker at ``x_w`` [m, world] steers along the chord
+        to, from its closest path point (the class docstring)."""
+        self.segment, c, _, remaining = _path_point(self.W, self._seg, self.segment, np.asarray(x_w, dtype=float))
+        last = self._seg[-1]
+        ahead_m = self.speed_mps / self.gains.kc_per_s
+        return _aim(self.W, self._seg, self.segment, last[3] + last[0] - remaining, c, ahead_m, self.cut_m)
+
     def reference(self, x_w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
         """Closest path point [m, world], path tangent, remaining path length [m]."""
         self.segment, c, tangent, remaining = _path_point(self.W, self._seg, self.segment, np.asarray(x_w, dtype=float))
         return c, tangent, remaining
 
-    def desired_velocity(self, x_w: FloatArray) -> FloatArray:
-        """Commanded velocity [m/s, world]: along the path plus cross-track correction."""
-        self.segment, v_des = _desired_velocity(
-            self.W, self._seg, self.segment, np.asarray(x_w, dtype=float), self.speed_mps, self._gains
+    def command(self, x_w: FloatArray) -> tuple[FloatArray, float]:
+        """Commanded velocity [m/s, world] and the rate [1/s] at which its size falls per
+        metre flown along it where the tracker brakes (0 at the target speed): the braking's
+        feedforward, :meth:`desired_accel`'s ``brake_per_s``."""
+        self.segment, v_des, slope = _desired_velocity(
+            self.W, self._seg, self.segment, np.asarray(x_w, dtype=float), self.speed_mps, self._gains, self.cut_m
         )
-        return v_des
+        return v_des, slope
 
-    def desired_accel(self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None) -> FloatArray:
+    def desired_velocity(self, x_w: FloatArray) -> FloatArray:
+        """Commanded velocity [m/s, world] (:meth:`command`)."""
+        return self.command(x_w)[0]
+
+    def desired_accel(
+        self, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None, brake_per_s: float = 0.0
+    ) -> FloatArray:
         """Commanded acceleration [m/s^2, world] (without gravity compensation) towards the
-        commanded velocity ``v_des_w`` [m/s, world] (default: :meth:`desired_velocity`)."""
-        v_des = self.desired_velocity(x_w) if v_des_w is None else np.asarray(v_des_w, dtype=float)
-        return _desired_accel(v_des, np.asarray(v_w, dtype=float), self._gains)
+        commanded velocity ``v_des_w`` [m/s, world] (default: :meth:`command`'s, with its
+        braking), less ``brake_per_s`` [1/s] times the velocity along it (the deceleration
+        of a command that falls by that much per metre flown)."""
+        if v_des_w is None:
+            v_des, brake_per_s = self.command(x_w)
+        else:
+            v_des = np.asarray(v_des_w, dtype=float)
+        return _desired_accel(v_des, np.asarray(v_w, dtype=float), brake_per_s, self._gains)
 
     def thrust_vector(
-        self, model: QuadModel, x_w: FloatArray, v_w: FloatArray, v_des_w: FloatArray | None = None
+        self,
+        model: QuadModel,
+        x_w: FloatArray,
+        v_w: FloatArray,
+        v_des_w: FloatArray | None = None,
+        brake_per_s: float = 0.0,
     ) -> FloatArray:
-        """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]; ``v_des_w`` as in
-        :meth:`desired_accel`. Without ``v_des_w``, one compiled call does the whole tracker."""
+        """Desired thrust vector ``F_ref = m (a_des + g e3)`` [N, world]; ``v_des_w`` and
+        ``brake_per_s`` as in :meth:`desired_accel`. Without ``v_des_w``, one compiled call
+        does the whole tracker."""
         p = model.params
         if v_des_w is None:
             self.segment, F = _tracker_thrust(
@@ -117,11 +173,12 @@ class PathTracker:
                 np.asarray(v_w, dtype=float),
                 self.speed_mps,
                 self._gains,
+                self.cut_m,
                 p.mass_kg,
                 p.g_mps2,
             )
             return F
-        a = self.desired_accel(x_w, v_w, v_des_w)
+        a = self.desired_accel(x_w, v_w, v_des_w, brake_per_s)
         a[2] += p.g_mps2
         return p.mass_kg * a
 
@@ -206,38 +263,145 @@ def _dist2_to(W, i, t, x):
 
 
 @njit(cache=True)
-def _desired_velocity(W, seg, segment, x, speed, gains):
-    """(segment, v_des (3,) [m/s, world]): the target speed along the path (tapering as
-    ``kp * remaining`` near the end, and as ``corner + kp * d`` at ``d`` [m] before a
-    corner: :func:`corner_speeds`) plus ``kp`` times the cross-track error; ``gains`` a
-    (1,) :data:`TRACKING` array. An agent carried back behind a leg it had reached (backing
-    out of a passage, pushed back) corrects only across it: ``kp`` times its distance back
-    along the path would add to the target speed (an agent that backed out 1.2 m asked for
-    2.6 m/s at 0.8)."""
-    segment, c, tangent, remaining = _path_point(W, seg, segment, x)
-    kp = gains[0].kp
-    to_end = remaining - seg[segment, 1]  # m to the current segment's end
-    s = min(speed, kp * remaining, seg[segment, 2] + kp * to_end)
-    back = 0.0  # m: how far behind the current leg's start, along it
-    if segment > 0:
-        for j in range(3):
-            back += (c[j] - x[j]) * tangent[j]
-        back = max(back, 0.0)
-    v_des = np.empty(3)
+def _point_at(W, seg, s, out):
+    """Write into ``out`` (3,) the point ``s`` [m] of path along ``W`` (clamped to its ends)."""
+    i = 0
+    last = seg.shape[0] - 1
+    while i < last and s > seg[i + 1, 3]:
+        i += 1
+    L = seg[i, 0]
+    t = 1.0 if L <= 1e-9 else min(max((s - seg[i, 3]) / L, 0.0), 1.0)
     for j in range(3):
-        v_des[j] = s * tangent[j] + kp * (c[j] - x[j] - back * tangent[j])
-    return segment, v_des
+        out[j] = W[i, j] + t * (W[i + 1, j] - W[i, j])
 
 
 @njit(cache=True)
-def _desired_accel(v_des, v, gains):
-    """``kd (v_des - v)`` [m/s^2, world], horizontal part clipped to its norm limit and
-    vertical part to its limit (``gains`` a (1,) :data:`TRACKING` array)."""
+def _cuts_within(W, x, p, first, last, cut):
+    """Whether every vertex ``W[first..last]`` lies within ``cut`` [m] of the chord from
+    ``x`` to ``p`` [m, world] (a chord that cuts the corners between by at most that much)."""
+    dd = 0.0
+    for j in range(3):
+        dd += (p[j] - x[j]) ** 2
+    for k in range(first, last + 1):
+        t = 0.0
+        if dd > 1e-18:
+            for j in range(3):
+                t += (W[k, j] - x[j]) * (p[j] - x[j])
+            t = min(max(t / dd, 0.0), 1.0)
+        e = 0.0
+        for j in range(3):
+            e += (x[j] + t * (p[j] - x[j]) - W[k, j]) ** 2
+        if e > (cut + 1e-9) ** 2:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _aim(W, seg, segment, s0, c, ahead_m, cut):
+    """The point (3,) [m, world] a tracker steers to from its closest path point ``c``
+    [m, world], ``s0`` [m] along the path on segment ``segment``: ``ahead_m`` of path
+    further, or the furthest point before that whose chord from ``c`` passes every corner
+    between within ``cut`` [m] (with 0: at most the next corner, along the tangent)."""
+    last = seg.shape[0] - 1
+    total = seg[last, 3] + seg[last, 0]
+    s1 = min(s0 + ahead_m, total)
+    p = np.empty(3)
+    _point_at(W, seg, s1, p)
+    m = segment  # the last vertex strictly before s1 is W[m]
+    while m < last and seg[m + 1, 3] < s1:
+        m += 1
+    if m == segment or _cuts_within(W, c, p, segment + 1, m, cut):
+        return p
+    v = m  # the furthest corner whose chord keeps the corners before it within the cut
+    while v > segment + 1 and not _cuts_within(W, c, W[v], segment + 1, v - 1, cut):
+        v -= 1
+    lo, hi = seg[v, 3], min(seg[v, 3] + seg[v, 0], s1)  # then along its leg as far as the cut allows
+    for j in range(3):
+        p[j] = W[v, j]
+    q = np.empty(3)
+    for _ in range(10):
+        mid = 0.5 * (lo + hi)
+        _point_at(W, seg, mid, q)
+        if _cuts_within(W, c, q, segment + 1, v, cut):
+            lo = mid
+            p[:] = q
+        else:
+            hi = mid
+    return p
+
+
+@njit(cache=True)
+def _desired_velocity(W, seg, segment, x, speed, gains, cut):
+    """(segment, v_des (3,) [m/s, world], brake [1/s]) of :meth:`PathTracker.command`;
+    ``gains`` a (1,) :data:`TRACKING` array. Its size along the chord is the least of the
+    target speed, the braking profile to a stop ``d`` [m] ahead (the goal: the longer of the
+    path left and the straight line to it), ``sqrt(2 a (d - a / (2 kp^2)))``, which is
+    ``kp d`` within ``a / kp^2`` of it (the same value and slope there), and
+    ``sqrt(c^2 + 2 a d)`` to a corner's speed ``c`` ``d`` ahead: the time-optimal approach
+    at the deceleration ``a``. ``brake`` is the least one's slope [1/s] along the path (0
+    at the target speed)."""
+    segment, c, tangent, remaining = _path_point(W, seg, segment, x)
+    g = gains[0]
+    kp, a = g.kp, g.brake
+    last = seg.shape[0] - 1
+    to_goal = 0.0
+    for j in range(3):
+        to_goal += (W[last + 1, j] - x[j]) ** 2
+    d = max(remaining, math.sqrt(to_goal))
+    s, brake = speed, 0.0
+    if d * kp * kp <= a:  # within a / kp^2 of the goal: kp d
+        stop, slope = kp * d, kp
+    else:
+        stop = math.sqrt(2.0 * a * (d - 0.5 * a / (kp * kp)))
+        slope = a / stop
+    if stop < s:
+        s, brake = stop, slope
+    if segment < last:
+        corner = seg[segment, 2]
+        slow = math.sqrt(corner * corner + 2.0 * a * (remaining - seg[segment, 1]))
+        if slow < s:
+            s, brake = slow, a / slow
+    total = seg[last, 3] + seg[last, 0]
+    p = _aim(W, seg, segment, total - remaining, c, speed / g.kc, cut)
+    # along the chord from the closest point to the aim (the tangent, where nothing is cut),
+    # plus kc times the error across it
+    u = np.empty(3)
+    n = 0.0
+    for j in range(3):
+        u[j] = p[j] - c[j]
+        n += u[j] * u[j]
+    if n < 1e-12:  # at the path's end: straight to it
+        n = 0.0
+        for j in range(3):
+            u[j] = p[j] - x[j]
+            n += u[j] * u[j]
+    n = math.sqrt(n)
+    v_des = np.zeros(3)
+    if n < 1e-9:
+        return segment, v_des, brake
+    e_along = 0.0
+    for j in range(3):
+        u[j] /= n
+        e_along += (c[j] - x[j]) * u[j]
+    for j in range(3):
+        v_des[j] = s * u[j] + g.kc * (c[j] - x[j] - e_along * u[j])
+    return segment, v_des, brake
+
+
+@njit(cache=True)
+def _desired_accel(v_des, v, brake, gains):
+    """``kd (v_des - v)`` less ``brake`` times the velocity along ``v_des`` (forward only)
+    [m/s^2, world], horizontal part clipped to its norm limit and vertical part to its
+    limit (``gains`` a (1,) :data:`TRACKING` array)."""
     g = gains[0]
     kd, a_h, a_v = g.kd, g.a_h, g.a_v
+    n = math.sqrt(v_des[0] ** 2 + v_des[1] ** 2 + v_des[2] ** 2)
+    along = 0.0
+    if n > 1e-9 and brake > 0.0:
+        along = max(0.0, (v[0] * v_des[0] + v[1] * v_des[1] + v[2] * v_des[2]) / n) * brake / n
     a = np.empty(3)
     for j in range(3):
-        a[j] = kd * (v_des[j] - v[j])
+        a[j] = kd * (v_des[j] - v[j]) - along * v_des[j]
     h = math.hypot(a[0], a[1])
     if h > a_h:
         a[0] *= a_h / h
@@ -247,10 +411,10 @@ def _desired_accel(v_des, v, gains):
 
 
 @njit(cache=True)
-def _tracker_thrust(W, seg, segment, x, v, speed, gains, mass, g):
+def _tracker_thrust(W, seg, segment, x, v, speed, gains, cut, mass, g):
     """(segment, F_ref (3,) [N, world]) of :meth:`PathTracker.thrust_vector` in one call."""
-    segment, v_des = _desired_velocity(W, seg, segment, x, speed, gains)
-    a = _desired_accel(v_des, v, gains)
+    segment, v_des, brake = _desired_velocity(W, seg, segment, x, speed, gains, cut)
+    a = _desired_accel(v_des, v, brake, gains)
     a[2] += g
     for j in range(3):
         a[j] *= mass
@@ -322,9 +486,9 @@ def reference_thrust(
     [m/s] (None: not known, every agent in front counts)."""
     if tiebreak is None:
         return tracker.thrust_vector(model, x_w, v_w)  # (the whole tracker in one call)
-    v_des = tracker.desired_velocity(x_w)
+    v_des, brake = tracker.command(x_w)
     bias = right_hand_bias(x_b_w, v_des, others_w, tiebreak[0], tiebreak[1], tracker.speed_mps, others_v_w)
-    return tracker.thrust_vector(model, x_w, v_w, turned(v_des, bias))
+    return tracker.thrust_vector(model, x_w, v_w, turned(v_des, bias), brake)
 
 
 def turned(v_w: FloatArray, bias_w: FloatArray) -> FloatArray:

@@ -588,6 +588,7 @@ class Route:
         self.passage: Passage | None = None  # the current path's first narrow passage without two lanes
         self.lanes = False  # the current path flies a lane of a two-lane passage (keep_right)
         self.length_m = 0.0  # the current path's length [m]
+        self.cut_m = 0.0  # how far [m] a tracker may cut the current path's corners (corner_cut_m)
         self._waiting_since: float | None = None  # sim time [s] it began to give way at this passage
 
     def first(self, start_w: FloatArray, goal_w: FloatArray, t_s: float = 0.0) -> Plan:
@@ -605,6 +606,9 @@ class Route:
         self.lanes = any(p.lanes for p in stretches)
         self.length_m = float(np.linalg.norm(np.diff(waypoints_w, axis=0), axis=1).sum())
         self._waiting_since = None
+        walls = self.obstacles.clustered(2 * (self.radius_m + self.settings.clearance_m))
+        spare = float(walls.clearance(_sampled(waypoints_w, CUT_STEP_M)[0]).min()) - self.radius_m
+        self.cut_m = min(self.settings.clearance_m, max(spare, 0.0))
 
     def hold(
         self, t_s: float, remaining_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray
@@ -659,6 +663,19 @@ class Route:
             return None
         self.replans += 1
         return self.first(x_w, goal_w, t_s)
+
+
+CUT_STEP_M = 0.05
+"""The step [m] at which :meth:`Route.follow` measures a path's clearance from the walls."""
+
+
+def corner_cut_m(route: Route | None) -> float:
+    """How far [m] the tracker of an agent on ``route`` may cut its path's corners
+    (``swarm.control.PathTracker``'s ``cut_m``): the clearance the path keeps from the walls
+    beyond the agent's safety radius (at most the planner's ``clearance_m``: none on a
+    lane, which runs a few centimetres beyond it), so the cut reference still keeps the
+    safety radius; 0 without a route (a configured path is flown corner by corner)."""
+    return 0.0 if route is None else route.cut_m
 
 
 def _safety_radius_m(agent: AgentConfig) -> float:

@@ -21,7 +21,7 @@ from swarm.control import (
 from swarm.errors import InputError
 from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
-from swarm.planning import Route, StaticObstacles, filter_config_for, follows, path_for
+from swarm.planning import Route, StaticObstacles, corner_cut_m, filter_config_for, follows, path_for
 from swarm.rotation import FloatArray, quat_to_R
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -171,7 +171,7 @@ def _gives_way(
     remaining = trackers[i].reference(state.x_w)[2]
     new = route.update(t_s, state.x_w, goal_w, remaining)
     if new is not None:
-        trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps)
+        trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps, cut_m=route.cut_m)
         remaining = trackers[i].reference(state.x_w)[2]
     return route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
 
@@ -197,7 +197,7 @@ def simulate_swarm(
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
     n = len(agents)
-    trackers = [PathTracker(np.vstack([a.start_w, a.path_w]), a.speed_mps) for a in agents]
+    trackers = [PathTracker(np.vstack([a.start_w, a.path_w]), a.speed_mps, cut_m=corner_cut_m(a.route)) for a in agents]
     filters = [SafetyFilter(model, a.config) for a in agents]
     states = [QuadState.hover(a.start_w) for a in agents]
     for s, a in zip(states, agents, strict=True):

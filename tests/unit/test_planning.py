@@ -17,7 +17,7 @@ from swarm.control import PathTracker, reference_thrust
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.offline.closed_loop import SwarmAgent, scenario_swarm, simulate_swarm
 from swarm.offline.scenario import corridor, doorway, forest, trap
-from swarm.planning import LANE_MARGIN_M, PlannerSettings, Route, StaticObstacles, clear, plan
+from swarm.planning import LANE_MARGIN_M, PlannerSettings, Route, StaticObstacles, clear, corner_cut_m, plan
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
 
@@ -153,11 +153,12 @@ def test_every_planned_segment_keeps_its_clearance(xy, r, seed):
     way=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=1, max_size=5),
     pos=st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)),
     vel=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)),
+    cut=st.floats(0.0, 0.3),
 )
-def test_whatever_path_the_tracker_is_given_the_filter_s_command_keeps_every_row(way, pos, vel):
-    """Waypoints anywhere (through the pillar, behind the drone, a single point): the
-    reference they make is only a reference; the filter's command satisfies every row
-    whenever it reports OK, and is finite always."""
+def test_whatever_path_the_tracker_is_given_the_filter_s_command_keeps_every_row(way, pos, vel, cut):
+    """Waypoints anywhere (through the pillar, behind the drone, a single point), corners
+    cut by any amount: the reference they make is only a reference; the filter's command
+    satisfies every row whenever it reports OK, and is finite always."""
     model = QuadModel()
     filt = SafetyFilter(model, FilterConfig(level=CommandLevel.ATTITUDE, gamma=2.0, floor_z_m=None))
     obs = ObstacleArrays.build(c_w=[[0.0, 0.0, 1.0]], radius_m=[0.3], axis_w=[[0.0, 0.0, 1.0]])
@@ -166,7 +167,7 @@ def test_whatever_path_the_tracker_is_given_the_filter_s_command_keeps_every_row
         x[:2] = np.array(pos) / max(np.hypot(*pos), 1e-3) * 0.5  # outside the safety radius
     state = QuadState.hover(x)
     state.v_w = np.array([*vel, 0.0])
-    tracker = PathTracker(np.array([x, *[[wx, wy, 1.0] for wx, wy in way]]), 0.8)
+    tracker = PathTracker(np.array([x, *[[wx, wy, 1.0] for wx, wy in way]]), 0.8, cut_m=cut)
     F = reference_thrust(model, tracker, state.x_w, state.v_w, state.x_w, np.zeros((0, 3)), None)
     res = filt.filter(state, F, obs)
     assert np.all(np.isfinite(res.u))
@@ -184,6 +185,27 @@ def test_a_path_straight_through_a_pillar_is_flown_without_touching_it():
     a = SwarmAgent(np.array([-2.0, wall.center[1], 1.0]), through, 0.8, agents[0].config)
     log = simulate_swarm(QuadModel(), [a], obs, 6.0, control_hz=cfg.time.control_hz, physics_hz=cfg.time.physics_hz)
     assert log.min_clearance_m >= R - 0.01  # the safety radius, less the attitude lag's few mm
+
+
+@pytest.mark.parametrize("make", [lambda: doorway(6), lambda: corridor(4), trap])
+def test_a_route_s_tracker_cuts_corners_only_within_the_clearance_its_path_keeps_from_the_walls(make):
+    """The tracker may cut a planned path's corners by ``Route.cut_m``: never more than the
+    planner's clearance, never negative, and the path keeps the safety radius plus that
+    much from every wall it was planned round (so the cut reference keeps the safety
+    radius). The trap's path keeps the whole clearance; a lane only its few centimetres."""
+    cfg = resolve(make())
+    still = StaticObstacles.of(list(cfg.obstacles))
+    walls = still.clustered(2 * KEEP)
+    agents, _ = scenario_swarm(cfg)
+    for a in agents:
+        cut = corner_cut_m(a.route)
+        assert 0.0 <= cut <= PlannerSettings().clearance_m
+        assert keeps(np.vstack([a.start_w, a.path_w]), walls, R + cut - 1e-3)
+        if a.route is not None and a.route.lanes:
+            assert cut < LANE_MARGIN_M + 0.01
+    if make is trap:
+        assert corner_cut_m(agents[0].route) == pytest.approx(PlannerSettings().clearance_m)
+    assert corner_cut_m(None) == 0.0
 
 
 @pytest.mark.parametrize("make", [lambda: doorway(6), lambda: corridor(4), trap, lambda: forest(4, 0.6)])

@@ -69,7 +69,7 @@ TRACKING = np.dtype(
 
 
 class PathTracker:
-    """Pure-pursuit tracking of a polyline at a constant target speed.
+    """Tracking of a polyline at a constant target speed, cutting its corners within ``cut_m``.
 
     The commanded velocity runs along the chord from the agent's closest path point to the
     path point ``speed / kc`` of path further (:meth:`aim`), or nearer where that chord would

@@ -340,7 +340,7 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
     ``sqrt(c^2 + 2 a d)`` to a corner's speed ``c`` ``d`` ahead: the time-optimal approach
     at the deceleration ``a``. ``brake`` is the least one's slope [1/s] along the path (0
     at the target speed)."""
-    segment, c, tangent, remaining = _path_point(W, seg, segment, x)
+    segment, c, _, remaining = _path_point(W, seg, segment, x)
     g = gains[0]
     kp, a = g.kp, g.brake
     last = seg.shape[0] - 1

@@ -672,9 +672,10 @@ CUT_STEP_M = 0.05
 def corner_cut_m(route: Route | None) -> float:
     """How far [m] the tracker of an agent on ``route`` may cut its path's corners
     (``swarm.control.PathTracker``'s ``cut_m``): the clearance the path keeps from the walls
-    beyond the agent's safety radius (at most the planner's ``clearance_m``: none on a
-    lane, which runs a few centimetres beyond it), so the cut reference still keeps the
-    safety radius; 0 without a route (a configured path is flown corner by corner)."""
+    beyond the agent's safety radius (at most the planner's ``clearance_m``; a few
+    centimetres on a path through a lane, which runs that close to a wall), so the cut
+    reference still keeps the safety radius; 0 without a route (a configured path is flown
+    corner by corner)."""
     return 0.0 if route is None else route.cut_m
 
 

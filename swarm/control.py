@@ -74,7 +74,9 @@ class PathTracker:
     The commanded velocity runs along the chord from the agent's closest path point to the
     path point ``speed / kc`` of path further (:meth:`aim`), or nearer where that chord would
     cut a corner by more than ``cut_m`` [m] (0: the path's own tangent, every corner flown as
-    it turns), plus ``kc`` times the error across the chord. Its size along the chord is the
+    it turns), plus ``kc`` times the error across the chord; on the last leg within that
+    ``speed / kc`` of the goal it runs straight from the agent to the goal, so an agent
+    pushed off its path does not fly on beside its goal. Its size along the chord is the
     target speed, braking at ``brake_mps2`` to each corner's speed (:func:`corner_speeds`)
     and to a stop at the goal, where it ends as ``kp`` times the distance left. The commanded
     acceleration is ``kd`` times the velocity error plus the braking's own deceleration
@@ -115,7 +117,8 @@ class PathTracker:
 
     def aim(self, x_w: FloatArray) -> FloatArray:
         """The path point [m, world] the tracker at ``x_w`` [m, world] steers along the chord
-        to, from its closest path point (the class docstring)."""
+        to, from its closest path point (the class docstring); the goal within ``speed / kc``
+        of it on the last leg, steered to from ``x_w`` itself."""
         self.segment, c, _, remaining = _path_point(self.W, self._seg, self.segment, np.asarray(x_w, dtype=float))
         last = self._seg[-1]
         ahead_m = self.speed_mps / self.gains.kc_per_s
@@ -339,7 +342,8 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
     ``kp d`` within ``a / kp^2`` of it (the same value and slope there), and
     ``sqrt(c^2 + 2 a d)`` to a corner's speed ``c`` ``d`` ahead: the time-optimal approach
     at the deceleration ``a``. ``brake`` is the least one's slope [1/s] along the path (0
-    at the target speed)."""
+    at the target speed). On the last leg within ``speed / kc`` of the goal (where the aim
+    is the goal) it points from ``x`` straight at the goal, with no cross-track term."""
     segment, c, _, remaining = _path_point(W, seg, segment, x)
     g = gains[0]
     kp, a = g.kp, g.brake
@@ -361,6 +365,15 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
         slow = math.sqrt(corner * corner + 2.0 * a * (remaining - seg[segment, 1]))
         if slow < s:
             s, brake = slow, a / slow
+    v_des = np.zeros(3)
+    if segment == last and remaining * g.kc <= speed:
+        # the aim is the goal itself: straight at it from where the agent is (along the
+        # chord from the closest point it would run beside a goal approached off the path)
+        to_goal = math.sqrt(to_goal)
+        if to_goal > 1e-9:
+            for j in range(3):
+                v_des[j] = s * (W[last + 1, j] - x[j]) / to_goal
+        return segment, v_des, brake
     total = seg[last, 3] + seg[last, 0]
     p = _aim(W, seg, segment, total - remaining, c, speed / g.kc, cut)
     # along the chord from the closest point to the aim (the tangent, where nothing is cut),
@@ -376,7 +389,6 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
             u[j] = p[j] - x[j]
             n += u[j] * u[j]
     n = math.sqrt(n)
-    v_des = np.zeros(3)
     if n < 1e-9:
         return segment, v_des, brake
     e_along = 0.0

@@ -92,7 +92,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 def test_a_ray_sweep_gives_the_local_pool_s_table(ray_cluster, tmp_path):
-    axes = parse_axes(["filter=c3bf,hocbf", "obstacle_speed=0.5,1"])
+    axes = parse_axes(["filter=c3bf,hocbf", "obstacle_speed=1"])
     sweep(_base(), axes, tmp_path / "local", jobs=2)
     events: list[tuple[str, str]] = []  # progress: each point heard to start, then to end
     rows = sweep(
@@ -104,7 +104,7 @@ def test_a_ray_sweep_gives_the_local_pool_s_table(ray_cluster, tmp_path):
         on_start=lambda h: events.append(("start", h["run"])),
         on_done=lambda r: events.append(("done", r["run"])),
     )
-    assert [r["attempts"] for r in rows] == [1, 1, 1, 1] and not any(r["error"] for r in rows)
+    assert [r["attempts"] for r in rows] == [1, 1] and not any(r["error"] for r in rows)
     for r in rows:
         assert events.count(("start", r["run"])) == 1
         assert events.index(("start", r["run"])) < events.index(("done", r["run"]))
@@ -162,7 +162,7 @@ def _wait_for(check, folder: Path, timeout_s: float, what: str) -> None:
 
 def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_cluster, tmp_path):
     out = tmp_path / "sweep"
-    axes = parse_axes(["obstacle_speed=0.5,1,2"])
+    axes = parse_axes(["obstacle_speed=0.5,1"])
     first = out / "p000_obstacle_speed-0.5"
     killed: dict[str, object] = {}
 
@@ -184,7 +184,7 @@ def test_a_killed_worker_leaves_no_process_and_its_point_is_flown_again(ray_clus
     assert set(groups) <= set(every)
     _wait_ended(every, 15)
     assert rows[0]["attempts"] == 2 and rows[0]["error"] == ""  # flown again, in full
-    assert [r["attempts"] for r in rows[1:]] == [1, 1] and all(r["collisions"] == 0 for r in rows)
+    assert [r["attempts"] for r in rows[1:]] == [1] and all(r["collisions"] == 0 for r in rows)
 
 
 def test_resume_flies_only_the_points_without_a_row(tmp_path):

@@ -383,13 +383,8 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
     for j in range(3):
         u[j] = p[j] - c[j]
         n += u[j] * u[j]
-    if n < 1e-12:  # at the path's end: straight to it
-        n = 0.0
-        for j in range(3):
-            u[j] = p[j] - x[j]
-            n += u[j] * u[j]
     n = math.sqrt(n)
-    if n < 1e-9:
+    if n < 1e-9:  # (not reached: the aim is on the path ahead of c but at the goal, handled above)
         return segment, v_des, brake
     e_along = 0.0
     for j in range(3):

@@ -716,6 +716,21 @@ def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float 
     return agent.planner.obstacle_horizon_s if plans_round_walls(agent, obstacles) else None
 
 
+def keeps_whole_cones(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
+    """Whether the agent plans round walls with a C3BF filter whose obstacle horizon is off
+    for its gain (target speed over gain above :data:`HORIZON_SPEED_PER_GAIN_M`, no
+    ``filter.obstacle_horizon_s`` of its own): every pillar keeps its whole cone, and a crowd
+    can stall at a narrow passage (a two-way corridor 2 of 8 home at the paper's gain 1 and
+    0.8 m/s; EXPERIMENTS.md section 4, "Among walls")."""
+    return (
+        agent.filter.kind == "c3bf"
+        and agent.filter.enabled
+        and agent.filter.obstacle_horizon_s is None
+        and agent.speed_mps > HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma
+        and plans_round_walls(agent, obstacles)
+    )
+
+
 LANE_CONTACT_S = 0.75
 """The contact horizon [s] (``FilterConfig.contact_s``, at least) of an agent whose path flies a
 lane: an agent of the other flow, passing in the next lane, is a few degrees outside its cone

@@ -385,6 +385,32 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
     ].filter.filter_config(CommandLevel.ATTITUDE)
 
 
+def test_agents_round_walls_at_a_gain_their_horizon_is_off_for_are_told_apart():
+    """keeps_whole_cones: exactly the agents that plan round walls with a C3BF filter and the
+    obstacle horizon off for their gain (what ``swarm run`` notes), not those at gamma 2, at
+    0.4 m/s, with their own horizon, unfiltered or in open space."""
+    from swarm.offline.scenario import circle_swap
+    from swarm.planning import keeps_whole_cones, obstacle_horizon_s
+
+    walled = resolve(corridor(1))
+    still = StaticObstacles.of(list(walled.obstacles))
+    a = walled.agents[0]
+
+    def with_filter(**over):
+        return a.model_copy(update={"filter": a.filter.model_copy(update=over)})
+
+    paper = with_filter(gamma=1.0)
+    assert keeps_whole_cones(paper, still) and obstacle_horizon_s(paper, still) is None
+    assert not keeps_whole_cones(a, still)  # gamma 2 at 0.8 m/s: the horizon is on
+    assert not keeps_whole_cones(paper.model_copy(update={"speed_mps": 0.4}), still)
+    for over in ({"obstacle_horizon_s": 3.0}, {"kind": "hocbf"}, {"enabled": False}):
+        assert not keeps_whole_cones(with_filter(gamma=1.0, **over), still), over
+    open_space = resolve(circle_swap(4))
+    b = open_space.agents[0]
+    b = b.model_copy(update={"filter": b.filter.model_copy(update={"gamma": 1.0})})
+    assert not keeps_whole_cones(b, StaticObstacles.of(list(open_space.obstacles)))
+
+
 def _lane_offsets(path: np.ndarray, x_lo: float, x_hi: float) -> np.ndarray:
     """The y [m] of the path ``path`` (k, 3) sampled along x in [x_lo, x_hi] (a path along x there)."""
     from swarm.planning import _sampled

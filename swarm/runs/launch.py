@@ -12,6 +12,7 @@ import contextlib
 import json
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -30,20 +31,50 @@ from swarm.net.messages import DecodeError, decode
 from swarm.runs.layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
 
+EPHEMERAL_PORTS = Path("/proc/sys/net/ipv4/ip_local_port_range")
+"""Linux's range of local ports for outgoing connections (``low high``)."""
+PORT_BAND = 10000
+"""How many ports below the ephemeral range :func:`free_port` draws from."""
+
+
+def _ephemeral_low() -> int:
+    """The lowest port the kernel gives an outgoing connection (32768 where unknown)."""
+    try:
+        return int(EPHEMERAL_PORTS.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+def _all_free(host: str, first: int, span: int) -> bool:
+    """Whether ``first .. first + span - 1`` can all be bound on ``host`` now."""
+    with contextlib.ExitStack() as held:
+        try:
+            for p in range(first, first + span):
+                held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)).bind((host, p))
+        except (OSError, OverflowError):  # taken, or past 65535
+            return False
+    return True
+
 
 def free_port(host: str = "127.0.0.1", span: int = len(tp.HUBS)) -> int:
     """A port P such that P .. P + span - 1 are free now (a star's hubs listen on P, P + 1
-    and P + 2; ``swarm.net.transport.process_config``)."""
+    and P + 2; ``swarm.net.transport.process_config``), drawn at random below the kernel's
+    ephemeral range: an outgoing connection takes its local port from that range, so none
+    can take P between this check and the listener's bind (a port the kernel handed out by
+    binding to 0, released, was once taken so by a run's own links: "Address already in
+    use"). Where no band lies below the range, a kernel-chosen port."""
+    low = _ephemeral_low()
+    band = (max(1024, low - PORT_BAND), low - span)
+    rng = random.SystemRandom()
+    for _ in range(200 if band[1] > band[0] else 0):
+        port = rng.randrange(*band)
+        if _all_free(host, port, span):
+            return port
     while True:
-        with contextlib.ExitStack() as held:
-            first = held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM))
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as first:
             first.bind((host, 0))
             port = int(first.getsockname()[1])
-            try:
-                for p in range(port + 1, port + span):
-                    held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)).bind((host, p))
-            except (OSError, OverflowError):  # taken, or past 65535: try another
-                continue
+        if _all_free(host, port, span):
             return port
 
 

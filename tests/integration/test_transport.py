@@ -129,3 +129,19 @@ def test_a_star_of_three_hubs_and_sixteen_agents_links_completely(tmp_path):
             p.stdin.close()
             p.wait(timeout=30)
     assert [r for r in reports if r["missing"]] == []
+
+
+def test_a_free_port_lies_below_the_ephemeral_range_with_its_hubs_free():
+    """free_port draws below the range outgoing connections take their local ports from (a
+    run's own links took a port the kernel had handed out by binding to 0: "Address already
+    in use"), and the star's three hub ports after it are free: a Zenoh session listens there."""
+    from swarm.runs.launch import _ephemeral_low
+
+    low = _ephemeral_low()
+    for _ in range(20):
+        port = free_port()
+        assert low - 10000 <= port <= low - len(tp.HUBS)
+    session = tp.open_session(
+        tp.session_config(listen=[tp.world_endpoint("127.0.0.1", p) for p in range(port, port + len(tp.HUBS))])
+    )
+    session.close()

@@ -351,7 +351,8 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
     to_goal = 0.0
     for j in range(3):
         to_goal += (W[last + 1, j] - x[j]) ** 2
-    d = max(remaining, math.sqrt(to_goal))
+    to_goal = math.sqrt(to_goal)  # m, straight to the goal
+    d = max(remaining, to_goal)
     s, brake = speed, 0.0
     if d * kp * kp <= a:  # within a / kp^2 of the goal: kp d
         stop, slope = kp * d, kp
@@ -369,7 +370,6 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
     if segment == last and remaining * g.kc <= speed:
         # the aim is the goal itself: straight at it from where the agent is (along the
         # chord from the closest point it would run beside a goal approached off the path)
-        to_goal = math.sqrt(to_goal)
         if to_goal > 1e-9:
             for j in range(3):
                 v_des[j] = s * (W[last + 1, j] - x[j]) / to_goal
@@ -384,7 +384,7 @@ def _desired_velocity(W, seg, segment, x, speed, gains, cut):
         u[j] = p[j] - c[j]
         n += u[j] * u[j]
     n = math.sqrt(n)
-    if n < 1e-9:  # (not reached: the aim is on the path ahead of c but at the goal, handled above)
+    if n < 1e-9:  # (not reached: short of the goal the aim lies ahead of c along the path)
         return segment, v_des, brake
     e_along = 0.0
     for j in range(3):

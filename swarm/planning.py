@@ -711,9 +711,14 @@ def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float 
     "Reference paths")."""
     if agent.filter.obstacle_horizon_s is not None:
         return agent.filter.obstacle_horizon_s
-    if agent.speed_mps > HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma:
+    if not _gain_covers_horizon(agent):
         return None
     return agent.planner.obstacle_horizon_s if plans_round_walls(agent, obstacles) else None
+
+
+def _gain_covers_horizon(agent: AgentConfig) -> bool:
+    """Whether the agent's target speed over its gain is at most :data:`HORIZON_SPEED_PER_GAIN_M`."""
+    return agent.speed_mps <= HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma
 
 
 def keeps_whole_cones(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
@@ -726,7 +731,7 @@ def keeps_whole_cones(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
         agent.filter.kind == "c3bf"
         and agent.filter.enabled
         and agent.filter.obstacle_horizon_s is None
-        and agent.speed_mps > HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma
+        and not _gain_covers_horizon(agent)
         and plans_round_walls(agent, obstacles)
     )
 

@@ -183,7 +183,6 @@ def run(
 ) -> None:
     """Run a scenario: world, one process per agent, recorder."""
     cfg = _load_or_exit(config, _overrides(mode))
-    _note_whole_cones(cfg)
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     code, metrics = run_scenario(
         cfg,
@@ -208,24 +207,6 @@ def run(
             )
     click.echo(f"run folder: {out}")
     sys.exit(code)
-
-
-def _note_whole_cones(cfg: ScenarioConfig) -> None:
-    """Say on stderr which agents plan round walls at a gain their obstacle horizon is off
-    for (swarm.planning.keeps_whole_cones), and how to turn it on."""
-    from swarm.planning import HORIZON_SPEED_PER_GAIN_M, StaticObstacles, keeps_whole_cones
-
-    still = StaticObstacles.of(list(cfg.obstacles))
-    ids = [a.id for a in cfg.agents if keeps_whole_cones(a, still)]
-    if ids:
-        click.echo(
-            f"note: {', '.join(ids)} plan paths round walls with the filter's gamma below speed_mps / "
-            f"{HORIZON_SPEED_PER_GAIN_M:g} m, where every pillar keeps its whole cone: a crowd can stall at a "
-            f"narrow passage (a two-way corridor, many abreast through a doorway). Set filter.gamma to at least "
-            f"speed_mps / {HORIZON_SPEED_PER_GAIN_M:g} (2 at 0.8 m/s, as `swarm scenario` writes) or speed_mps "
-            f"to at most {HORIZON_SPEED_PER_GAIN_M:g} x gamma (docs/design.md, 'Reference paths').",
-            err=True,
-        )
 
 
 def _process_args(config: str, run_id: str | None, port: int | None, mode: str | None) -> tuple[ScenarioConfig, str]:

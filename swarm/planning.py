@@ -692,48 +692,32 @@ def plans_round_walls(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
 
 
 HORIZON_SPEED_PER_GAIN_M = 0.4
-"""The planner's obstacle horizon applies to an agent whose target speed [m/s] over its
-class-K gain [1/s] is at most this [m]. Approached at speed ``u`` from ``|p|``, a pillar's
-allowance ``s^2 / (2 tau)`` shrinks at up to ``u |p| / tau``, faster than the gain ``g``
-lets h fall once ``s^2 < 2 u |p| / g``; near a wall many rows then ask at once for more
-than the inputs give. At the paper's gain 1 and 0.8 m/s the least-violation commands that
-followed ran away (97 contacts in 12 corridor runs; EXPERIMENTS.md section 4)."""
+"""The planner's obstacle horizon ``planner.obstacle_horizon_s`` holds as written for an agent
+whose target speed ``u`` [m/s] over its class-K gain ``g`` [1/s] is at most this [m], and is
+stretched in proportion beyond it (:func:`obstacle_horizon_s`). Approached at ``u`` from
+``|p|``, a pillar's allowance ``s^2 / (2 tau)`` shrinks at up to ``u |p| / tau``, faster than
+the gain lets h fall once ``s^2 < 2 u |p| / g``; near a wall many rows then ask at once for more
+than the inputs give, by an amount that falls as ``1 / tau``. At the paper's gain 1 and 0.8 m/s
+a 3 s horizon's least-violation commands ran away in a two-way corridor (a contact and 4-5
+margin violations at each rho), where 6 s brings all eight home without either and no horizon
+at all brings two (EXPERIMENTS.md section 4, "Among walls")."""
 
 
 def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float | None:
     """The time horizon [s] of the agent's obstacle rows' horizon allowance: its
-    ``filter.obstacle_horizon_s``, else its ``planner.obstacle_horizon_s`` when it plans
-    round walls and its target speed over its gain is at most
-    :data:`HORIZON_SPEED_PER_GAIN_M`, else None (the rows then keep ``filter.horizon_s``).
-    On a planned path the path takes the agent round the walls; the far pillars' cones
-    along a corridor or a doorway's line of sight would otherwise hold its velocity to a
-    slit between them, where the velocity buffer asks it to speed up (docs/design.md,
-    "Reference paths")."""
+    ``filter.obstacle_horizon_s``, else, when it plans round walls, its
+    ``planner.obstacle_horizon_s`` times ``max(1, u / (g`` :data:`HORIZON_SPEED_PER_GAIN_M` ``))``
+    for target speed ``u`` [m/s] and gain ``g`` [1/s] (3 s at 0.8 m/s and gamma 2, 6 s at
+    gamma 1), else None (the rows then keep ``filter.horizon_s``). On a planned path the path
+    takes the agent round the walls; the far pillars' cones along a corridor or a doorway's
+    line of sight would otherwise hold its velocity to a slit between them, where the velocity
+    buffer asks it to speed up (docs/design.md, "Reference paths")."""
     if agent.filter.obstacle_horizon_s is not None:
         return agent.filter.obstacle_horizon_s
-    if not _gain_covers_horizon(agent):
+    tau = agent.planner.obstacle_horizon_s
+    if tau is None or not plans_round_walls(agent, obstacles):
         return None
-    return agent.planner.obstacle_horizon_s if plans_round_walls(agent, obstacles) else None
-
-
-def _gain_covers_horizon(agent: AgentConfig) -> bool:
-    """Whether the agent's target speed over its gain is at most :data:`HORIZON_SPEED_PER_GAIN_M`."""
-    return agent.speed_mps <= HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma
-
-
-def keeps_whole_cones(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
-    """Whether the agent plans round walls with a C3BF filter whose obstacle horizon is off
-    for its gain (target speed over gain above :data:`HORIZON_SPEED_PER_GAIN_M`, no
-    ``filter.obstacle_horizon_s`` of its own): every pillar keeps its whole cone, and a crowd
-    can stall at a narrow passage (a two-way corridor 2 of 8 home at the paper's gain 1 and
-    0.8 m/s; EXPERIMENTS.md section 4, "Among walls")."""
-    return (
-        agent.filter.kind == "c3bf"
-        and agent.filter.enabled
-        and agent.filter.obstacle_horizon_s is None
-        and not _gain_covers_horizon(agent)
-        and plans_round_walls(agent, obstacles)
-    )
+    return tau * max(1.0, agent.speed_mps / (HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma))
 
 
 LANE_CONTACT_S = 0.75

@@ -17,7 +17,16 @@ from swarm.control import PathTracker, reference_thrust
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.offline.closed_loop import SwarmAgent, scenario_swarm, simulate_swarm
 from swarm.offline.scenario import corridor, doorway, forest, trap
-from swarm.planning import LANE_MARGIN_M, PlannerSettings, Route, StaticObstacles, clear, corner_cut_m, plan
+from swarm.planning import (
+    LANE_MARGIN_M,
+    PlannerSettings,
+    Route,
+    StaticObstacles,
+    clear,
+    corner_cut_m,
+    obstacle_horizon_s,
+    plan,
+)
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
 
@@ -377,7 +386,10 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
     assert obstacle_horizon_s(mine, still) == 5.0  # the filter's own setting wins
     paper = a.model_copy(update={"filter": a.filter.model_copy(update={"gamma": 1.0})})  # 0.8 m/s at gain 1
     assert a.speed_mps / a.filter.gamma <= HORIZON_SPEED_PER_GAIN_M < paper.speed_mps / paper.filter.gamma
-    assert obstacle_horizon_s(paper, still) is None
+    assert obstacle_horizon_s(paper, still) == pytest.approx(6.0)  # stretched by speed / gain over 0.4 m
+    slow = paper.model_copy(update={"speed_mps": 0.3})
+    assert obstacle_horizon_s(slow, still) == 3.0  # within 0.4 m: as written, never shortened
+    assert obstacle_horizon_s(paper.model_copy(update={"speed_mps": 1.2}), still) == pytest.approx(9.0)
     open_space = resolve(circle_swap(4))
     assert obstacle_horizon_s(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
     assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
@@ -385,30 +397,28 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
     ].filter.filter_config(CommandLevel.ATTITUDE)
 
 
-def test_agents_round_walls_at_a_gain_their_horizon_is_off_for_are_told_apart():
-    """keeps_whole_cones: exactly the agents that plan round walls with a C3BF filter and the
-    obstacle horizon off for their gain (what ``swarm run`` notes), not those at gamma 2, at
-    0.4 m/s, with their own horizon, unfiltered or in open space."""
-    from swarm.offline.scenario import circle_swap
-    from swarm.planning import keeps_whole_cones, obstacle_horizon_s
+def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home():
+    """A hand-written config's default gain (gamma 1, the paper's) at 0.8 m/s: two drones each
+    way through a corridor too narrow to pass in. With the obstacle horizon stretched to 6 s
+    all four are home without contact or a slip into the safety radius; with every pillar's
+    whole cone (the horizon off, as it was at this gain) the two that meet mid-way never are."""
+    from swarm.offline.closed_loop import outcome
 
-    walled = resolve(corridor(1))
-    still = StaticObstacles.of(list(walled.obstacles))
-    a = walled.agents[0]
-
-    def with_filter(**over):
-        return a.model_copy(update={"filter": a.filter.model_copy(update=over)})
-
-    paper = with_filter(gamma=1.0)
-    assert keeps_whole_cones(paper, still) and obstacle_horizon_s(paper, still) is None
-    assert not keeps_whole_cones(a, still)  # gamma 2 at 0.8 m/s: the horizon is on
-    assert not keeps_whole_cones(paper.model_copy(update={"speed_mps": 0.4}), still)
-    for over in ({"obstacle_horizon_s": 3.0}, {"kind": "hocbf"}, {"enabled": False}):
-        assert not keeps_whole_cones(with_filter(gamma=1.0, **over), still), over
-    open_space = resolve(circle_swap(4))
-    b = open_space.agents[0]
-    b = b.model_copy(update={"filter": b.filter.model_copy(update={"gamma": 1.0})})
-    assert not keeps_whole_cones(b, StaticObstacles.of(list(open_space.obstacles)))
+    raw = corridor(2)
+    del raw["defaults"]["filter"]["gamma"]  # the config's default (swarm scenario writes 2)
+    cfg = resolve(raw)
+    assert cfg.agents[0].filter.gamma == 1.0
+    agents, obs = scenario_swarm(cfg)
+    still = StaticObstacles.of(list(cfg.obstacles))
+    assert all(a.config.obstacle_horizon_s == pytest.approx(6.0) for a in agents)
+    assert obstacle_horizon_s(cfg.agents[0], still) == pytest.approx(6.0)
+    log = simulate_swarm(
+        QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
+        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m,
+    )  # fmt: skip
+    o = outcome(cfg, log)
+    assert log.all_reached, log.time_to_goal_s
+    assert o.collisions == 0 and o.margin_violations == 0
 
 
 def _lane_offsets(path: np.ndarray, x_lo: float, x_hi: float) -> np.ndarray:

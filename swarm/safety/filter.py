@@ -523,13 +523,21 @@ class SafetyFilter:
         if sol.status is QPStatus.OPTIMAL:
             return self._result(call, sol.x, u_ref, status, zeros, buffered=not has_buffer)
 
-        # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2
+        # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2;
+        # obstacles first: with neighbour rows among them, the obstacle rows' slacks held at 0
         m = self.m
         H, q, lb, ub, A_s = self._slack_arrays(n, ins)
         q[:m] = -2.0 * u_ref
         A_s[: ins.d.size, :m] = ins.C  # (the floor row changes every call)
         A_s[ins.d.size :, :m] = G
-        sol_s = self._qp_slack_solve(QPProblem.trusted(H, q, lb, ub, A_s, bb))
+        sol_s = None
+        own = ~obstacles.rec["is_nb"][prep.idx]  # (n,): an obstacle's row (not a neighbour's): no share
+        if own.any() and not own.all():
+            ub_own = ub.copy()
+            ub_own[m:][own] = 0.0
+            sol_s = self._qp_slack_solve(QPProblem.trusted(H, q, lb, ub_own, A_s, bb))
+        if sol_s is None:
+            sol_s = self._qp_slack_solve(QPProblem.trusted(H, q, lb, ub, A_s, bb))
         if sol_s is not None:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)

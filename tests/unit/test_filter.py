@@ -277,3 +277,40 @@ def test_the_command_is_the_optimum_by_the_kkt_conditions(seed, n, level, kind):
         return
     r, scale = kkt_residual(filt, state, obs, u_ref, res)
     assert r <= 1e-6 * scale, (r, scale)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31),
+    n_obs=st.integers(1, 3),
+    n_nb=st.integers(1, 3),
+    level=st.sampled_from(list(CommandLevel)),
+)
+def test_where_the_rows_cannot_all_hold_the_obstacles_rows_hold_before_the_neighbours(seed, n_obs, n_nb, level):
+    """Obstacles closing in from one side, neighbours from the other, faster than the drone can
+    react: where the obstacles' rows alone can hold (the filter solves them cleanly), the
+    least-violation command holds every obstacle row and only neighbour rows take slack. An
+    obstacle never gives way; a neighbour does its share and sees the flagged tick."""
+    rng = np.random.default_rng(seed)
+    filt = SafetyFilter(MODEL, FilterConfig(level=level, rho=0.5))
+    state = QuadState.hover()
+    side = rng.normal(size=2)
+    side /= np.linalg.norm(side)
+    k = n_obs + n_nb
+    bearing = np.array([1.0] * n_obs + [-1.0] * n_nb)[:, None] * side + rng.uniform(-0.5, 0.5, (k, 2))
+    bearing /= np.linalg.norm(bearing, axis=1, keepdims=True)
+    dist = rng.uniform(0.6, 1.2, (k, 1))
+    c = np.column_stack([dist * bearing, np.ones(k) + rng.uniform(-0.1, 0.1, k)])
+    v = np.column_stack([-rng.uniform(1.0, 3.0, (k, 1)) * bearing, np.zeros(k)])
+    is_nb = np.arange(k) >= n_obs
+    r = rng.uniform(0.05, 0.2, k)
+    obs = ObstacleArrays.build(c, r, v, is_neighbour=is_nb)
+    w = MODEL.params.weight_N
+    u_ref = np.full(4, w / 4) if level is CommandLevel.ROTORS else np.array([0.0, 0.0, w])
+    res = filt.filter(state, u_ref, obs)
+    assert np.isfinite(res.u).all() and filt.input_set.contains(res.u, 1e-7)
+    alone = filt.filter(state, u_ref, ObstacleArrays.build(c[~is_nb], r[~is_nb], v[~is_nb]))
+    if res.status is FilterStatus.INFEASIBLE and alone.status is FilterStatus.OK:
+        own = ~is_nb[res.row_index]
+        assert (res.constraint[own] >= -1e-6).all() and (res.slack[own] <= 1e-9).all(), (res.constraint, own)
+        assert res.slack[~own].max() > 0

@@ -524,14 +524,14 @@ class SafetyFilter:
             return self._result(call, sol.x, u_ref, status, zeros, buffered=not has_buffer)
 
         # Least violation: variables (u, s), G u - s <= b, s >= 0, cost |u-u_ref|^2 + W |s|^2;
-        # obstacles first: with neighbour rows among them, the obstacle rows' slacks held at 0
+        # obstacles first: with shared rows among them, the slacks of the rows without a share held at 0
         m = self.m
         H, q, lb, ub, A_s = self._slack_arrays(n, ins)
         q[:m] = -2.0 * u_ref
         A_s[: ins.d.size, :m] = ins.C  # (the floor row changes every call)
         A_s[ins.d.size :, :m] = G
         sol_s = None
-        own = ~obstacles.rec["is_nb"][prep.idx]  # (n,): an obstacle's row (not a neighbour's): no share
+        own = ~obstacles.rec["is_nb"][prep.idx]  # (n,): no share (an obstacle, a neighbour taken whole)
         if own.any() and not own.all():
             ub_own = ub.copy()
             ub_own[m:][own] = 0.0

@@ -531,7 +531,7 @@ class SafetyFilter:
         A_s[: ins.d.size, :m] = ins.C  # (the floor row changes every call)
         A_s[ins.d.size :, :m] = G
         sol_s = None
-        own = ~obstacles.rec["is_nb"][prep.idx]  # (n,): no share (an obstacle, a neighbour taken whole)
+        own = ~obstacles.is_neighbour[prep.idx]  # (n,): no share (an obstacle, a neighbour taken whole)
         if own.any() and not own.all():
             ub_own = ub.copy()
             ub_own[m:][own] = 0.0

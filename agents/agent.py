@@ -265,7 +265,8 @@ class Agent:
     def _route(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> FloatArray | None:
         """The route at this tick (swarm.planning.Route): a new path from where the agent is
         if it has made no progress along its own for a while; then the velocity it holds in
-        place of its path to give way at a narrow passage to the neighbours it hears, or None."""
+        place of its path to give way at a narrow passage to the neighbours it hears, or to
+        brake before it turns away from a wall, or None."""
         if self.route is None:
             return None
         remaining = self.tracker.reference(state.x_w)[2]
@@ -273,7 +274,10 @@ class Agent:
         if new is not None:
             self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps, cut_m=self.route.cut_m)
             remaining = self.tracker.reference(state.x_w)[2]
-        return self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
+        held = self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
+        if held is None and self.route.turns(state.x_w, state.v_w, self.tracker.command(state.x_w)[0]):
+            held = np.zeros(3)  # brakes to rest before it turns away from a wall
+        return held
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""

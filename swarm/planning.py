@@ -278,6 +278,14 @@ there; faster against another's way, it comes against that one."""
 MAX_WAIT_S = 8.0
 """An agent gives way at most this long [s] per passage, then goes (two agents whose
 passages differ can each see the other first)."""
+TURN_REACH_M = 0.5
+"""An agent whose velocity runs into a wall within this [m] (its safety radius kept) ...
+(:meth:`Route.turns`)."""
+TURN_ANGLE_DEG = 60.0
+"""... while its path asks for a velocity at least this far [degrees] from it brakes ..."""
+TURN_REST_MPS = 0.01
+"""... down to this speed [m/s]: under ``swarm.safety.barriers.LIVE_W_HI_MPS``, where an
+obstacle's row begins to follow the reference's direction rather than the velocity's."""
 
 
 @dataclass(frozen=True)
@@ -652,6 +660,31 @@ class Route:
         if self._waiting_since is None:
             self._waiting_since = t_s
         return out
+
+    def turns(self, x_w: FloatArray, v_w: FloatArray, v_path_w: FloatArray) -> bool:
+        """Whether the agent at ``x_w`` [m, world] flying ``v_w`` [m/s, world] brakes this
+        tick (hovers in place of its path) before it turns to its path's velocity
+        ``v_path_w`` [m/s, world]: while its horizontal velocity, faster than
+        :data:`TURN_REST_MPS`, runs into a wall within :data:`TURN_REACH_M` (inflated by its
+        safety radius) and the path asks for a velocity at least :data:`TURN_ANGLE_DEG` away
+        from it.
+
+        Why (docs/design.md, "Braking to turn away from a wall"): a velocity pointed at the
+        junction of two touching pillars is outside both their cones (their horizon
+        allowances), and as the allowances shrink each pillar's row turns it towards the
+        other: the rows admit neither turn, only braking, and braking the reference does not
+        ask for is paid at the gain's rate (h falls with the speed), so the agent coasted
+        towards the wall for seconds. Asked to brake, free braking stops it within a few
+        tenths of a second; slow, the rows follow the reference's direction, and it leaves
+        along its path."""
+        v = np.array([v_w[0], v_w[1], 0.0])
+        speed = float(np.linalg.norm(v))
+        want = np.array([v_path_w[0], v_path_w[1], 0.0])
+        n = float(np.linalg.norm(want))
+        if speed < TURN_REST_MPS or n < 1e-9 or float(v @ want) > speed * n * math.cos(math.radians(TURN_ANGLE_DEG)):
+            return False
+        ray = np.asarray(x_w, dtype=float) + np.outer(np.arange(0.0, TURN_REACH_M + 1e-9, CUT_STEP_M), v / speed)
+        return bool((self.obstacles.clearance(ray) < self.radius_m).any())
 
     def update(self, t_s: float, x_w: FloatArray, goal_w: FloatArray, remaining_m: float) -> Plan | None:
         """At sim time ``t_s`` [s], the agent at ``x_w`` with ``remaining_m`` [m] of path

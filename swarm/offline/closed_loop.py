@@ -164,7 +164,8 @@ def _gives_way(
 ) -> FloatArray | None:
     """The agent's route at this tick, as the agent process runs it: a new path if it has
     stalled (``trackers[i]`` replaced), then the velocity it holds in place of its path
-    to give way at a narrow passage, or None (swarm.planning.Route.hold)."""
+    to give way at a narrow passage (swarm.planning.Route.hold) or to brake before it turns
+    away from a wall (Route.turns), or None."""
     route = agent.route
     if route is None:
         return None
@@ -173,7 +174,10 @@ def _gives_way(
     if new is not None:
         trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps, cut_m=route.cut_m)
         remaining = trackers[i].reference(state.x_w)[2]
-    return route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
+    held = route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
+    if held is None and route.turns(state.x_w, state.v_w, trackers[i].command(state.x_w)[0]):
+        held = np.zeros(3)  # brakes to rest before it turns away from a wall
+    return held
 
 
 def simulate_swarm(

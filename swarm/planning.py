@@ -281,7 +281,7 @@ passages differ can each see the other first)."""
 TURN_REACH_M = 0.5
 """An agent whose velocity runs into a wall within this [m] (its safety radius kept) ...
 (:meth:`Route.turns`)."""
-TURN_ANGLE_DEG = 60.0
+TURN_ANGLE_DEG = 30.0
 """... while its path asks for a velocity at least this far [degrees] from it brakes ..."""
 TURN_REST_MPS = 0.01
 """... down to this speed [m/s]: under ``swarm.safety.barriers.LIVE_W_HI_MPS``, where an

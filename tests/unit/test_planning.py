@@ -421,6 +421,54 @@ def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home(
     assert o.collisions == 0 and o.margin_violations == 0
 
 
+def test_an_agent_brakes_before_it_turns_away_from_a_wall_its_velocity_runs_into_and_only_then():
+    """Route.turns: by a doorway's wall, a velocity pointed at the junction of two of its
+    pillars while the path asks for one towards the doorway brakes; not a velocity along the
+    path (within TURN_ANGLE_DEG), not one that runs into no wall within TURN_REACH_M, not an
+    agent already at rest."""
+    from swarm.planning import TURN_ANGLE_DEG, TURN_REACH_M, TURN_REST_MPS
+
+    route = Route(of_scene(doorway(4)), 0.16)
+    x = np.array([-0.63, -0.37, 1.0])  # m: by the right-hand wall, 0.3 m before it
+    to_junction = np.array([0.185, -0.129, 0.0])  # m/s: at the junction of its first two pillars
+    to_doorway = np.array([0.88, 0.48, 0.0])  # m/s: the path's
+    assert route.turns(x, to_junction, to_doorway)
+    assert not route.turns(x, to_junction, to_junction * 4.0)  # the path flies where it flies
+    a = math.radians(0.9 * TURN_ANGLE_DEG)
+    c, s = math.cos(a), math.sin(a)
+    along = np.array([c * to_junction[0] - s * to_junction[1], s * to_junction[0] + c * to_junction[1], 0.0])
+    assert not route.turns(x, to_junction, along)  # within the angle: the rows turn it
+    assert not route.turns(x, to_junction * (0.9 * TURN_REST_MPS / np.linalg.norm(to_junction)), to_doorway)
+    back = x - TURN_REACH_M * to_junction / np.linalg.norm(to_junction)  # the wall now beyond reach
+    assert not route.turns(back, to_junction, to_doorway)
+    assert not route.turns(x, -to_junction, to_doorway)  # away from the wall
+
+
+@pytest.mark.parametrize("start_xy, v_xy", [((-0.73, -0.30), (0.24, -0.165)), ((-0.9, -0.2), (0.3, -0.2))])
+def test_a_drone_flying_into_the_junction_of_two_pillars_brakes_turns_and_is_through(start_xy, v_xy):
+    """A hand-written config's gain (gamma 1): a drone by a doorway's wall, its velocity at the
+    junction of two touching pillars, its path through the doorway. Each pillar's row turns it
+    towards the other, so it can only brake; braking first (Route.turns), it is home in under 6
+    s without contact and without replanning (it coasted to the wall and replanned after its
+    4 s stall before: home at 10.2 and 11.3 s)."""
+    from swarm.offline.closed_loop import outcome
+
+    raw = doorway(1)
+    del raw["defaults"]["filter"]["gamma"]
+    raw["agents"][0].update(start=[*start_xy, 1.0], start_velocity=[*v_xy, 0.0], goal=[2.0, -0.5, 1.0])
+    raw["duration_s"] = 8.0
+    cfg = resolve(raw)
+    agents, obs = scenario_swarm(cfg)
+    log = simulate_swarm(
+        QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
+        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m,
+    )  # fmt: skip
+    o = outcome(cfg, log)
+    assert log.all_reached and log.time_to_goal_s[0] < 6.0, log.time_to_goal_s
+    assert o.collisions == 0 and o.margin_violations == 0
+    assert agents[0].route is not None and agents[0].route.replans == 0
+
+
 def _lane_offsets(path: np.ndarray, x_lo: float, x_hi: float) -> np.ndarray:
     """The y [m] of the path ``path`` (k, 3) sampled along x in [x_lo, x_hi] (a path along x there)."""
     from swarm.planning import _sampled

@@ -16,7 +16,8 @@ isolated obstacle on its own. The world is planar: its walls are static vertical
 which can pass over or under them.
 
 :class:`Route` replans from where the agent is when it has made no progress along its
-path for ``stall_s``.
+path for ``stall_s``, and has it brake before it turns away from a wall its velocity runs into
+(:meth:`Route.turns`).
 """
 
 from __future__ import annotations

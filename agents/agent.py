@@ -276,7 +276,7 @@ class Agent:
             remaining = self.tracker.reference(state.x_w)[2]
         held = self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
         if held is None and self.route.turns(state.x_w, state.v_w, self.tracker.command(state.x_w)[0]):
-            held = np.zeros(3)  # brakes to rest before it turns away from a wall
+            held = np.zeros(3)  # brakes before it turns away from a wall
         return held
 
     def ready(self, k: int) -> bool:

@@ -176,7 +176,7 @@ def _gives_way(
         remaining = trackers[i].reference(state.x_w)[2]
     held = route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
     if held is None and route.turns(state.x_w, state.v_w, trackers[i].command(state.x_w)[0]):
-        held = np.zeros(3)  # brakes to rest before it turns away from a wall
+        held = np.zeros(3)  # brakes before it turns away from a wall
     return held
 
 

@@ -450,7 +450,7 @@ def test_a_drone_flying_into_the_junction_of_two_pillars_brakes_turns_and_is_thr
     junction of two touching pillars, its path through the doorway. Each pillar's row turns it
     towards the other, so it can only brake; braking first (Route.turns), it is home in under 6
     s without contact and without replanning (it coasted to the wall and replanned after its
-    4 s stall before: home at 10.2 and 11.3 s)."""
+    4 s stall before: home at 11.3 and 10.2 s)."""
     from swarm.offline.closed_loop import outcome
 
     raw = doorway(1)

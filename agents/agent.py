@@ -274,10 +274,8 @@ class Agent:
         if new is not None:
             self.tracker = PathTracker(new.waypoints_w, self.me.speed_mps, cut_m=self.route.cut_m)
             remaining = self.tracker.reference(state.x_w)[2]
-        held = self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w)  # (other agents only)
-        if held is None and self.route.turns(state.x_w, state.v_w, self.tracker.command(state.x_w)[0]):
-            held = np.zeros(3)  # brakes before it turns away from a wall
-        return held
+        v_path = self.tracker.command(state.x_w)[0]
+        return self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w, state.v_w, v_path)
 
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""

@@ -620,12 +620,30 @@ class Route:
         self.cut_m = min(self.settings.clearance_m, max(spare, 0.0))
 
     def hold(
-        self, t_s: float, remaining_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray
+        self,
+        t_s: float,
+        remaining_m: float,
+        x_w: FloatArray,
+        others_x_w: FloatArray,
+        others_v_w: FloatArray,
+        v_w: FloatArray | None = None,
+        v_path_w: FloatArray | None = None,
     ) -> FloatArray | None:
         """The velocity [m/s, world] the agent flies this tick in place of its path, or None
         to fly the path, at sim time ``t_s`` [s] on the current path with ``remaining_m``
         [m] of it left, among the other agents at ``others_x_w`` (k, 3) [m] moving at
-        ``others_v_w`` (k, 3) [m/s]:
+        ``others_v_w`` (k, 3) [m/s]: where it gives way (:meth:`_giving_way`), that;
+        else, given its velocity ``v_w`` and its path's ``v_path_w`` [m/s, world], zeros
+        while it brakes before it turns away from a wall (:meth:`turns`)."""
+        out = self._giving_way(t_s, remaining_m, x_w, others_x_w, others_v_w)
+        if out is None and v_w is not None and v_path_w is not None and self.turns(x_w, v_w, v_path_w):
+            out = np.zeros(3)
+        return out
+
+    def _giving_way(
+        self, t_s: float, remaining_m: float, x_w: FloatArray, others_x_w: FloatArray, others_v_w: FloatArray
+    ) -> FloatArray | None:
+        """:meth:`hold`'s giving way at the path's passage, or None:
 
         * backing out of its passage at ``back_mps`` along it, while it is in the passage
           or within ``WAIT_M / 2`` of it, its own flow does not keep the passage

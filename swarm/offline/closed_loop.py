@@ -174,10 +174,8 @@ def _gives_way(
     if new is not None:
         trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps, cut_m=route.cut_m)
         remaining = trackers[i].reference(state.x_w)[2]
-    held = route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w)
-    if held is None and route.turns(state.x_w, state.v_w, trackers[i].command(state.x_w)[0]):
-        held = np.zeros(3)  # brakes before it turns away from a wall
-    return held
+    v_path = trackers[i].command(state.x_w)[0]
+    return route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w, state.v_w, v_path)
 
 
 def simulate_swarm(

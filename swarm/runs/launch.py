@@ -248,14 +248,13 @@ class RunHandle:
         cfg = self.cfg
         assert cfg.mocap is not None
         opts = cfg.mocap.options
-        args = [
-            "-m",
-            "swarm.world.sitl_cf",
-            "--mocap-port",
-            opts["port"],
-            "--firmware",
-            opts.get("firmware", "2026.04"),
-        ]
+        if opts.get("firmware") == "crazysim":  # the firmware itself, one cf2 per drone (swarm.world.sitl_fw)
+            cf2 = ["--cf2", opts["cf2"]] if opts.get("cf2") else []
+            args = ["-m", "swarm.world.sitl_fw", "--mocap-port", opts["port"], *cf2, "--until-handed-back"]
+            args += ["--telemetry", str(self.out / "firmware")]
+        else:  # the stand-in (swarm.world.sitl_cf)
+            args = ["-m", "swarm.world.sitl_cf", "--mocap-port", opts["port"]]
+            args += ["--firmware", opts.get("firmware", "2026.04")]
         ports: list[int] = []
         for a in cfg.agents:
             if a.crazyflie is None:

@@ -80,6 +80,7 @@ OUTBOX_MAX = 400  # queued client packets beyond this are dropped (counted)
 MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
 MONITOR_PERIOD_10MS = 1  # 100 Hz
 HANDED_BACK_SILENT_S = 3.0
+BOOT_TIMEOUT_S = 5.0  # a firmware without its gyro bias this long after its hello is restarted (about 1 s normally)
 CF2_ENV = "C3SWARM_CF2"
 
 # CRTP (crtp.h): header = port << 4 | link bits 0b11 << 2 | channel
@@ -226,6 +227,7 @@ class LogMonitor:
 
 @dataclass
 class Counters:
+    restarts: int = 0  # firmware processes restarted after stalling at boot
     sensor_packets: int = 0
     late_ticks: int = 0  # ticks that stepped the body more than once (the loop was late) ...
     missed_packets: int = 0  # ... and the sensor packets not sent for it
@@ -250,6 +252,8 @@ class FirmwareDrone:
     fw_sock: socket.socket = field(init=False)
     cl_sock: socket.socket = field(init=False)
     proc: subprocess.Popen[bytes] | None = None
+    log: IO[bytes] | int = subprocess.DEVNULL  # the firmware's console
+    hello_s: float = math.inf  # monotonic time of the firmware's hello
     fw_addr: tuple[str, int] | None = None
     client: tuple[str, int] | None = None
     calibrated: bool = False  # the firmware found its gyro bias
@@ -275,6 +279,7 @@ class FirmwareDrone:
 
     def start(self, log: IO[bytes] | int) -> None:
         """Start the firmware, a UDP client of :attr:`fw_sock` (it dies with this process)."""
+        self.log = log
         argv = [str(self.cf2), str(self.fw_sock.getsockname()[1]), "127.0.0.1"]
         stdbuf = shutil.which("stdbuf")  # its console (printf) line by line into the log
         self.proc = subprocess.Popen(
@@ -284,6 +289,22 @@ class FirmwareDrone:
             stderr=subprocess.STDOUT,
             preexec_fn=_die_with_parent,
         )
+
+    def check_boot(self, now: float) -> None:
+        """Restart a firmware that has not found its gyro bias :data:`BOOT_TIMEOUT_S` after its
+        hello: one in about ten boots of this build on two busy cores stalls there, spinning
+        (the FreeRTOS POSIX port), and never would."""
+        if self.calibrated or now - self.hello_s < BOOT_TIMEOUT_S or self.proc is None:
+            return
+        print(f"sitl_fw: the firmware of {self.name} stalled at boot (no gyro bias in {BOOT_TIMEOUT_S:.0f} s): "
+              "restarting it", flush=True)  # fmt: skip
+        self.proc.kill()
+        self.proc.wait()
+        self.fw_addr, self.hello_s, self.monitor = None, math.inf, LogMonitor()
+        self.body.pwm[:] = 0.0
+        self.counters.restarts += 1
+        self.write({"k": "pkt", "t": now, "what": "firmware_restarted"})
+        self.start(self.log)
 
     def write(self, record: dict[str, Any]) -> None:
         if self.trace is not None:
@@ -318,10 +339,10 @@ class FirmwareDrone:
     def _from_firmware(self, pk: bytes, addr: tuple[str, int], now: float) -> None:
         if self.fw_addr is None:
             if pk == b"\xf3":  # the firmware's hello (socketlink.c): answered, then it talks CRTP
-                self.fw_addr = addr
+                self.fw_addr, self.hello_s = addr, now
                 self.fw_sock.sendto(b"\xf3", addr)
             return
-        if not pk:
+        if not pk or addr != self.fw_addr:  # (a restarted firmware's predecessor)
             return
         port, ch, data = pk[0] >> 4, pk[0] & 0x03, pk[1:]
         if port == PORT_SIM:  # the simulator's port: motor PWM, or "gyro bias found" (one byte)
@@ -488,6 +509,7 @@ def run(drones: list[FirmwareDrone], mocap_port: int, stop: threading.Event, unt
                 d.body_record(now)
                 if k // PHYSICS_HZ != (k - steps) // PHYSICS_HZ:  # once a second
                     d.sample_cpu()
+                d.check_boot(now)
                 if d.proc is not None and d.proc.poll() is not None:
                     raise RuntimeError(f"the firmware of {d.name} exited with {d.proc.returncode}")
             if until_handed_back and all(
@@ -622,6 +644,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: done.set())  # swarm run ends it with SIGTERM: a clean end
     fleet: list[FirmwareDrone] = []
     code = 0
+    wall0, cpu0 = time.monotonic(), time.process_time()
     FirmwareBody(np.zeros(3), 0.0).step(0.001)  # load the compiled step now, not in the 1 kHz loop (about 1 s)
     try:
         for n, p, x, yaw in map(parse_drone, args.drone):
@@ -652,6 +675,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"firmware cpu {d.cpu_s:.1f} s; {d.counters}",
                 flush=True,
             )
+        summary = {"wall_s": time.monotonic() - wall0, "relay_cpu_s": time.process_time() - cpu0,
+                   "firmware_cpu_s": {d.name: d.cpu_s for d in fleet}}  # fmt: skip
+        print("SITL_FW_SUMMARY " + orjson.dumps(summary).decode(), flush=True)
     return code
 
 

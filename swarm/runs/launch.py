@@ -206,7 +206,11 @@ class RunHandle:
             h._session = tp.open_session(launcher_conf)
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
-            h._start_sitl()
+            try:
+                h._start_sitl()
+            except BaseException:  # no drone answered: stop what was started (the router, the drones)
+                h._stop_all()
+                raise
         live = ["--live", str(live_port)] if live_port is not None else []
         h._spawn("recorder", ["-m", "swarm.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
         h._spawn(

@@ -75,7 +75,9 @@ from swarm.world.fw_body import FirmwareBody
 
 PHYSICS_HZ = 1000.0  # the firmware's stabilizer rate (stabilizer.c: one loop per sensor packet)
 MOCAP_HZ = 100.0
-FORWARD_PER_TICK = 2  # client and monitor packets into the firmware per millisecond (its link queue holds 5)
+FORWARD_PER_TICK = 1  # client and monitor packets into the firmware per millisecond, beside the sensor packet:
+# its link queue holds 5, and the task that fills it and the one that empties it share a priority (config.h), so
+# they take turns at the 1 ms tick
 OUTBOX_MAX = 400  # queued client packets beyond this are dropped (counted)
 MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
 MONITOR_PERIOD_10MS = 1  # 100 Hz

@@ -17,8 +17,11 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -54,10 +57,10 @@ def warm_kernels() -> None:
 
 
 def _firmware_scenario(cf2: Path, **over: object) -> ScenarioConfig:
-    """configs/mixed_firmware.yaml with the test's firmware and a fixed 11 s (the simulated drones
+    """configs/mixed_firmware.yaml with the test's firmware and a fixed 12.5 s (the simulated drones
     brake on a late command: a stalled CI machine is not what this tests)."""
     base: dict[str, object] = {
-        "duration_s": 11.0,
+        "duration_s": 12.5,
         "stop_when_all_reached": False,
         "time": {"late_command": "brake", "start_timeout_s": 120.0},
         "mocap": {"options": {"cf2": str(cf2)}},
@@ -95,7 +98,7 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         # the hold's last 1.5 s before the landing (the simulated drones are through by then: crossed)
         end = t[np.flatnonzero(x[:, 2] > 0.9)[-1]] - 0.5
         held = (t > end - 1.5) & (t < end)
-        assert held.sum() > 100 and crossed < cfg.duration_s - 2.5, (name, held.sum(), crossed)
+        assert held.sum() > 100 and crossed < cfg.duration_s - 3.0, (name, held.sum(), crossed)
         z = x[held, 2]
         assert np.abs(z - 1.0).max() < 0.03 and abs(z.mean() - 1.0) < 0.01, (name, z.min(), z.max(), z.mean())
         assert np.abs(yaw[held]).max() < 3.0  # it turned to its yaw
@@ -161,7 +164,7 @@ def test_the_firmware_locks_after_an_emergency_stop_and_its_watchdog_after_the_g
     st = np.array(tr.fw_state)
     level = _first(tr.fw_t, st == "level_out", last_sp) - last_sp
     locked = _first(tr.fw_t, st == "locked", last_sp) - last_sp
-    assert 0.45 < level < 0.7 and 1.95 < locked < 2.25, (level, locked, tr.transitions())
+    assert 0.45 < level < 0.8 and 1.95 < locked < 2.4, (level, locked, tr.transitions())  # (its supervisor: 25 Hz)
     between = (tr.body_t > last_sp + level + 0.05) & (tr.body_t < last_sp + locked - 0.05)
     assert tr.body_thrust_N[between].min() > 0.8 * WEIGHT_N  # levelled out with its thrust kept
     assert tr.body_thrust_N[tr.body_t > last_sp + locked + 0.05].max() == 0.0 and tr.body_x[-1, 2] == 0.0
@@ -177,36 +180,65 @@ def swarm_cf(*args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
     )
 
 
-@pytest.fixture
-def firmware_drone(cf2, tmp_path):
-    """One firmware drone on the floor at udp://127.0.0.1:PORT, ready (it answers a scan probe)."""
-    relay = subprocess.Popen(
+def _relay(cf2: Path, out: Path) -> subprocess.Popen[bytes]:
+    """One firmware drone on the floor at udp://127.0.0.1:PORT (swarm.world.sitl_fw)."""
+    return subprocess.Popen(
         [sys.executable, "-m", "swarm.world.sitl_fw", "--cf2", str(cf2), "--mocap-port", "0",
-         "--drone", f"cfA,{PORT},0,0,0,0", "--telemetry", str(tmp_path / "firmware")],
+         "--drone", f"cfA,{PORT},0,0,0,0", "--telemetry", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
     )  # fmt: skip
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    probe.settimeout(0.1)
-    deadline = time.monotonic() + 60.0
-    try:
+
+
+def _wait_ready(relay: subprocess.Popen[bytes], timeout_s: float = 60.0) -> float:
+    """Until the drone answers a scan probe (it does once its firmware is calibrated and logged);
+    returns how long that took [s]."""
+    t0 = time.monotonic()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.settimeout(0.1)
         while True:
             assert relay.poll() is None, relay.stdout.read().decode() if relay.stdout else ""
-            assert time.monotonic() < deadline, "the firmware drone never became ready"
+            assert time.monotonic() - t0 < timeout_s, "the firmware drone never became ready"
             probe.sendto(b"\xff", ("127.0.0.1", PORT))
             try:
                 probe.recv(64)
-                break
+                return time.monotonic() - t0
             except TimeoutError:
                 continue
+
+
+def _stop(relay: subprocess.Popen[bytes]) -> None:
+    os.killpg(relay.pid, signal.SIGTERM)
+    try:
+        relay.wait(10)
+    except subprocess.TimeoutExpired:
+        os.killpg(relay.pid, signal.SIGKILL)
+        relay.wait()
+
+
+@pytest.fixture
+def firmware_drone(cf2, tmp_path):
+    """One firmware drone on the floor at udp://127.0.0.1:PORT, ready."""
+    relay = _relay(cf2, tmp_path / "firmware")
+    try:
+        _wait_ready(relay)
         yield f"udp://127.0.0.1:{PORT}", tmp_path
     finally:
-        probe.close()
-        os.killpg(relay.pid, signal.SIGTERM)
-        try:
-            relay.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(relay.pid, signal.SIGKILL)
-            relay.wait()
+        _stop(relay)
+
+
+def test_a_firmware_that_stalls_at_boot_is_restarted(cf2, tmp_path):
+    """A firmware stopped after its hello, before it has its gyro bias (as one in about ten boots
+    of this build stalls on two busy cores), is restarted by the relay: the drone is ready all the same."""
+    relay = _relay(cf2, tmp_path)
+    try:
+        assert relay.stdout is not None
+        assert relay.stdout.readline().startswith(b"sitl_fw: cfA at")  # printed after the firmware's hello
+        children = Path(f"/proc/{relay.pid}/task/{relay.pid}/children").read_text().split()
+        os.kill(int(children[0]), signal.SIGSTOP)  # calibrating takes a second of IMU packets: it has not yet
+        assert _wait_ready(relay) > 5.0  # after the restart, not before
+    finally:
+        _stop(relay)
+    assert read_trace(tmp_path / "cfA.jsonl").end["restarts"] >= 1  # (a restarted one may stall again: 1 in 20)
 
 
 def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_drone):
@@ -228,19 +260,39 @@ def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_dron
     states = swarm_cf("status", uri, env=env).stdout.strip().split(", ")
     assert "Can fly" in states and "Is locked" not in states, states  # the check let the supervisor land it
 
-    import cflib.crtp
-    from cflib.crazyflie import Crazyflie
     from cflib.crazyflie.localization import Localization
-    from cflib.crazyflie.syncCrazyflie import SyncCrazyflie
 
-    cflib.crtp.init_drivers()
-    with SyncCrazyflie(uri, cf=Crazyflie(rw_cache=str(tmp / "cflib"))) as scf:
-        p = scf.cf.param
-        assert scf.cf.platform.get_protocol_version() == 7
+    cf = _cflib_connect(uri, tmp / "cflib")
+    try:
+        p = cf.param
+        assert cf.platform.get_protocol_version() == 7
         assert float(p.get_value("quadSysId.pwmToThrustA")) == pytest.approx(CRAZYSIM.thrust.a_N, rel=1e-6)
         assert float(p.get_value("quadSysId.pwmToThrustB")) == pytest.approx(CRAZYSIM.thrust.b_N, rel=1e-6)
         assert float(p.get_value("quadSysId.thrustToTorque")) == pytest.approx(CRAZYSIM.thrust_to_torque_m, rel=1e-6)
         assert float(p.get_value("quadSysId.armLength")) == pytest.approx(CRAZYSIM.arm_m, rel=1e-6)
-        Localization(scf.cf).send_emergency_stop()
+        with warnings.catch_warnings():  # (cflib: protocol 7 has no supervisor port, this form is the one it knows)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            Localization(cf).send_emergency_stop()
+    finally:
+        cf.close_link()
     states = swarm_cf("status", uri, env=env).stdout.strip().split(", ")
     assert "Is locked" in states, states
+
+
+def _cflib_connect(uri: str, cache: Path, timeout_s: float = 20.0) -> Any:
+    """cflib's full connection (log and parameter tables, every parameter's value). Over UDP
+    cflib asks nothing again (udpdriver.py: needs_resending False), so one lost answer stalls a
+    connection for good: a second try follows a first that is not through in ``timeout_s``."""
+    import cflib.crtp
+    from cflib.crazyflie import Crazyflie
+
+    cflib.crtp.init_drivers()
+    for _ in range(2):
+        cf = Crazyflie(rw_cache=str(cache))
+        done = threading.Event()
+        cf.fully_connected.add_callback(lambda _uri, done=done: done.set())
+        cf.open_link(uri)
+        if done.wait(timeout_s):
+            return cf
+        cf.close_link()
+    raise AssertionError(f"cflib did not connect to {uri} in two tries of {timeout_s} s")

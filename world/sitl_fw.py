@@ -294,7 +294,7 @@ class FirmwareDrone:
 
     def check_boot(self, now: float) -> None:
         """Restart a firmware that has not found its gyro bias :data:`BOOT_TIMEOUT_S` after its
-        hello: one in about ten boots of this build on two busy cores stalls there, spinning
+        hello: a few boots in a hundred of this build on two busy cores stall there, spinning
         (the FreeRTOS POSIX port), and never would."""
         if self.calibrated or now - self.hello_s < BOOT_TIMEOUT_S or self.proc is None:
             return

@@ -227,7 +227,7 @@ def firmware_drone(cf2, tmp_path):
 
 
 def test_a_firmware_that_stalls_at_boot_is_restarted(cf2, tmp_path):
-    """A firmware stopped after its hello, before it has its gyro bias (as one in about ten boots
+    """A firmware stopped after its hello, before it has its gyro bias (as a few boots in a hundred
     of this build stalls on two busy cores), is restarted by the relay: the drone is ready all the same."""
     relay = _relay(cf2, tmp_path)
     try:

@@ -16,14 +16,17 @@ from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from swarm.crazyflie_fw import pwm_per_newton
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, Layout, QuadParams
 from swarm.planning import PlannerSettings
+from swarm.realism.settings import RealismSettings
 from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig
+from swarm.strict import Strict as _Strict
+from swarm.strict import merge as _merge
 
 SCHEMA_VERSION = 1
 
@@ -35,25 +38,6 @@ class TimeMode(StrEnum):
     """The world steps only when every live agent has answered tick k (deterministic)."""
     REALTIME = "realtime"
     """The world runs on the wall clock; agents run on each new measurement."""
-
-
-_NUMBERS = (float, int, float | None, int | None)
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _numbers_are_numbers(cls, data: Any) -> Any:
-        """A number field takes a number, not ``true`` (which pydantic reads as 1) or a
-        string (``"5"``): a YAML typo must not fly as a different value."""
-        if isinstance(data, dict):
-            for name, f in cls.model_fields.items():
-                v = data.get(name)
-                if f.annotation in _NUMBERS and (isinstance(v, bool | str)):
-                    raise ValueError(f"{name}: must be a number, got {v!r}")
-        return data
 
 
 def _finite(v: Any) -> Any:
@@ -492,6 +476,13 @@ class LimitSettings(_Strict):
         return self.max_agents or AGENTS_PER_CPU * machine_cpus()
 
 
+class WorldSettings(_Strict):
+    """The simulated world."""
+
+    # its imperfections: downwash, drag, motors, wind, sensing, comms (swarm.realism.settings)
+    realism: RealismSettings = RealismSettings()
+
+
 class ScenarioConfig(_Strict):
     version: Literal[1]
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -509,6 +500,7 @@ class ScenarioConfig(_Strict):
     mocap: MocapSettings | None = None  # required when any agent is a real Crazyflie
     gui: bool = False
     limits: LimitSettings = LimitSettings()
+    world: WorldSettings = WorldSettings()
 
     @model_validator(mode="after")
     def _machine(self) -> ScenarioConfig:
@@ -737,13 +729,6 @@ def _surface_distance(o: ObstacleConfig, pt: list[float]) -> float:
         ax = ax / np.linalg.norm(ax)
         d = d - (d @ ax) * ax
     return float(np.linalg.norm(d)) - o.radius_m
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:

@@ -4,7 +4,7 @@ estimator each agent runs on them, so an agent acts on an estimate, never on gro
 :class:`MocapSensor` (the world's side) captures every drone at the frame rate, adds
 position noise [m] and attitude noise [rad] (a rotation by a normal rotation vector),
 drops a frame with a probability, and hands a frame over ``latency_s`` after its capture
-(at the first :meth:`MocapSensor.step` at or after that time). Every draw is a pure
+(stamped with that time, handed over at the first :meth:`MocapSensor.step` at or after it). Every draw is a pure
 function of (seed, drone, frame number) (:mod:`swarm.realism.rng`).
 
 :class:`Estimator` (the agent's side) is what the Crazyflie's own EKF does with external
@@ -56,7 +56,7 @@ class MocapFrame(NamedTuple):
     drone: int  # index in the plant's order
     seq: int  # frame number: captured at seq / rate_hz (on the physics grid)
     t_capture_s: float  # when it was captured (ground truth; an estimator must not use it)
-    t_arrival_s: float  # when it reached the receiving computer
+    t_arrival_s: float  # when it reached the receiving computer (capture + latency; handed over at the next step)
     x_w: FloatArray  # (3,) m, world, measured
     q: FloatArray  # (4,) scalar-last, measured
 
@@ -119,7 +119,7 @@ class MocapSensor:
             self._next_seq = seq + 1
         out = []
         while self._in_flight and self._in_flight[0][0] <= t_s + 1e-12:
-            out.append(heapq.heappop(self._in_flight)[3]._replace(t_arrival_s=t_s))
+            out.append(heapq.heappop(self._in_flight)[3])
         return out
 
     def _capture(self, seq: int, t_s: float, x_w: FloatArray, q: FloatArray) -> None:
@@ -224,6 +224,7 @@ class Estimator:
     P: FloatArray = field(init=False)  # (3, 2, 2)
     t_fused_s: float = field(init=False)
     stale: int = field(init=False, default=0)  # frames older than the last fused, dropped
+    _seq: int = field(init=False, default=-1)
     _cmds: list[tuple[float, FloatArray]] = field(init=False)  # (from t [s], a [m/s^2, world])
     _q: FloatArray = field(init=False)
     _q_t_s: float = field(init=False)
@@ -264,22 +265,25 @@ class Estimator:
                 _predict(X, P, a, hi - lo, qd)
 
     def frame(self, f: MocapFrame) -> bool:
-        """Fuse a frame; False (and counted) if it is no newer than the last one fused."""
+        """Fuse a frame; False (and counted) if it is older than the last one fused (by its
+        frame number, or by its capture time as the agent reckons it)."""
         t_c = f.t_arrival_s - self.p.latency_s
-        if t_c <= self.t_fused_s:
+        if f.seq <= self._seq or t_c < self.t_fused_s:
             self.stale += 1
             return False
+        self._seq = f.seq
         self._propagate(self.X, self.P, self.t_fused_s, t_c)
         _update(self.X, self.P, np.asarray(f.x_w, float), self.p.r2_m2)
         self.t_fused_s = t_c
         while len(self._cmds) > 1 and self._cmds[1][0] <= t_c:
             self._cmds.pop(0)
-        q = np.asarray(f.q, float)
+        q = np.asarray(f.q, float) / np.linalg.norm(f.q)
         dt = t_c - self._q_t_s
-        rate = quat_log(quat_mul(quat_conj(self._q), q)) / dt
-        a = dt / (self.p.rate_filter_s + dt) if self.p.rate_filter_s > 0 else 1.0
-        self._Omega_b = self._Omega_b + a * (rate - self._Omega_b)
-        self._q, self._q_t_s = q / np.linalg.norm(q), t_c
+        if dt > 0.0:
+            rate = quat_log(quat_mul(quat_conj(self._q), q)) / dt
+            a = dt / (self.p.rate_filter_s + dt) if self.p.rate_filter_s > 0 else 1.0
+            self._Omega_b = self._Omega_b + a * (rate - self._Omega_b)
+        self._q, self._q_t_s = q, t_c
         return True
 
     def estimate(self, t_s: float, Omega_b: FloatArray | None = None) -> Estimate:

@@ -142,12 +142,14 @@ class Wind:
         self.steady_w = np.asarray(p.steady_w_mps, float)
         self.wind_w = np.tile(self.steady_w, (n, 1))
         """(n, 3) [m/s, world]: the wind at each drone now."""
-        if not p.gusts:
+        self._gusts = p.gusts
+        if not self._gusts:
             return
         self._fields = 1 if p.shared else n
         sigma, T = p.scales()
         A, B, C = dryden_state_space(sigma, T)
-        self.Ad, self.Ld = discretise(A, B, dt_s)
+        Ad, Ld = discretise(A, B, dt_s)
+        self._AdT, self._LdT = np.ascontiguousarray(Ad.T), np.ascontiguousarray(Ld.T)
         P = sla.solve_continuous_lyapunov(A, -B @ B.T)
         x0 = normals(seed, Stream.WIND, np.arange(self._fields), 0, 5)
         self.x = x0 @ _psd_sqrt((P + P.T) / 2.0).T  # (fields, 5), stationary from the start
@@ -163,10 +165,10 @@ class Wind:
 
     def step(self) -> FloatArray:
         """Advance one step; the wind (n, 3) [m/s, world] at each drone."""
-        if not self.p.gusts:
+        if not self._gusts:
             return self.wind_w
         self.k += 1
         noise = normals(self.seed, Stream.WIND, np.arange(self._fields), self.k, 5)
-        self.x = self.x @ self.Ad.T + noise @ self.Ld.T
+        self.x = self.x @ self._AdT + noise @ self._LdT
         self._update()
         return self.wind_w

@@ -5,6 +5,8 @@
 * ``swarm.model``, ``swarm.rotation``, ``swarm.control``, ``swarm.crazyflie_fw``: the
   quadrotor, its reference controllers and the Crazyflie firmware's rules.
 * ``swarm.config``: scenario files, checked.
+* ``swarm.realism``: the world's imperfections (aerodynamics, motors, wind, sensing,
+  communication) for both simulators; pure, no I/O.
 * ``swarm.net``: the runtime's wiring (Zenoh transport, messages, access control,
   neighbour tables, bundles).
 * ``swarm.offline``: what runs without the swarm's processes (the in-process closed loop,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Generic, TypeVar
@@ -24,6 +25,7 @@ import numpy as np
 from numba import njit
 
 from swarm.realism.rng import Stream, hash5, name_word, word
+from swarm.rotation import IntArray
 
 LOST = -1
 """The fate of a message that never arrives."""
@@ -75,6 +77,18 @@ def _fate(seed, stream, pair, kind_tick, delay_s, jitter_s, loss, tick_s):
     return max(0, math.ceil(d - 1e-9))
 
 
+@njit(cache=True)
+def _fate_matrix(seed, stream, words, kind_tick, delay_s, jitter_s, loss, tick_s, out):
+    n = words.shape[0]
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                pair = words[i] * np.uint64(0x9E3779B1) ^ words[j]
+                out[i, j] = _fate(seed, stream, pair, kind_tick, delay_s, jitter_s, loss, tick_s)
+            else:
+                out[i, j] = 0
+
+
 class CommsModel:
     """The fates of a run's messages; ``tick_s`` is the control period [s]."""
 
@@ -98,19 +112,29 @@ class CommsModel:
         if link.perfect:
             return 0
         pair = word(self._word(sender) * 0x9E3779B1 ^ self._word(receiver))
-        kind_tick = word((int(kind) << 56) ^ tick)
-        return int(
-            _fate(
-                self.seed,
-                np.uint64(int(Stream.COMMS)),
-                pair,
-                kind_tick,
-                link.delay_s,
-                link.jitter_s,
-                link.loss_fraction,
-                self.tick_s,
-            )
-        )
+        return int(_fate(self.seed, _COMMS, pair, _kind_tick(kind, tick), *self._link(link)))
+
+    def fate_matrix(self, ids: Sequence[str], kind: MessageKind, tick: int) -> IntArray:
+        """(n, n): entry (i, j) is :meth:`fate` of ``ids[i]``'s message to ``ids[j]`` (0 on
+        the diagonal); one compiled pass, for a simulator that routes every pair's messages."""
+        n = len(ids)
+        out = np.zeros((n, n), dtype=np.intp)
+        link = self.p.link(kind)
+        if link.perfect:
+            return out
+        words = np.array([self._word(i) for i in ids], dtype=np.uint64)
+        _fate_matrix(self.seed, _COMMS, words, _kind_tick(kind, tick), *self._link(link), out)
+        return out
+
+    def _link(self, link: LinkParams) -> tuple[float, float, float, float]:
+        return link.delay_s, link.jitter_s, link.loss_fraction, self.tick_s
+
+
+_COMMS = np.uint64(int(Stream.COMMS))
+
+
+def _kind_tick(kind: MessageKind, tick: int) -> np.uint64:
+    return word((int(kind) << 56) ^ tick)
 
 
 T = TypeVar("T")

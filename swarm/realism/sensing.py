@@ -35,6 +35,9 @@ from swarm.errors import InputError
 from swarm.realism.rng import Stream, normals, uniform, word
 from swarm.rotation import FloatArray
 
+MAX_GAP_S = 0.5
+"""An estimate this long after the last frame moves the filter's own state forward (:meth:`Estimator.estimate`)."""
+
 FIRMWARE_PREDICT_S = 0.01
 """The Crazyflie EKF's prediction period (``estimator_kalman.c``: ``PREDICT_RATE RATE_100_HZ``)."""
 
@@ -264,6 +267,13 @@ class Estimator:
             if hi > lo:
                 _predict(X, P, a, hi - lo, qd)
 
+    def _advance(self, t_s: float) -> None:
+        """Predict the filter's own state to ``t_s`` and forget the commands before it."""
+        self._propagate(self.X, self.P, self.t_fused_s, t_s)
+        self.t_fused_s = t_s
+        while len(self._cmds) > 1 and self._cmds[1][0] <= t_s:
+            self._cmds.pop(0)
+
     def frame(self, f: MocapFrame) -> bool:
         """Fuse a frame; False (and counted) if it is older than the last one fused (by its
         frame number, or by its capture time as the agent reckons it)."""
@@ -272,11 +282,8 @@ class Estimator:
             self.stale += 1
             return False
         self._seq = f.seq
-        self._propagate(self.X, self.P, self.t_fused_s, t_c)
+        self._advance(t_c)
         _update(self.X, self.P, np.asarray(f.x_w, float), self.p.r2_m2)
-        self.t_fused_s = t_c
-        while len(self._cmds) > 1 and self._cmds[1][0] <= t_c:
-            self._cmds.pop(0)
         q = np.asarray(f.q, float) / np.linalg.norm(f.q)
         dt = t_c - self._q_t_s
         if dt > 0.0:
@@ -289,7 +296,13 @@ class Estimator:
     def estimate(self, t_s: float, Omega_b: FloatArray | None = None) -> Estimate:
         """The state at ``t_s`` [s]: the filter predicted forward from the last frame's
         capture time with the commands since; ``Omega_b`` (3,) [rad/s, body]: the
-        drone's gyro, if the caller has it (else the rates from the frames)."""
+        drone's gyro, if the caller has it (else the rates from the frames).
+
+        With no frame for :data:`MAX_GAP_S`, the filter's own state is first predicted to
+        ``t_s - MAX_GAP_S`` (frames captured before that are then stale), so a long loss
+        of motion capture costs no more per call than a short one."""
+        if t_s - self.t_fused_s > MAX_GAP_S:
+            self._advance(t_s - MAX_GAP_S)
         X, P = self.X.copy(), self.P.copy()
         if t_s > self.t_fused_s:
             self._propagate(X, P, self.t_fused_s, t_s)

@@ -35,6 +35,15 @@ def test_same_seed_same_schedule_in_any_order():
     assert [backwards[(199 - k) * n + j] for k in range(200) for j in range(n)] == a
 
 
+def test_the_fate_matrix_is_every_pairs_fate():
+    c = CommsModel(LAB, 5, TICK)
+    for k in (0, 7, 10**6):
+        M = c.fate_matrix(IDS, MessageKind.COMMAND, k)
+        want = [[c.fate(a, b, MessageKind.COMMAND, k) if a != b else 0 for b in IDS] for a in IDS]
+        assert M.tolist() == want
+    assert not CommsModel(CommsParams(), 5, TICK).fate_matrix(IDS, MessageKind.STATE, 3).any()
+
+
 def test_different_seeds_kinds_and_directions_differ():
     assert schedule(3) != schedule(4)
     c = CommsModel(CommsParams(state=LAB.command, command=LAB.command), 3, TICK)

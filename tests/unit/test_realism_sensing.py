@@ -183,3 +183,16 @@ def test_a_frame_no_newer_than_the_last_is_refused_and_bad_commands_raise():
     est.command(0.5, np.zeros(3))
     with pytest.raises(InputError):
         est.command(0.4, np.zeros(3))
+
+
+def test_a_long_loss_of_motion_capture_keeps_the_cost_and_the_uncertainty_honest():
+    est = Estimator(EstimatorParams(position_noise_m=0.001), np.zeros(3), Q0)
+    for k in range(1200):  # 10 s of commands at 120 Hz and no frame
+        t = k / 120
+        e = est.estimate(t)
+        est.command(t, np.array([0.1, 0.0, 0.0]))
+    assert len(est._cmds) <= 61  # the last half second's, not ten seconds'
+    t = 1199 / 120
+    assert e.x_w[0] == pytest.approx(0.05 * t**2, rel=0.01)  # predicted with the commands all along
+    assert e.pos_std_m[0] > 0.5  # and known to be poor: sigma grows as sqrt(q t^3 / 3)
+    assert np.all(np.isfinite(e.x_w)) and np.all(np.isfinite(e.pos_std_m))

@@ -279,12 +279,10 @@ def plans_round_walls(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
 def follows(route: Route | None) -> bool:
     """Whether the right-hand tie-break of an agent on ``route`` follows the agents ahead
     flying its way rather than turn from them (``swarm.control.right_hand_bias``): on a path
-    through a lane (:func:`keep_right`). A lane is single file with a wall on its right; turning
-    right from the agent ahead pushed a flow's followers out of its queue at the corridor's
-    mouth and into the wall beside it (12 corridor runs: 10.7 s mean arrival against 8.8 s
-    following). The lanes themselves keep opposite flows apart, which is what the tie-break
-    is for. Elsewhere the tie-break is as it was: a crowd abreast at a doorway was slower
-    following (mean time ratio 1.02 to 1.08)."""
+    through a lane (:func:`swarm.planning.keep_right`). A lane is single file with a wall on its
+    right, where turning right from the agent ahead pushes a flow's followers out of its queue;
+    the lanes themselves keep opposite flows apart. Elsewhere the tie-break turns from the agents
+    ahead (docs/design.md, "Reference paths"; the measurements in EXPERIMENTS.md section 4)."""
     return route is not None and route.lanes
 
 

@@ -22,10 +22,8 @@ whose target speed ``u`` [m/s] over its class-K gain ``g`` [1/s] is at most this
 stretched in proportion beyond it (:func:`obstacle_horizon_s`). Approached at ``u`` from
 ``|p|``, a pillar's allowance ``s^2 / (2 tau)`` shrinks at up to ``u |p| / tau``, faster than
 the gain lets h fall once ``s^2 < 2 u |p| / g``; near a wall many rows then ask at once for more
-than the inputs give, by an amount that falls as ``1 / tau``. At the paper's gain 1 and 0.8 m/s
-a 3 s horizon's least-violation commands ran away in a two-way corridor (a contact and 4-5
-margin violations at each rho), where 6 s brings all eight home without either and no horizon
-at all brings two (EXPERIMENTS.md section 4, "Among walls")."""
+than the inputs give, by an amount that falls as ``1 / tau`` (the measurements: EXPERIMENTS.md
+section 4, "Among walls")."""
 
 
 def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float | None:
@@ -56,11 +54,10 @@ def filter_config_for(
 ) -> FilterConfig:
     """The agent's filter settings at command ``level`` among the static ``obstacles``: its
     configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
-    flying a lane (:func:`keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
-    and no velocity buffer. A lane runs a few centimetres beyond the safety radius from a
-    wall and from the other flow's lane, on purpose; the buffer, which asks every row for
-    about 0.1 m/s of velocity margin, pushed drones off their lanes towards the middle (into
-    the other flow's) or sped them up to 3 m/s (docs/design.md, "Reference paths")."""
+    flying a lane (:func:`swarm.planning.keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
+    and no velocity buffer: a lane runs a few centimetres beyond the safety radius from a wall
+    and from the other flow's lane, on purpose, and the buffer asks every row for about 0.1 m/s
+    of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths")."""
     cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)

@@ -242,9 +242,8 @@ class World:
         the kernel cache is cold (the first run after an install or an edit: seconds). Do
         both before any tick, with the argument types the ticks use, or a realtime world
         starts behind the wall clock: a real drone's motion-capture frames, stamped on that
-        clock, then meet simulated drones from the past (measured on
-        ``configs/mixed_sitl.yaml`` with a cold cache: tick 0 took 1.5 to 2.5 s, and the real
-        drones' rows went down to h = -0.09)."""
+        clock, then meet simulated drones from the past
+        (``tests/integration/test_world_warm_up.py``)."""
         self.physics.warm_up()
         min_pair_distance(np.zeros((2, 3)))  # (measure: the closest pair)
         warm_up()

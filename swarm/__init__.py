@@ -22,9 +22,8 @@ from pathlib import Path as _Path
 
 if not _os.environ.get("NUMBA_CACHE_DIR"):  # (a cache elsewhere is the caller's to manage)
     from swarm.kernel_cache import clear_stale as _clear_stale
-    from swarm.kernel_cache import source_dirs as _source_dirs
 
-    _clear_stale(_source_dirs(_Path(__file__).resolve().parent))
+    _clear_stale([_Path(__file__).resolve().parent])
 
 from swarm._moved import install as _install_moved
 

@@ -200,7 +200,7 @@ class PlannerConfig(_Strict):
     lanes: bool = True
     # s: on a path planned round walls, the filter's obstacle rows relax the cones of obstacles more
     # than about this far in time with the horizon allowance (filter.obstacle_horizon_s), stretched by
-    # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.planning.obstacle_horizon_s); None: never
+    # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.tuning.obstacle_horizon_s); None: never
     obstacle_horizon_s: float | None = Field(3.0, gt=0, allow_inf_nan=False)
 
     def settings(self) -> PlannerSettings:

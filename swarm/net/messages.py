@@ -120,6 +120,65 @@ class Message:
         return self.body[name]
 
 
+@dataclass(frozen=True)
+class StateBody:
+    """An agent's state message body: what a neighbour needs of it."""
+
+    x_b_w: np.ndarray  # (3,) m, world: body centre
+    v_b_w: np.ndarray  # (3,) m/s, world: its velocity
+    radius_m: float  # bounding radius
+    solo: bool  # not doing its share of a pair's avoidance now (its neighbours take all of it)
+
+    def fields(self) -> dict[str, Any]:
+        return {"x": self.x_b_w, "v": self.v_b_w, "r": self.radius_m, "solo": self.solo}
+
+
+@dataclass(frozen=True)
+class CommandBody:
+    """An agent's command message body: the command of its level, and the filter's report of
+    this tick for the record (schema ``command``)."""
+
+    level: str  # "attitude": u = roll [rad], pitch [rad], yaw rate [rad/s], thrust [N]; "rotors": f (4,) [N]
+    u: np.ndarray  # (4,)
+    status: str  # the filter's status ("ok", "infeasible", "failed"; "ok" when unfiltered)
+    intervention: float = 0.0  # |u - u_ref| in input units
+    solve_us: float = 0.0  # the filter call's time [us]
+    row_ids: tuple[str, ...] = ()  # each row's name
+    h_rows: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n,) m^2/s: h of each row
+    min_h: float = 1e9  # m^2/s: the smallest exact h so far (1e9: none yet)
+    infeasible: int = 0  # ticks so far that were not a clean solve
+    goal_reached: bool = False
+
+    @staticmethod
+    def zero(level: str = "attitude") -> CommandBody:
+        """Motors off: a zero command of ``level``, a clean tick."""
+        return CommandBody(level, np.zeros(4), "ok")
+
+    def fields(self) -> dict[str, Any]:
+        return {
+            "level": self.level,
+            "u": self.u,
+            "intervention": self.intervention,
+            "status": self.status,
+            "solve_us": self.solve_us,
+            "row_ids": list(self.row_ids),
+            "h_rows": self.h_rows,
+            "min_h": self.min_h,
+            "infeasible": self.infeasible,
+            "goal_reached": self.goal_reached,
+        }
+
+
+def encode_command(run: str, src: str, seq: int, t: float, k: int, body: CommandBody, dropped: int = 0) -> bytes:
+    """A command message of ``body``, with the sender's count of ``dropped`` messages."""
+    return encode("command", run, src, seq, t, k, dropped=dropped, **body.fields())
+
+
+def encode_state(run: str, src: str, seq: int, t: float, k: int, body: StateBody) -> bytes:
+    """A state message of ``body`` (a fixed binary record: :mod:`swarm.net.statewire`)."""
+    return statewire.encode_state(run, src, seq, t, k, body.x_b_w, body.v_b_w, body.radius_m, body.solo)
+
+
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
     """msgpack bytes of a message; vector fields (arrays or lists) become float64 binaries."""
     if kind == "state":  # a fixed binary record (swarm.net.statewire), not msgpack

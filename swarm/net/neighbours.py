@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.safety.obstacles import OBSTACLE, ObstacleArrays
+from swarm.safety.obstacles import OBSTACLE, NamedObstacles, ObstacleArrays
 
 
 @njit(cache=True)
@@ -292,3 +292,85 @@ class NeighbourTable:
         if m == 0:
             return ObstacleArrays.empty()
         return ObstacleArrays.of_records(out[:m])
+
+
+HELD_TICKS = 5
+"""Ticks of the world's lists an agent keeps: lockstep acts on tick k while later ones may have
+arrived."""
+
+
+class HeardNeighbours:
+    """The other agents as an agent hears them: their states (:meth:`take`) in a
+    :class:`NeighbourTable`, and per tick the world's list of the agents that tick waits for
+    (:meth:`on_list`). In lockstep tick k uses exactly their states of tick k-1. Pure: the
+    neighbour sources (``swarm.net.sources``) feed it from the wire, ``simulate_swarm`` directly."""
+
+    def __init__(self, others: set[str], table: NeighbourTable) -> None:
+        self.others, self.table = others, table
+        self.lists: dict[int, list[str]] = {}  # tick -> the agents tick k waits for (the world's list)
+        self.missed = 0  # listed neighbours whose state was not there when used
+
+    def take(
+        self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool
+    ) -> None:
+        """A neighbour's state of tick ``k`` at ``t_s`` [s]: body centre ``x_w`` [m, world], its
+        velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share."""
+        self.table.update(name, t_s, k, x_w, v_w, radius_m, solo)
+
+    def on_list(self, k: int, names: list[str]) -> None:
+        """The world's list of the agents tick ``k`` waits for."""
+        self.lists[k] = names
+        while len(self.lists) > HELD_TICKS:
+            del self.lists[next(iter(self.lists))]
+
+    def lost(self, name: str) -> None:
+        """``name`` is gone: kept as a stopped obstacle or dropped (the table's ``on_lost``)."""
+        self.table.mark_gone(name)
+
+    def missing(self, k: int) -> int:
+        """Lockstep: 1 without the world's list of tick k, else how many of the listed (live)
+        agents have no state of tick k-1 yet."""
+        names = self.lists.get(k)
+        if names is None:
+            return 1
+        if k == 0:
+            return 0  # no state before the first tick
+        table = self.table
+        return sum(1 for n in names if n in self.others and n not in table.gone and table.latest_k(n) < k - 1)
+
+    def late(self, k: int) -> None:
+        """Lockstep: tick k is acted on at the deadline, incomplete."""
+
+    def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
+        """Every heard neighbour's row at ``t_s`` [s] (lockstep: from its state of tick k-1)."""
+        arr = self.table.arrays(t_s, k - 1 if lockstep else None)
+        return NamedObstacles(arr, self.table.row_names[: len(arr)])
+
+
+class NearNeighbours(HeardNeighbours):
+    """:class:`HeardNeighbours` of which the world names, with each agent's tick, the live ones
+    near it (within its sensing radius and half the margin): lockstep uses exactly their states
+    of tick k-1. In realtime the neighbours last heard beyond ``forget_m`` [m] and silent past the
+    timeout are forgotten (they left), and a near one not heard within the timeout is counted
+    missed."""
+
+    def __init__(self, others: set[str], table: NeighbourTable, forget_m: float) -> None:
+        super().__init__(others, table)
+        self.forget_m = forget_m
+
+    def late(self, k: int) -> None:
+        if k in self.lists:
+            self.missed += self.missing(k)
+
+    def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
+        table = self.table
+        near = self.lists.get(k, [])
+        if lockstep:
+            arr = table.arrays(t_s, k - 1, sorted(near))
+        else:
+            table.forget_far(x_b_w, self.forget_m, t_s)
+            if t_s > table.timeout_s:  # (before that, no neighbour can have been heard for long)
+                timeout_s = table.timeout_s
+                self.missed += sum(1 for n in near if (s := table.state(n)) is None or t_s - s.t_s > timeout_s)
+            arr = table.arrays(t_s)
+        return NamedObstacles(arr, table.row_names[: len(arr)])

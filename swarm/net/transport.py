@@ -80,6 +80,11 @@ class Keys:
         """An agent's state, published under the cell of its body centre (swarm.net.cells)."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/{agent_id}"
 
+    @property
+    def cell_prefix(self) -> str:
+        """The start of every cell key (swarm.net.cells)."""
+        return f"{self.root}/cell/"
+
     def cell(self, cell: tuple[int, int, int]) -> str:
         """Every state published in ``cell``."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/*"

@@ -11,7 +11,7 @@ Safety figures, all from the measured (ground-truth) states:
 * ``min_h``: the exact C3BF barrier (:func:`swarm.safety.barriers.cone_h`) of every pair and
   agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
   sensing radius), plus the horizon allowance where the agent's rows of that kind have one
-  (``filter.horizon_s``; for obstacles ``swarm.planning.obstacle_horizon_s``: on a path
+  (``filter.horizon_s``; for obstacles ``swarm.tuning.obstacle_horizon_s``: on a path
   planned round walls the row keeps ``h_tau``, not the cone), its smallest value and the
   ticks it was negative; the ticks a
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
@@ -31,12 +31,13 @@ from typing import Any
 import numpy as np
 
 from swarm.config import ScenarioConfig
+from swarm.geometry import items_to_arrays, min_pair_distance, surface_clearance
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
-from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
-from swarm.planning import StaticObstacles, obstacle_horizon_s
+from swarm.planning import StaticObstacles
 from swarm.safety.barriers import cone_h, horizon_allowance
 from swarm.safety.obstacles import ObstacleArrays
+from swarm.tuning import obstacle_horizon_s
 
 SUMMARY_KEYS = (
     "collisions",

@@ -28,7 +28,7 @@ from swarm.config import ScenarioConfig, dump
 from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode
-from swarm.runs.layout import run_layout_json
+from swarm.runs.foxglove_layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
 
 EPHEMERAL_PORTS = Path("/proc/sys/net/ipv4/ip_local_port_range")

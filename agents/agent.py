@@ -35,6 +35,7 @@ from swarm.net.messages import Message, clock_measurement, encode, warm_up
 from swarm.net.neighbours import NeighbourTable, roster_arrays
 from swarm.offline.scenario import items_to_arrays
 from swarm.planning import StaticObstacles, corner_cut_m, filter_config_for, follows, path_for
+from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -56,7 +57,7 @@ class Agent:
         me = self.me = cfg.agent(agent_id)
         self.model = QuadModel(me.quad_params())
         self.level = me.command_level
-        still = StaticObstacles.of(list(cfg.obstacles))
+        still = self.still = StaticObstacles.of(list(cfg.obstacles))
         # the path around the static obstacles (swarm.planning), replanned when it stalls
         path_w, self.route = path_for(me, still)
         fc = filter_config_for(me, still, self.level, self.route)
@@ -277,6 +278,25 @@ class Agent:
         v_path = self.tracker.command(state.x_w)[0]
         return self.route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w, state.v_w, v_path)
 
+    def retarget(self, x_w: FloatArray, goal_w: FloatArray) -> None:
+        """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
+        path, tracker and filter settings the planner gives for that goal from here
+        (``swarm.ros2.goals.course``); a real drone's mission becomes that path."""
+        c = course(self.me, self.still, self.level, x_w, goal_w)
+        self.goal, self.route, self.tracker, self.reached = c.goal_w, c.route, c.tracker, False
+        if c.filter_config != self.filt.config:
+            self.filt = SafetyFilter(self.model, c.filter_config)
+        if self.plan is not None:
+            self.plan.mission = c.tracker
+
+    def land(self, x_w: FloatArray) -> None:
+        """Land from ``x_w`` [m, world]: a real drone by its flight plan (motors off on the
+        ground), a simulated one straight down to its floor (``swarm.ros2.goals.landing_goal``)."""
+        if self.plan is not None:
+            self.plan.land()
+        else:
+            self.retarget(x_w, landing_goal(self.me, x_w))
+
     def ready(self, k: int) -> bool:
         """Lockstep: has everything of tick k arrived (clock, neighbours k-1)?"""
         return self.missing(k) == 0
@@ -451,6 +471,7 @@ class AgentProcess:
             )[0]
             follow_cells(agent.interest, self.cell_subs, keys, start_b)
         self.pub_cmd = session.declare_publisher(keys.command(agent_id))
+        self.goals = GoalInbox(session, keys, agent_id, run, self.counter) if cfg.ros2.enabled else None
         self.token = tp.declare_liveliness(session, keys.alive(agent_id))
         self.startup_cpu_s = time.process_time()
         self.drone: RealDrone | None = None
@@ -667,6 +688,8 @@ class AgentProcess:
             msg = self.next_message()
             if msg is None:
                 continue
+            if self.goals is not None:  # a goal, land or stop from ROS 2
+                self.goals.apply(self.agent, msg["x"])
             t0 = time.perf_counter()
             bodies = self.act(msg)
             if bodies is None:

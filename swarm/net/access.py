@@ -150,7 +150,7 @@ def acl(
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": publish,
-                "key_exprs": [f"{root}/**", *(ros2.inbound if ros2 is not None else ())],
+                "key_exprs": [f"{root}/**", *ros_keys],
             }
         )
         policies[0]["rules"].append("shared")

@@ -57,9 +57,10 @@ def fqn(namespace: str, *parts: str) -> str:
     return "/" + "/".join(p for p in (namespace.strip("/"), *parts) if p)
 
 
-def topic_key(domain_id: int, name: str, ros_type: str) -> str:
-    """The key expression of a topic's data (``TopicInfo``'s ``topic_keyexpr_``)."""
-    return f"{domain_id}/{name.strip('/')}/{dds_type_name(ros_type)}/{TYPE_HASHES[ros_type]}"
+def topic_key(domain_id: int, name: str, ros_type: str, type_hash: str | None = None) -> str:
+    """The key expression of a topic's data (``TopicInfo``'s ``topic_keyexpr_``); the hash
+    is the shipped one (:data:`TYPE_HASHES`) unless given."""
+    return f"{domain_id}/{name.strip('/')}/{dds_type_name(ros_type)}/{type_hash or TYPE_HASHES[ros_type]}"
 
 
 @dataclass(frozen=True)
@@ -88,12 +89,14 @@ class Node:
             ]
         )
 
-    def endpoint_token(self, entity_id: int, kind: Entity, topic: str, ros_type: str, qos: str) -> str:
+    def endpoint_token(
+        self, entity_id: int, kind: Entity, topic: str, ros_type: str, qos: str, type_hash: str | None = None
+    ) -> str:
         """The token of a publisher or subscription of this node on ``topic`` (its fully
         qualified name)."""
         node = self.token().split("/")
         node[4], node[5] = str(entity_id), kind.value
-        return "/".join([*node, mangle(topic), dds_type_name(ros_type), TYPE_HASHES[ros_type], qos])
+        return "/".join([*node, mangle(topic), dds_type_name(ros_type), type_hash or TYPE_HASHES[ros_type], qos])
 
 
 def gid(token: str) -> bytes:

@@ -182,3 +182,36 @@ def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run):
     h.finish("test done")
     log = (h.out / "logs" / "ros2.log").read_text()
     assert "dropped a message on /cf1/goal" in log, log[-2000:]
+
+
+def test_the_run_as_a_ros2_bag_that_rosbags_reads(start_run):
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    cfg = scenario("ros2_swap_2.yaml", time={"mode": "lockstep"}, ros2={"enabled": True, "bag": True})
+    h = start_run(cfg, "ros2_bag")
+    assert h.wait() == "completed"
+    bag = h.out / "ros2_bag"
+    (mcap_file,) = bag.glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+    assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+    recorded = {
+        round(r["t"], 6): np.asarray(r["x"])
+        for r in read_records(h.out / "run.mcap")
+        if r.get("kind") == "measurement" and r.get("agent") == "cf2"
+    }
+    with AnyReader([bag]) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics["/cf2/pose"] == "geometry_msgs/msg/PoseStamped" and topics["/tf"] == "tf2_msgs/msg/TFMessage"
+        poses = [c for c in reader.connections if c.topic == "/cf2/pose"]
+        n = 0
+        for conn, t_ns, raw in reader.messages(connections=poses):
+            msg = reader.deserialize(raw, conn.msgtype)
+            p = msg.pose.position
+            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            assert t_ns == round(t * 1e9)
+            np.testing.assert_array_equal(recorded[round(t, 6)], [p.x, p.y, p.z])
+            n += 1
+    assert n == len(recorded) > 100  # every measurement of the run, each once

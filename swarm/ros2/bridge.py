@@ -54,6 +54,11 @@ class Outlet:
     gid: bytes
     seq: int = 0
 
+    @property
+    def heard(self) -> bool:
+        """Some subscriber matches this publisher now (Zenoh's matching status)."""
+        return bool(self.pub.matching_status.matching)
+
     def put(self, msg: Any, ros_type: str) -> None:
         self.seq += 1
         self.pub.put(serialize(msg, ros_type), attachment=graph.attachment(self.seq, time.time_ns(), self.gid))
@@ -100,7 +105,7 @@ class Bridge:
         keys = self.keys
         self.clocks = tp.Inbox(session, keys.clock)
         self.real_meas = tp.open_channel(session, f"{keys.root}/world/*/measurement", 256)
-        self.commands = tp.open_channel(session, keys.all_commands, 1 << 14)
+        self.commands: Any = None  # the agents' commands, subscribed while a filter_status is heard
         self.goal_pubs = {a: session.declare_publisher(keys.ros2_goal(a)) for a in self.ids}
         self.all_pub = session.declare_publisher(keys.ros2_all)
         self.live_sub = tp.liveliness_subscriber(session, keys.alive("world"))
@@ -147,18 +152,25 @@ class Bridge:
         for name, m in self.real.items():
             ids.append(name)
             rows.append(np.concatenate([m["x"], m["v"], m["q"], m["w"]]))
-        t, frame, out = clock.t, self.frame, self.out
-        for name, row in zip(ids, rows, strict=True):
+        t, frame, out, sent = clock.t, self.frame, self.out, 0
+        for name, row in zip(ids, rows, strict=True):  # (a topic nobody subscribes to costs nothing)
             x, v, q, w = row[0:3], row[3:6], row[6:10], row[10:13]
-            out[(Kind.POSE, name)].put(convert.pose_stamped(t, frame, x, q), TYPES[Kind.POSE])
-            out[(Kind.VELOCITY, name)].put(convert.twist_stamped(t, frame, v, w, q), TYPES[Kind.VELOCITY])
-        if ids:
+            if (o := out[(Kind.POSE, name)]).heard:
+                o.put(convert.pose_stamped(t, frame, x, q), TYPES[Kind.POSE])
+                sent += 1
+            if (o := out[(Kind.VELOCITY, name)]).heard:
+                o.put(convert.twist_stamped(t, frame, v, w, q), TYPES[Kind.VELOCITY])
+                sent += 1
+        if ids and (o := out[(Kind.TF, None)]).heard:
             xs = np.array([r[0:3] for r in rows])
             qs = np.array([r[6:10] for r in rows])
-            out[(Kind.TF, None)].put(convert.tf_message(t, frame, ids, xs, qs), TYPES[Kind.TF])
-        out[(Kind.CLOCK, None)].put(convert.clock(t), TYPES[Kind.CLOCK])
+            o.put(convert.tf_message(t, frame, ids, xs, qs), TYPES[Kind.TF])
+            sent += 1
+        if (o := out[(Kind.CLOCK, None)]).heard:
+            o.put(convert.clock(t), TYPES[Kind.CLOCK])
+            sent += 1
         self.items = clock["items"]
-        self.counts.published += 2 * len(ids) + 2
+        self.counts.published += sent
         self.counts.ticks += 1
         now = time.monotonic()
         self.counts.busy_s += now - t0
@@ -166,11 +178,23 @@ class Bridge:
             self.counts.delay_s.append(now - arrived)
         self.done |= bool(clock["done"])
 
+    def _follow_commands(self) -> bool:
+        """Subscribe to the agents' commands while some filter_status is heard, and only
+        then (each command through the router costs the router and this process about as
+        much as all the rest of the bridge); whether subscribed."""
+        heard = any(self.out[(Kind.STATUS, a)].heard for a in self.ids)
+        if heard and self.commands is None:
+            self.commands = tp.open_channel(self.session, self.keys.all_commands, 1 << 14)
+        elif not heard and self.commands is not None:
+            self.commands.undeclare()
+            self.commands = None
+        return self.commands is not None
+
     def report(self, t_s: float) -> None:
         """Each agent's newest filter report as its filter_status, and the obstacles."""
         t0 = time.monotonic()
         newest: dict[str, Any] = {}
-        for s in tp.drain(self.commands):
+        for s in tp.drain(self.commands) if self._follow_commands() else ():
             newest[str(s.key_expr)] = s  # (in order: the last is the newest)
         for key, s in newest.items():
             name = key.split("/")[-2]
@@ -179,9 +203,8 @@ class Bridge:
                 continue
             self.out[(Kind.STATUS, name)].put(convert.filter_status(name, record_of(m)), TYPES[Kind.STATUS])
             self.counts.published += 1
-        if self.items:
-            msg = convert.marker_array(t_s, self.frame, self.items, self.lengths_m)
-            self.out[(Kind.OBSTACLES, None)].put(msg, TYPES[Kind.OBSTACLES])
+        if self.items and (o := self.out[(Kind.OBSTACLES, None)]).heard:
+            o.put(convert.marker_array(t_s, self.frame, self.items, self.lengths_m), TYPES[Kind.OBSTACLES])
             self.counts.published += 1
         self.counts.busy_s += time.monotonic() - t0
 

@@ -384,6 +384,10 @@ def secrets(config: str, out: Path) -> None:
     cfg = _load_or_exit(config, {})
     ensure_secrets(cfg, out)
     click.echo(f"credentials: {out}")
+    if cfg.ros2.enabled and cfg.network.port:  # what a ROS 2 participant sources (docs/ros2.md)
+        from swarm.ros2.participant import write_env
+
+        click.echo(f"ROS 2 participants: source {write_env(cfg, out, out)}")
 
 
 @cli.command()

@@ -461,6 +461,21 @@ MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each 
 AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
+class Ros2Settings(_Strict):
+    """The run seen and steered from ROS 2 (``swarm.ros2``, docs/ros2.md): a bridge process
+    that publishes the swarm as ROS 2 topics the way rmw_zenoh maps them, through the
+    run's Zenoh router, and takes a goal per drone and land / stop for all. Off by default
+    (nothing starts, nothing is subscribed)."""
+
+    enabled: bool = False
+    domain_id: int = Field(0, ge=0, le=232)  # ROS_DOMAIN_ID: the first chunk of every key
+    namespace: str = Field("", pattern=r"^$|^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")  # "lab": /lab/cf1/pose
+    frame_id: str = Field("world", pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")  # the fixed frame of poses and /tf
+    rate_hz: float = Field(30.0, gt=0, le=1000)  # poses, velocities, /tf and /clock (at most one per tick)
+    status_hz: float = Field(10.0, gt=0, le=1000)  # each drone's filter status and the obstacles' markers
+    bag: bool = False  # write the run as a ROS 2 bag (MCAP, ros2msg/cdr) into <run>/ros2_bag at its end
+
+
 def machine_cpus() -> int:
     """CPUs this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -500,6 +515,7 @@ class ScenarioConfig(_Strict):
     mocap: MocapSettings | None = None  # required when any agent is a real Crazyflie
     gui: bool = False
     limits: LimitSettings = LimitSettings()
+    ros2: Ros2Settings = Ros2Settings()
     world: WorldSettings = WorldSettings()
 
     @model_validator(mode="after")
@@ -627,6 +643,21 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _ros2(self) -> ScenarioConfig:
+        """ROS 2 participants join through the run's router; agent ids are ROS name tokens."""
+        if not self.ros2.enabled:
+            return self
+        if self.network.topology not in ("auto", "router"):
+            raise ValueError(
+                f"ros2.enabled: ROS 2 participants join through the run's Zenoh router; network.topology "
+                f"{self.network.topology} has none (use router or auto)"
+            )
+        for i, a in enumerate(self.agents):
+            if not a.id[0].isalpha() or "-" in a.id:
+                raise ValueError(f"agents.{i}.id: {a.id!r} is not a ROS 2 name (a letter first, no '-') for ros2")
+        return self
+
+    @model_validator(mode="after")
     def _star(self) -> ScenarioConfig:
         if self.network.topology == "star":
             why = self._star_blocker()
@@ -668,6 +699,8 @@ class ScenarioConfig(_Strict):
         """``network.topology`` with ``auto`` resolved (see :class:`NetworkSettings`)."""
         if self.network.topology != "auto":
             return self.network.topology
+        if self.ros2.enabled:  # ROS 2 participants join through the router
+            return "router"
         loopback = self.network.host in ("localhost", "::1") or self.network.host.startswith("127.")
         if loopback and self._star_blocker() is None:
             return "star"

@@ -130,6 +130,18 @@ class AgentStep:
             landing=agent.backend == "crazyflie",
         )
 
+    def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
+        """Fly a new course from this tick on (a goal from ROS 2): to ``goal_w`` [m, world] along
+        ``tracker``'s path with its ``route``, filtered with ``config`` (a new filter only where
+        its settings differ)."""
+        self.goal_w, self.tracker, self.route, self.arrived = np.asarray(goal_w, dtype=float), tracker, route, False
+        self._follows = follows(route)
+        if config != self.config:
+            self.config = config
+            self.filt = SafetyFilter(self.model, config)
+            if self.filt_land is not None:
+                self.filt_land = SafetyFilter(self.model, replace(config, floor_z_m=None))
+
     def _held(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> FloatArray | None:
         """The route at this tick: a new path from where the agent is if it has made no
         progress along its own for a while; then the velocity it holds in place of its path

@@ -39,6 +39,8 @@ from swarm.net.messages import (
 from swarm.net.neighbours import roster_arrays
 from swarm.net.sources import BundleSource, CellSource, pick
 from swarm.planning import StaticObstacles
+from swarm.ros2.goals import GoalInbox, course, landing_goal
+from swarm.rotation import FloatArray
 from swarm.safety.filter import FilterStatus
 from swarm.safety.obstacles import NamedObstacles
 from swarm.shutdown import StopFlag
@@ -143,7 +145,8 @@ class AgentProcess:
         me = cfg.agent(agent_id)
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
-        self.step = AgentStep.of_agent(me, StaticObstacles.of(list(cfg.obstacles)), cfg.goal_tolerance_m)
+        self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
+        self.step = AgentStep.of_agent(me, self.still, cfg.goal_tolerance_m)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
         self.source = pick(cfg, agent_id, run, self.counter)
@@ -204,9 +207,27 @@ class AgentProcess:
             start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)
             self.source.follow(self.cell_subs, start_b[0])
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
+        self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
         self.token = tp.declare_liveliness(session, keys.alive(self.id))
         self.startup_cpu_s = time.process_time()
         self.world_deadline = time.monotonic() + cfg.time.start_timeout_s  # the world must show up by then
+
+    def retarget(self, x_w: FloatArray, goal_w: FloatArray) -> None:
+        """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
+        course the planner gives for that goal from here (``swarm.ros2.goals.course``); a real
+        drone's mission becomes that path."""
+        c = course(self.me, self.still, self.step.level, x_w, goal_w)
+        self.step.follow(c.goal_w, c.tracker, c.route, c.filter_config)
+        if self.plan is not None:
+            self.plan.mission = c.tracker
+
+    def land(self, x_w: FloatArray) -> None:
+        """Land from ``x_w`` [m, world]: a real drone by its flight plan (motors off on the
+        ground), a simulated one straight down to its floor (``swarm.ros2.goals.landing_goal``)."""
+        if self.plan is not None:
+            self.plan.land()
+        else:
+            self.retarget(x_w, landing_goal(self.me, x_w))
 
     def connect_drone(self) -> bool:
         """A real drone: its link up (False: not reached in 15 s)."""
@@ -406,6 +427,8 @@ class AgentProcess:
             msg = self.next_message()
             if msg is None:
                 continue
+            if self.goals is not None:  # a goal, land or stop from ROS 2
+                self.goals.apply(self, msg["x"])
             t0 = time.perf_counter()
             result = self.act(msg)
             if result is None:

@@ -89,6 +89,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "collision": {"a": "s", "b": "s", "dead": "b"},
     # a lockstep tick that waited longer than time.stall_warn_s for these agents' commands
     "stall": {"agents": "ls", "wait_s": "f"},
+    # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
+    "goal": {"action": "s", "x": 3},
 }
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
@@ -459,6 +461,7 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
+    "action": "goal (fly to x), land or stop (hold where it is)",
 }
 _ITEM_SCHEMA = {
     "type": "object",

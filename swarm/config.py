@@ -610,6 +610,15 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _estimates_need_states(self) -> ScenarioConfig:
+        if self.world.realism.sensing.enabled and self.neighbours.source == "world":
+            raise ValueError(
+                "world.realism.sensing: the agents act on motion-capture estimates, but neighbours.source: world "
+                "gives them every drone's true state (the roster); use neighbours.source: agents"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _unique(self) -> ScenarioConfig:
         for what, items in (("agents", self.agents), ("obstacles", self.obstacles)):
             seen: set[str] = set()

@@ -15,6 +15,7 @@ rotor thrusts at the rotor level). No I/O; the shell brings the states and carri
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -24,7 +25,8 @@ import numpy as np
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.planning import StaticObstacles
-from swarm.rotation import FloatArray
+from swarm.realism.sensing import Estimator, MocapFrame
+from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -32,6 +34,10 @@ from swarm.tuning import filter_config_for
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig
+    from swarm.realism.settings import RealismSettings
+
+
+_NO_ESTIMATE = np.zeros(0)
 
 
 @dataclass(frozen=True)
@@ -51,6 +57,7 @@ class StepResult:
     arrived: bool  # it has been within the goal tolerance of its goal at some step
     min_h: float  # m^2/s: smallest exact h of its rows over every step so far (inf: none yet)
     infeasible_ticks: int  # steps so far whose filter call was not a clean solve
+    est: FloatArray  # (6,) centre of mass [m] and velocity [m/s], world, as estimated (sensing), else (0,)
 
     @property
     def intervention(self) -> float:
@@ -86,11 +93,14 @@ class AgentStep:
         yaw_rad: float = 0.0,
         goal_tolerance_m: float = 0.15,
         landing: bool = False,
+        estimator: Estimator | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
         ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
-        ``landing`` also builds the filter a real drone lands with (its floor off)."""
+        ``landing`` also builds the filter a real drone lands with (its floor off);
+        ``estimator``: the agent acts on its estimate from motion-capture frames
+        (``world.realism.sensing``), never on the state it is given."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -98,6 +108,7 @@ class AgentStep:
         self.filt = SafetyFilter(model, config)
         self.filt_land = SafetyFilter(model, replace(config, floor_z_m=None)) if landing else None
         self.att = AttitudeController(model)
+        self.estimator = estimator
         self._follows = follows(route)
         self.min_h = math.inf
         self.infeasible = 0
@@ -111,12 +122,20 @@ class AgentStep:
         still: StaticObstacles,
         goal_tolerance_m: float,
         level: CommandLevel | None = None,
+        realism: RealismSettings | None = None,
     ) -> AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
-        (``swarm.tuning.filter_config_for``), at its command level (or ``level``)."""
+        (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
+        ``realism.sensing`` its estimator, starting at rest at its start."""
         level = agent.command_level if level is None else level
         path_w, route = path_for(agent, still)
+        estimator = None
+        if realism is not None and realism.sensing.enabled:
+            half = 0.5 * agent.yaw_rad
+            estimator = realism.estimator(
+                np.asarray(agent.start, float), np.array([0.0, 0.0, math.sin(half), math.cos(half)])
+            )
         return cls(
             QuadModel(agent.quad_params()),
             filter_config_for(agent, still, level, route),
@@ -128,6 +147,7 @@ class AgentStep:
             yaw_rad=agent.yaw_rad,
             goal_tolerance_m=goal_tolerance_m,
             landing=agent.backend == "crazyflie",
+            estimator=estimator,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -166,12 +186,20 @@ class AgentStep:
         *,
         tracker: PathTracker | None = None,
         landing: bool = False,
+        frames: list[MocapFrame] | None = None,
     ) -> StepResult:
         """The step at sim time ``t_s`` [s] from ``state`` (centre of mass, world), among
         ``obstacles`` and ``neighbours`` (rows at ``t_s``, with their names). ``tracker``:
         a real drone's take-off or landing path, flown in place of the mission's (no route
-        rules); ``landing``: filter with the floor off (a real drone landing through it)."""
-        model, level = self.model, self.level
+        rules); ``landing``: filter with the floor off (a real drone landing through it).
+        With an estimator the state is its estimate at ``t_s`` from the motion-capture
+        ``frames`` that arrived since the last step (``state`` is not read)."""
+        model, level, est = self.model, self.level, self.estimator
+        if est is not None:
+            for f in frames or ():
+                est.frame(f)
+            e = est.estimate(t_s)
+            state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
         x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
         nb = neighbours.arrays
         held = None
@@ -203,10 +231,21 @@ class AgentStep:
         if not self.arrived:
             self.arrived = math.dist(state.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
+        est_out = _NO_ESTIMATE
+        if est is not None:
+            est.command(t_s, self._accel_w(state, u))
+            est_out = np.concatenate([state.x_w, state.v_w])
         return StepResult(
             level, command, u, status, res, row_ids, held, x_b, v_b, self.solo, self.arrived, self.min_h,
-            self.infeasible,
+            self.infeasible, est_out,
         )  # fmt: skip
+
+    def _accel_w(self, state: QuadState, u: FloatArray) -> FloatArray:
+        """The acceleration [m/s^2, world] the command ``u`` asks of the nominal airframe at
+        ``state``, gravity included: ``F / m - g e3`` (at the rotor level ``F = (B u)_0 R e3``)."""
+        p = self.model.params
+        F = u if self.level is CommandLevel.ATTITUDE else (self.model.B[0] @ u) * quat_to_R(state.q)[:, 2]
+        return F / p.mass_kg - p.g_mps2 * E3
 
     def motors_off(self, state: QuadState) -> StepResult:
         """The result of a tick with the motors off (a real drone that has landed or been
@@ -215,7 +254,7 @@ class AgentStep:
         zero = np.zeros(4)
         return StepResult(
             self.level, zero, zero, FilterStatus.OK, None, [], None, x_b, v_b, self.solo, self.arrived, self.min_h,
-            self.infeasible,
+            self.infeasible, _NO_ESTIMATE,
         )  # fmt: skip
 
     def reset_tallies(self) -> None:
@@ -229,7 +268,14 @@ class AgentStep:
         first use mid-flight stalls that tick for up to a second on a busy machine, long enough
         to look like a lost drone. The tallies are reset after."""
         none = NamedObstacles.none()
+        est, self.estimator = self.estimator, None  # (its own warm-up below, on a copy)
         self(0.0, QuadState.hover(start_w), none, none)
+        self.estimator = est
+        if est is not None:  # its compiled prediction and update
+            c = copy.deepcopy(est)
+            c.command(0.0, np.zeros(3))
+            c.frame(MocapFrame(0, 0, 0.0, c.p.latency_s + 0.005, np.asarray(start_w, float), c.q0))
+            c.estimate(0.01)
         state = QuadState.hover([0.0, 0.0, 1.0])
         state.v_w = np.array([2.0, 0.0, 0.0])  # m/s, straight at the obstacles below
         weight = np.array([0.0, 0.0, self.model.params.weight_N])

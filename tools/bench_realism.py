@@ -22,7 +22,8 @@ from collections.abc import Callable
 import numpy as np
 
 from swarm.model import QuadParams
-from swarm.realism import MessageKind, RealismSettings
+from swarm.realism.comms import MessageKind
+from swarm.realism.settings import RealismSettings
 
 
 def timed(fn: Callable[[], object], repeats: int) -> np.ndarray:

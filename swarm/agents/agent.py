@@ -34,6 +34,7 @@ from swarm.net.messages import (
     clock_measurement,
     encode_command,
     encode_state,
+    frames_of,
     warm_up,
 )
 from swarm.net.neighbours import roster_arrays
@@ -63,6 +64,7 @@ def command_body(result: StepResult) -> CommandBody:
         result.min_h if math.isfinite(result.min_h) else 1e9,
         result.infeasible_ticks,
         result.arrived,
+        result.est,
     )
 
 
@@ -146,7 +148,7 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = AgentStep.of_agent(me, self.still, cfg.goal_tolerance_m)
+        self.step = AgentStep.of_agent(me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
         self.source = pick(cfg, agent_id, run, self.counter)
@@ -293,7 +295,9 @@ class AgentProcess:
         if m["done"]:
             self.stop.set()
             return None
-        mine = Message("measurement", m.run, m.src, m.seq, m.t, m.k, {f: m[f] for f in ("x", "v", "q", "w")})
+        body = {f: m[f] for f in ("x", "v", "q", "w")}
+        body["frames"] = frames_of(m["frames"], 0)
+        mine = Message("measurement", m.run, m.src, m.seq, m.t, m.k, body)
         self._measurement(mine)
         return mine
 
@@ -353,7 +357,9 @@ class AgentProcess:
         if not pending:
             return None
         if not self.lockstep:
-            msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters
+            msg = max(pending, key=lambda m: m.k)  # realtime: only the newest matters, with every frame since
+            if len(pending) > 1 and "frames" in msg.body:
+                msg.body["frames"] = [f for m in sorted(pending, key=lambda m: m.k) for f in m.body.get("frames", ())]
             pending.clear()
             return msg
         msg = min(pending, key=lambda m: m.k)
@@ -388,7 +394,7 @@ class AgentProcess:
         x_b = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.step.model.params.l_m)[0]
         neighbours = self.source.rows(msg.t, msg.k, x_b, self.lockstep)
         if self.plan is None:
-            return self.step(msg.t, state, self.obstacles, neighbours)
+            return self.step(msg.t, state, self.obstacles, neighbours, frames=msg.body.get("frames"))
         tracker = self.plan.tracker(state.x_w)
         if tracker is None:  # landed or stopped: motors off
             return self.step.motors_off(state)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from swarm.realism.comms import LOST, CommsModel, DelayLine, MessageKind
 from swarm.rotation import BoolArray, FloatArray, IntArray
 from swarm.safety.obstacles import OBSTACLE, NamedObstacles, ObstacleArrays
 
@@ -303,19 +304,63 @@ class HeardNeighbours:
     """The other agents as an agent hears them: their states (:meth:`take`) in a
     :class:`NeighbourTable`, and per tick the world's list of the agents that tick waits for
     (:meth:`on_list`). In lockstep tick k uses exactly their states of tick k-1. Pure: the
-    neighbour sources (``swarm.net.sources``) feed it from the wire, ``simulate_swarm`` directly."""
+    neighbour sources (``swarm.net.sources``) feed it from the wire, ``simulate_swarm`` directly.
 
-    def __init__(self, others: set[str], table: NeighbourTable) -> None:
+    With a ``comms`` model (``world.realism.comms``) a state of tick k reaches the table at tick
+    ``k + max(1, d)`` for its seeded fate ``d`` from its sender to ``agent_id`` (through the relay
+    with ``bundled``: the state's and the bundle's delays added), or never; lockstep still waits
+    for it to arrive on the wire (:attr:`heard`), then holds it until then."""
+
+    def __init__(
+        self, others: set[str], table: NeighbourTable, agent_id: str = "", comms: CommsModel | None = None
+    ) -> None:
         self.others, self.table = others, table
         self.lists: dict[int, list[str]] = {}  # tick -> the agents tick k waits for (the world's list)
         self.missed = 0  # listed neighbours whose state was not there when used
+        self.id, self.comms = agent_id, comms
+        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool]] = DelayLine()
+        self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
+        self.states_lost = 0  # comms: states that never reach this agent
+        self.delay_ticks = 0  # comms: ticks of delay beyond the next tick, summed over the states delivered
 
     def take(
-        self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool
+        self,
+        name: str,
+        t_s: float,
+        k: int,
+        x_w: FloatArray,
+        v_w: FloatArray,
+        radius_m: float,
+        solo: bool,
+        bundled: bool = False,
     ) -> None:
         """A neighbour's state of tick ``k`` at ``t_s`` [s]: body centre ``x_w`` [m, world], its
-        velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share."""
-        self.table.update(name, t_s, k, x_w, v_w, radius_m, solo)
+        velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share; ``bundled``:
+        it came in the relay's bundle."""
+        comms = self.comms
+        if comms is None:
+            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo)
+            return
+        self.heard[name] = max(self.heard.get(name, -1), k)
+        d = comms.fate(name, self.id, MessageKind.STATE, k)
+        if bundled and d != LOST:
+            d_bundle = comms.fate("router", self.id, MessageKind.BUNDLE, k)
+            d = LOST if d_bundle == LOST else d + d_bundle
+        if d == LOST:
+            self.states_lost += 1
+            return
+        self.delay_ticks += max(0, d - 1)
+        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo))
+
+    def _deliver(self, k: int) -> None:
+        """The held states due by tick ``k`` into the table (comms)."""
+        if self.comms is not None:
+            for name, t_s, kk, x_w, v_w, radius_m, solo in self.line.due(k):
+                self.table.update(name, t_s, kk, x_w, v_w, radius_m, solo)
+
+    def _latest_k(self, name: str) -> int:
+        """The newest tick of ``name``'s states this agent has received (on the wire)."""
+        return self.heard.get(name, -1) if self.comms is not None else self.table.latest_k(name)
 
     def on_list(self, k: int, names: list[str]) -> None:
         """The world's list of the agents tick ``k`` waits for."""
@@ -335,14 +380,15 @@ class HeardNeighbours:
             return 1
         if k == 0:
             return 0  # no state before the first tick
-        table = self.table
-        return sum(1 for n in names if n in self.others and n not in table.gone and table.latest_k(n) < k - 1)
+        gone = self.table.gone
+        return sum(1 for n in names if n in self.others and n not in gone and self._latest_k(n) < k - 1)
 
     def late(self, k: int) -> None:
         """Lockstep: tick k is acted on at the deadline, incomplete."""
 
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         """Every heard neighbour's row at ``t_s`` [s] (lockstep: from its state of tick k-1)."""
+        self._deliver(k)
         arr = self.table.arrays(t_s, k - 1 if lockstep else None)
         return NamedObstacles(arr, self.table.row_names[: len(arr)])
 
@@ -354,8 +400,15 @@ class NearNeighbours(HeardNeighbours):
     timeout are forgotten (they left), and a near one not heard within the timeout is counted
     missed."""
 
-    def __init__(self, others: set[str], table: NeighbourTable, forget_m: float) -> None:
-        super().__init__(others, table)
+    def __init__(
+        self,
+        others: set[str],
+        table: NeighbourTable,
+        forget_m: float,
+        agent_id: str = "",
+        comms: CommsModel | None = None,
+    ) -> None:
+        super().__init__(others, table, agent_id, comms)
         self.forget_m = forget_m
 
     def late(self, k: int) -> None:
@@ -365,6 +418,7 @@ class NearNeighbours(HeardNeighbours):
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         table = self.table
         near = self.lists.get(k, [])
+        self._deliver(k)
         if lockstep:
             arr = table.arrays(t_s, k - 1, sorted(near))
         else:

@@ -28,6 +28,7 @@ from swarm.net import transport as tp
 from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message
 from swarm.net.neighbours import HELD_TICKS, HeardNeighbours, NearNeighbours, NeighbourTable, roster_arrays
+from swarm.realism.comms import CommsModel
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 
@@ -170,8 +171,9 @@ class StateSource(HeardNeighbours):
     publishes_state = True
     cells_declared = 0
 
-    def __init__(self, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter, keys: tp.Keys) -> None:
-        super().__init__(others, table)
+    def __init__(self, agent_id: str, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter,
+                 keys: tp.Keys, comms: CommsModel | None = None) -> None:  # fmt: skip
+        super().__init__(others, table, agent_id, comms)
         self.run, self.counter = run, counter
         self._keys = {keys.state(n): n for n in sorted(others)}
 
@@ -207,11 +209,10 @@ class _NearSource(NearNeighbours):
     publishes_state = True
     cells_declared = 0
 
-    def __init__(
-        self, agent_id: str, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter, interest: Interest
-    ) -> None:
-        super().__init__(others, table, interest.radius_m + interest.hysteresis_m)
-        self.id, self.run, self.counter, self.interest = agent_id, run, counter, interest
+    def __init__(self, agent_id: str, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter,
+                 interest: Interest, comms: CommsModel | None = None) -> None:  # fmt: skip
+        super().__init__(others, table, interest.radius_m + interest.hysteresis_m, agent_id, comms)
+        self.run, self.counter, self.interest = run, counter, interest
 
     def on_clock(self, m: Message) -> None:
         pass  # (a real drone's clock: realtime, where the near lists are not waited on)
@@ -226,8 +227,8 @@ class BundleSource(_NearSource):
     (``swarm.net.statewire.check_states``), each bad record dropped and counted."""
 
     def __init__(self, agent_id: str, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter,
-                 interest: Interest, keys: tp.Keys) -> None:  # fmt: skip
-        super().__init__(agent_id, others, table, run, counter, interest)
+                 interest: Interest, keys: tp.Keys, comms: CommsModel | None = None) -> None:  # fmt: skip
+        super().__init__(agent_id, others, table, run, counter, interest, comms)
         self.key = keys.bundle(agent_id)
         self.bundle_k = -1  # the newest tick whose bundle arrived
 
@@ -281,7 +282,18 @@ class BundleSource(_NearSource):
         for reason, n in b.states.dropped.items():
             counter.dropped += n
             counter.reasons[reason] = counter.reasons.get(reason, 0) + n
-        self.table.update_records(b.states.records, self.others, counter)
+        if self.comms is None:
+            self.table.update_records(b.states.records, self.others, counter)
+            return
+        rec = b.states.records  # (world.realism.comms: each state on its own way, through the relay)
+        for n, src in enumerate(rec["src"].tolist()):
+            name = src.decode()
+            if name not in self.others:
+                counter.drop("state: from an agent it does not know, or itself")
+            elif name not in self.table.gone:
+                r = rec[n]
+                self.take(name, float(r["t"]), int(r["k"]), r["x"].copy(), r["v"].copy(), float(r["r"]),
+                          bool(r["flags"] & 1), bundled=True)  # fmt: skip
 
 
 class CellSource(_NearSource):
@@ -290,8 +302,8 @@ class CellSource(_NearSource):
     Zenoh FIFO channels drained when its tick wakes it."""
 
     def __init__(self, agent_id: str, others: set[str], table: NeighbourTable, run: str, counter: tp.Counter,
-                 interest: Interest, keys: tp.Keys) -> None:  # fmt: skip
-        super().__init__(agent_id, others, table, run, counter, interest)
+                 interest: Interest, keys: tp.Keys, comms: CommsModel | None = None) -> None:  # fmt: skip
+        super().__init__(agent_id, others, table, run, counter, interest, comms)
         self.keys = keys
 
     def subscriptions(self) -> list[str]:
@@ -347,8 +359,10 @@ def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSou
     table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
+    realism = cfg.world.realism
+    comms = None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)
     if cfg.uses_bundles:
-        return BundleSource(agent_id, others, table, run, counter, interest, keys)
+        return BundleSource(agent_id, others, table, run, counter, interest, keys, comms)
     if cfg.uses_cells:
-        return CellSource(agent_id, others, table, run, counter, interest, keys)
-    return StateSource(others, table, run, counter, keys)
+        return CellSource(agent_id, others, table, run, counter, interest, keys, comms)
+    return StateSource(agent_id, others, table, run, counter, keys, comms)

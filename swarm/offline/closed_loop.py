@@ -19,7 +19,11 @@ from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, step_rk
 from swarm.net.cells import near_lists
 from swarm.net.neighbours import NearNeighbours, NeighbourTable
 from swarm.planning import StaticObstacles
-from swarm.rotation import FloatArray
+from swarm.realism.comms import CommsModel, DelayLine, MessageKind
+from swarm.realism.plant import Plant
+from swarm.realism.sensing import MocapFrame, MocapSensor
+from swarm.realism.settings import RealismSettings
+from swarm.rotation import FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -85,15 +89,20 @@ def simulate(
         log.clearance_m.append(surface_clearance(res.x_b_w[None, :], obs)[0])
         if res.filter is not None:
             log.results.append(res.filter)
-        plant.fly([res.command])
+        plant.send(0, res.command, k)
+        plant.fly(k)
     return log
 
 
 class _Plant:
-    """The offline world's drones: each holds its agent's newest command for a control tick,
-    as the world process does (at the attitude level the firmware's attitude loop flies the
-    setpoint, integrating its yaw rate; at the rotor level the thrusts, clipped to the rotor
-    limits), over ``physics_hz / control_hz`` RK4 substeps."""
+    """The offline world's drones, as the world process flies them: each holds its agent's
+    newest command (at the attitude level the firmware's attitude loop flies the setpoint,
+    integrating its yaw rate; at the rotor level the thrusts, clipped to the rotor limits) over
+    ``physics_hz / control_hz`` RK4 substeps a control tick. With ``realism``
+    (``world.realism``; ``swarm.realism``) the drones are the plant's airframes, their rotors make
+    the plant's thrusts and its downwash, drag, ground effect and wind act on them; motion
+    capture sees them every substep (:meth:`frames`); a command reaches its drone after its
+    seeded delay, or never."""
 
     def __init__(
         self,
@@ -103,26 +112,85 @@ class _Plant:
         yaw0_rad: list[float],
         physics_hz: float,
         control_hz: float,
+        realism: RealismSettings | None = None,
+        seed: int = 0,
+        ids: list[str] | None = None,
     ) -> None:
         self.model, self.level, self.states = model, level, states
+        n = len(states)
         self.onboard = [OnboardController(model, y) for y in yaw0_rad]
         self.n_sub = max(1, round(physics_hz / control_hz))
         self.dt_s = 1.0 / (control_hz * self.n_sub)
+        self.ids = ids or [f"agent-{i}" for i in range(n)]
+        self.commands: list[FloatArray | None] = [None] * n
+        self.plant: Plant | None = None
+        self.bodies = [model] * n  # the rigid bodies (the plant's airframes)
+        self.mocap: MocapSensor | None = None
+        self.comms: CommsModel | None = None
+        self.in_flight: DelayLine[tuple[int, FloatArray]] = DelayLine()
+        self.commands_lost = 0
+        self.seen: list[list[MocapFrame]] = [[] for _ in range(n)]
+        self.t_s = 0.0
+        if realism is not None:
+            plant = realism.plant([model.params] * n, self.dt_s, seed)
+            if not plant.p.ideal:
+                self.plant = plant
+                self.bodies = [QuadModel(a) for a in plant.airframes]
+            if realism.sensing.enabled:
+                self.mocap = realism.mocap(n, seed)
+            if not realism.comms.params().perfect:
+                self.comms = realism.comms_model(seed, 1.0 / control_hz)
 
-    def fly(self, commands: list[FloatArray]) -> None:
-        """One control tick of every drone with its command (k, 4): attitude setpoint (roll
-        [rad], pitch [rad], yaw rate [rad/s], thrust [N]) or rotor thrusts [N]."""
-        model, dt = self.model, self.dt_s
-        for i, cmd in enumerate(commands):
-            if self.level is CommandLevel.ATTITUDE:
-                sp = AttitudeSetpoint(*cmd.tolist())
-                for _ in range(self.n_sub):
-                    f = self.onboard[i].rotor_thrusts(self.states[i], sp, dt)
-                    self.states[i] = step_rk4(model, self.states[i], f, dt)
+    def send(self, i: int, command: FloatArray, k: int) -> None:
+        """Drone ``i``'s command answering tick ``k``: flown from this tick, or after its fate's delay."""
+        if self.comms is None:
+            self.commands[i] = command
+        elif not self.in_flight.put(k, self.comms.fate(self.ids[i], "world", MessageKind.COMMAND, k), (i, command)):
+            self.commands_lost += 1
+
+    def _capture(self) -> None:
+        if self.mocap is not None:
+            x = np.array([s.x_w for s in self.states])
+            q = np.array([s.q for s in self.states])
+            for f in self.mocap.step(self.t_s, x, q):
+                self.seen[f.drone].append(f)
+
+    def frames(self, i: int) -> list[MocapFrame]:
+        """Drone ``i``'s motion-capture frames that arrived since the last call (none without sensing)."""
+        self._capture()
+        out, self.seen[i] = self.seen[i], []
+        return out
+
+    def fly(self, k: int) -> None:
+        """Control tick ``k``: the commands due by now, then the substeps of every drone."""
+        for i, command in self.in_flight.due(k):
+            self.commands[i] = command
+        n, dt = len(self.states), self.dt_s
+        for j in range(self.n_sub):
+            if j:
+                self._capture()
+            f = np.zeros((n, 4))
+            for i, cmd in enumerate(self.commands):
+                if cmd is None:
+                    sp = AttitudeSetpoint(0.0, 0.0, 0.0, self.model.params.weight_N)
+                    f[i] = self.onboard[i].rotor_thrusts(self.states[i], sp, dt)
+                elif self.level is CommandLevel.ATTITUDE:
+                    f[i] = self.onboard[i].rotor_thrusts(self.states[i], AttitudeSetpoint(*cmd.tolist()), dt)
+                else:
+                    f[i] = np.clip(cmd, 0.0, self.model.params.f_max_N)
+            if self.plant is None:
+                for i in range(n):
+                    self.states[i] = step_rk4(self.bodies[i], self.states[i], f[i], dt)
             else:
-                f = np.clip(cmd, 0.0, model.params.f_max_N)
-                for _ in range(self.n_sub):
-                    self.states[i] = step_rk4(model, self.states[i], f, dt)
+                x = np.array([s.x_w for s in self.states])
+                v = np.array([s.v_w for s in self.states])
+                R = np.array([quat_to_R(s.q) for s in self.states])
+                out = self.plant.step(x, v, R, f)
+                for i in range(n):
+                    self.states[i] = step_rk4(
+                        self.bodies[i], self.states[i], out.f_N[i], dt, out.force_w[i], out.torque_b[i]
+                    )
+            self.t_s += dt
 
 
 @dataclass
@@ -137,6 +205,7 @@ class SwarmAgent:
     tiebreak: tuple[float, float] | None = None  # right-hand tie-break (trigger [m], speed [m/s]), or None
     filtered: bool = True  # False: flies its reference unfiltered (and so takes no share of any pair)
     route: Route | None = None  # replans path_w when the agent stalls (swarm.planning), or None
+    id: str = ""  # its name (the seeded imperfections of world.realism depend on it); "" : agent-<index>
 
     @property
     def goal_w(self) -> FloatArray:
@@ -156,6 +225,10 @@ class SwarmLog:
     time_to_goal_s: list[float | None]  # per agent: first time within the tolerance of the goal
     x_w: FloatArray | None = None  # (T, N, 3) m, world: centres of mass, at the tick (None: not logged)
     v_b_w: FloatArray | None = None  # (T, N, 3) m/s, world: body-centre velocities, at the tick
+    estimate_error_m: FloatArray | None = None  # (T, N) m: |estimated - true centre of mass| (None: no estimator)
+    states_lost: int = 0  # world.realism.comms: neighbour states that never arrived
+    commands_lost: int = 0  # world.realism.comms: commands that never reached their drone
+    frames_dropped: int = 0  # world.realism.sensing: motion-capture frames dropped
 
     @property
     def infeasible_ticks(self) -> int:
@@ -189,6 +262,8 @@ def simulate_swarm(
     control_hz: float = 100.0,
     physics_hz: float = 300.0,
     goal_tolerance_m: float = 0.15,
+    realism: RealismSettings | None = None,
+    seed: int = 0,
 ) -> SwarmLog:
     """Fly a swarm in one process, as a lockstep run of the agent processes with neighbours by
     bundles does: at every tick each agent's control step (:class:`swarm.step.AgentStep`, the
@@ -197,13 +272,19 @@ def simulate_swarm(
     the same neighbour view the agents keep (``swarm.net.neighbours.NearNeighbours``), of the
     agents the world names near it (within its sensing radius and half the default margin);
     then the firmware's attitude loop and RK4 physics run ``physics_hz / control_hz`` steps.
-    Ends early once every agent has been within ``goal_tolerance_m`` of its goal. No I/O; the
+    Ends early once every agent has been within ``goal_tolerance_m`` of its goal. With
+    ``realism`` (``world.realism``, seeded by ``seed``) the world is as imperfect as the world
+    process makes it (the plant, motion capture and each agent's estimator, the delay and loss of
+    states and commands: :class:`_Plant`, ``swarm.net.neighbours.HeardNeighbours``). No I/O; the
     benchmark and tests use it."""
     for i, a in enumerate(agents):
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
     n = len(agents)
-    names = [f"agent-{i}" for i in range(n)]
+    names = [a.id or f"agent-{i}" for i, a in enumerate(agents)]
+    r = realism if realism is not None and not realism.ideal else None
+    sensing = r is not None and r.sensing.enabled
+    comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
     steps = [
         AgentStep(
             model,
@@ -214,6 +295,7 @@ def simulate_swarm(
             tiebreak=a.tiebreak,
             filtered=a.filtered,
             goal_tolerance_m=goal_tolerance_m,
+            estimator=r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0])) if r is not None and sensing else None,
         )
         for a in agents
     ]
@@ -223,6 +305,8 @@ def simulate_swarm(
             set(names) - {names[i]},
             NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost),
             math.inf,
+            names[i],
+            comms,
         )
         for i in range(n)
     ]
@@ -231,12 +315,12 @@ def simulate_swarm(
     for s, a in zip(states, agents, strict=True):
         if a.start_velocity_w is not None:
             s.v_w = np.asarray(a.start_velocity_w, dtype=float).copy()
-    plant = _Plant(model, CommandLevel.ATTITUDE, states, [0.0] * n, physics_hz, control_hz)
+    plant = _Plant(model, CommandLevel.ATTITUDE, states, [0.0] * n, physics_hz, control_hz, r, seed, names)
     p = model.params
     everyone = np.ones(n, dtype=bool)
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
-    log_t, log_x, log_v, log_s, log_com, log_vb = [], [], [], [], [], []
+    log_t, log_x, log_v, log_s, log_com, log_vb, log_err = [], [], [], [], [], [], []
     min_sep, min_clear = math.inf, math.inf
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
@@ -251,12 +335,15 @@ def simulate_swarm(
         results = []
         for i in range(n):
             heard[i].on_list(k, [names[j] for j in near[i]])
-            results.append(steps[i](t, states[i], obs, heard[i].rows(t, k, xb[i], lockstep=True)))
-        for i, r in enumerate(results):  # this tick's states, which the next tick uses
+            frames = plant.frames(i) if sensing else None
+            results.append(steps[i](t, states[i], obs, heard[i].rows(t, k, xb[i], lockstep=True), frames=frames))
+        for i, res in enumerate(results):  # this tick's states, which the next tick uses
             for j in range(n):
                 if j != i:
-                    heard[j].take(names[i], t, k, r.x_b_w, r.v_b_w, p.body_radius_m, r.solo)
-        plant.fly([r.command for r in results])
+                    heard[j].take(names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True)
+        for i, res in enumerate(results):
+            plant.send(i, res.command, k)
+        plant.fly(k)
         x_now = np.array([s.x_w for s in states])
         for i in np.flatnonzero(np.linalg.norm(x_now - goals, axis=1) <= goal_tolerance_m).tolist():
             if t_goal[i] is None:
@@ -266,7 +353,9 @@ def simulate_swarm(
         log_vb.append(vb)
         log_com.append(x_com)
         log_v.append(np.array([s.v_w for s in states]))
-        log_s.append([r.status for r in results])
+        log_s.append([res.status for res in results])
+        if sensing:
+            log_err.append(np.linalg.norm(np.array([res.est[:3] for res in results]) - x_com, axis=1))
         if all(tg is not None for tg in t_goal):
             break
     return SwarmLog(
@@ -279,6 +368,10 @@ def simulate_swarm(
         t_goal,
         np.array(log_com),
         np.array(log_vb),
+        np.array(log_err) if sensing else None,
+        sum(h.states_lost for h in heard),
+        plant.commands_lost,
+        plant.mocap.dropped if plant.mocap is not None else 0,
     )
 
 
@@ -299,6 +392,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 a.tiebreak.pair,
                 a.filter.enabled,
                 route,
+                a.id,
             )
         )
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

@@ -41,28 +41,3 @@ How a simulator calls it (``r = cfg.world.realism``; skip all of it when ``r.ide
 The world's drone order, the agents' ids and the seed are all a fate, a frame or a gust
 depends on, so a lockstep run repeats bit for bit.
 """
-
-from swarm.realism.comms import LOST, CommsModel, CommsParams, DelayLine, LinkParams, MessageKind
-from swarm.realism.plant import Plant, PlantParams, PlantStep
-from swarm.realism.sensing import Estimate, Estimator, EstimatorParams, MocapFrame, MocapParams, MocapSensor
-from swarm.realism.settings import PRESETS, RealismSettings
-
-__all__ = [
-    "LOST",
-    "PRESETS",
-    "CommsModel",
-    "CommsParams",
-    "DelayLine",
-    "Estimate",
-    "Estimator",
-    "EstimatorParams",
-    "LinkParams",
-    "MessageKind",
-    "MocapFrame",
-    "MocapParams",
-    "MocapSensor",
-    "Plant",
-    "PlantParams",
-    "PlantStep",
-    "RealismSettings",
-]

@@ -15,19 +15,21 @@ field named (``world.realism.sensing.position_noise_m: ...``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
-from swarm.model import QuadParams
-from swarm.realism.aero import AeroParams
-from swarm.realism.comms import CommsModel, CommsParams, LinkParams
-from swarm.realism.motors import MotorParams
-from swarm.realism.plant import Plant, PlantParams
-from swarm.realism.sensing import Estimator, EstimatorParams, MocapParams, MocapSensor
-from swarm.realism.wind import WindParams
-from swarm.rotation import FloatArray
 from swarm.strict import Strict, merge
+
+if TYPE_CHECKING:  # (imported where used: a config is read, and refused, without numba or scipy)
+    from swarm.model import QuadParams
+    from swarm.realism.aero import AeroParams
+    from swarm.realism.comms import CommsModel, CommsParams, LinkParams
+    from swarm.realism.motors import MotorParams
+    from swarm.realism.plant import Plant, PlantParams
+    from swarm.realism.sensing import Estimator, EstimatorParams, MocapParams, MocapSensor
+    from swarm.realism.wind import WindParams
+    from swarm.rotation import FloatArray
 
 _F = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 
@@ -100,6 +102,8 @@ class AeroSettings(Strict):
     ground_z_m: float = Field(0.0, allow_inf_nan=False)  # m, world: the floor
 
     def params(self) -> AeroParams:
+        from swarm.realism.aero import AeroParams
+
         return AeroParams(**self.model_dump())
 
 
@@ -117,6 +121,8 @@ class MotorSettings(Strict):
     mass_spread_fraction: float = Field(0.0, ge=0, le=0.15, allow_inf_nan=False)
 
     def params(self) -> MotorParams:
+        from swarm.realism.motors import MotorParams
+
         return MotorParams(**self.model_dump())
 
 
@@ -133,6 +139,8 @@ class WindSettings(Strict):
     gust_field: Literal["shared", "per_drone"] = "shared"  # one gust field for all drones, or one each
 
     def params(self) -> WindParams:
+        from swarm.realism.wind import WindParams
+
         s = self.steady_mps
         return WindParams(
             steady_w_mps=(s[0], s[1], s[2]),
@@ -165,11 +173,15 @@ class SensingSettings(Strict):
     estimator: EstimatorSettings = EstimatorSettings()
 
     def mocap_params(self) -> MocapParams:
+        from swarm.realism.sensing import MocapParams
+
         return MocapParams(
             self.rate_hz, self.position_noise_m, self.attitude_noise_rad, self.latency_s, self.drop_fraction
         )
 
     def estimator_params(self) -> EstimatorParams:
+        from swarm.realism.sensing import EstimatorParams
+
         e = self.estimator
         return EstimatorParams(
             position_noise_m=e.position_noise_m if e.position_noise_m is not None else self.position_noise_m,
@@ -188,6 +200,8 @@ class LinkSettings(Strict):
     loss_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
 
     def params(self) -> LinkParams:
+        from swarm.realism.comms import LinkParams
+
         return LinkParams(self.delay_s, self.jitter_s, self.loss_fraction)
 
 
@@ -197,6 +211,8 @@ class CommsSettings(Strict):
     command: LinkSettings = LinkSettings()  # an agent's command to its drone
 
     def params(self) -> CommsParams:
+        from swarm.realism.comms import CommsParams
+
         return CommsParams(self.state.params(), self.bundle.params(), self.command.params())
 
 
@@ -223,6 +239,8 @@ class RealismSettings(Strict):
         return data
 
     def plant_params(self) -> PlantParams:
+        from swarm.realism.plant import PlantParams
+
         return PlantParams(self.aero.params(), self.motors.params(), self.wind.params())
 
     @property
@@ -232,13 +250,21 @@ class RealismSettings(Strict):
 
     def plant(self, nominal: Sequence[QuadParams], dt_s: float, seed: int) -> Plant:
         """The plant of the drones whose nominal airframes are ``nominal``, stepped every ``dt_s`` [s]."""
+        from swarm.realism.plant import Plant
+
         return Plant(self.plant_params(), nominal, dt_s, seed)
 
     def mocap(self, n: int, seed: int) -> MocapSensor:
+        from swarm.realism.sensing import MocapSensor
+
         return MocapSensor(self.sensing.mocap_params(), n, seed)
 
     def estimator(self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0) -> Estimator:
+        from swarm.realism.sensing import Estimator
+
         return Estimator(self.sensing.estimator_params(), x0_w, q0, t0_s)
 
     def comms_model(self, seed: int, tick_s: float) -> CommsModel:
+        from swarm.realism.comms import CommsModel
+
         return CommsModel(self.comms.params(), seed, tick_s)

@@ -37,7 +37,7 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
-from swarm.net.messages import encode, warm_up
+from swarm.net.messages import encode, frames_wire, warm_up
 from swarm.rotation import quat_to_R
 from swarm.shutdown import StopFlag
 from swarm.world.mocap import BodyEstimate, MocapRelay, connect
@@ -79,6 +79,7 @@ class TickView:
     roster: np.ndarray  # (n * 7,): per drone body centre [m], its velocity [m/s], radius [m]
     measured: list[str]  # simulated drones of live agents, measured in the clock
     meas: np.ndarray  # (len(measured) * 13,): x, v, q, w of each
+    frames: dict[str, list]  # measured drone -> its motion-capture frames since the last tick (world.realism)
 
 
 @dataclass
@@ -229,7 +230,7 @@ class World:
         if m.k < slot.command_k:
             return  # older than what we hold
         slot.command_k = m.k
-        self.physics.hold(m.src, u, m.t)
+        self.physics.send(m.src, u, m.t, m.k)
         sent = slot.sent_at.pop(m.k, None)
         if sent is not None:
             slot.answered += 1
@@ -290,6 +291,11 @@ class World:
         measured = [a for a in self.flown if slots[a].alive]  # a dead agent's drone is no longer measured
         rows = [self.index[a] for a in measured]
         meas = np.hstack([ds.x_w[rows], ds.v_w[rows], ds.q[rows], ds.Omega_b[rows]]).ravel()
+        frames: dict[str, list] = {}
+        if self.physics.mocap is not None:  # world.realism.sensing: what motion capture saw by now
+            f_rows = [self.index[a] for a in self.flown]
+            self.physics.capture(t, DroneStates(*(a[f_rows] for a in (ds.x_w, ds.v_w, ds.q, ds.Omega_b, ds.R))))
+            frames = {a: self.physics.frames_of(a) for a in measured}
         flying = x_b[[not slots[a].dead for a in names]]
         if len(flying) >= 2:
             c.min_sep = min(c.min_sep, min_pair_distance(flying))
@@ -299,7 +305,7 @@ class World:
         for a, there in zip(names, at_goal.tolist(), strict=True):
             if there and slots[a].reached_at_s is None:
                 slots[a].reached_at_s = t
-        return TickView(ds, items, live, x_b, roster, measured, meas)
+        return TickView(ds, items, live, x_b, roster, measured, meas, frames)
 
     def is_done(self, k: int, view: TickView) -> bool:
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
@@ -347,6 +353,7 @@ class World:
             meas=view.meas,
             items=view.items,
             solo=solo,
+            frames=frames_wire([(j, f) for j, a in enumerate(view.measured) for f in view.frames.get(a, ())]),
         )
         if self.cells:  # each agent's own tick: its measurement and the live agents near it
             expected = np.array([slots[a].alive and not slots[a].dead for a in names])
@@ -368,6 +375,7 @@ class World:
                     items=view.items,
                     gone=gone,
                     done=done,
+                    frames=frames_wire([(0, f) for f in view.frames.get(aid, ())]),
                 )
 
     def collect(self, k: int, t: float, live: list[str]) -> None:
@@ -416,6 +424,7 @@ class World:
                 # the CPU from the agents computing them)
                 time.sleep(max(0.0, self.wall0 + (k + j / sub) * self.dt_ctrl - time.monotonic()))
                 self.poll_commands(k)
+            self.physics.deliver(k)  # (world.realism.comms: the commands that reach their drones by now)
             poses = {}
             for a in self.real:  # real drones: where motion capture saw them last
                 est = self.relay.latest(a) if self.relay else None
@@ -496,6 +505,8 @@ class World:
             "dropped": self.counter.dropped,
             "dropped_reasons": dict(self.counter.reasons),
             "braking_ticks": sum(d.braking_ticks for d in self.physics.drones.values()),
+            "commands_lost": self.physics.commands_lost,  # world.realism.comms.command
+            "mocap_frames_dropped": 0 if self.physics.mocap is None else self.physics.mocap.dropped,
             "mocap": None
             if relay is None
             else {"frames": relay.frames, "dropped_frames": relay.dropped_frames, "lost": sorted(relay.lost)},

@@ -8,7 +8,13 @@ firmware's attitude loop, younger than 500 ms as it is, then levelled out with i
 from 2 s motors off (its watchdog, ``swarm.crazyflie_fw``); at the rotor level its thrusts,
 clipped to the rotor limits. The world's own fallbacks fly a drone without a fresh command in
 realtime (braking to a hover) and a dead agent's drone (landing, motors off, or the firmware's
-watchdog)."""
+watchdog).
+
+With ``world.realism`` (``swarm.realism``) the simulated drones are built as the plant's
+airframes (their mass factors), their rotors make the plant's thrusts (lag, thrust factors)
+and the plant's downwash, drag, ground effect and wind act on them each substep; motion
+capture sees them at its frame rate (noise, latency, drops: :meth:`Stepper.frames`); a
+command reaches its drone after its seeded delay, or never (:meth:`Stepper.send`)."""
 
 from __future__ import annotations
 
@@ -21,6 +27,9 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, OnboardGains, onboard_rotor_thrusts
 from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
 from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.realism.comms import DelayLine, MessageKind
+from swarm.realism.plant import Plant
+from swarm.realism.sensing import MocapFrame, MocapSensor
 from swarm.world.physics import DroneStates, PhysicsWorld
 
 GROUND_IMPACT_MPS = 0.5
@@ -81,11 +90,25 @@ class Stepper:
         self.real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
         self.firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+        realism = cfg.world.realism
+        flown_cfg = [a for a in cfg.agents if a.id not in self.real]
+        nominal = [a.quad_params() for a in flown_cfg]
+        plant = realism.plant(nominal, 1.0 / cfg.time.physics_hz, cfg.seed)
+        self.plant: Plant | None = None if plant.p.ideal else plant  # the plant's extra forces, motors
+        built = {a.id: QuadModel(f) for a, f in zip(flown_cfg, plant.airframes, strict=True)}  # (mass factors)
+        sensing = realism.sensing.enabled
+        self.mocap: MocapSensor | None = realism.mocap(len(flown_cfg), cfg.seed) if sensing else None
+        self.comms = (
+            None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)
+        )
+        self.in_flight: DelayLine[tuple[str, np.ndarray, float]] = DelayLine()  # commands on their way
+        self.commands_lost = 0
+        self.seen: list[list[MocapFrame]] = [[] for _ in flown_cfg]  # per flown drone: frames not yet sent
         for a in cfg.agents:
             model = QuadModel(a.quad_params())
             self.sim.add_drone(
                 a.id,
-                model,
+                built.get(a.id, model),
                 np.asarray(a.start, float),
                 a.yaw_rad,
                 np.asarray(a.start_velocity, float),
@@ -104,6 +127,7 @@ class Stepper:
         self.names = list(self.drones)
         self.flown = [a for a in self.names if a not in self.real]  # simulated drones: PyBullet flies them
         self.index = {a: i for i, a in enumerate(self.names)}
+        self.flown_index = {a: i for i, a in enumerate(self.flown)}
         self.l_m = np.array([self.drones[a].model.params.l_m for a in self.names])  # body-centre offsets [m]
         self.radius_m = np.array([self.drones[a].model.params.body_radius_m for a in self.names])  # bounding radii [m]
         self.onboard_gains: dict[tuple[str, ...], OnboardGains] = {}  # drones -> their stacked gains
@@ -117,6 +141,35 @@ class Stepper:
         """Fly ``command`` (of the drone's level) from now, answering the tick at sim time ``t_s``."""
         d = self.drones[name]
         d.command, d.command_t_s = command, t_s
+
+    def send(self, name: str, command: np.ndarray, t_s: float, k: int) -> None:
+        """Agent ``name``'s command answering tick ``k`` at sim time ``t_s``: flown now, or with
+        ``world.realism.comms.command`` from the tick its seeded fate delivers it at (:meth:`deliver`),
+        or never (counted in ``commands_lost``)."""
+        if self.comms is None:
+            self.hold(name, command, t_s)
+        elif not self.in_flight.put(k, self.comms.fate(name, "world", MessageKind.COMMAND, k), (name, command, t_s)):
+            self.commands_lost += 1
+
+    def deliver(self, k: int) -> None:
+        """The commands on their way that reach their drones by tick ``k`` (``world.realism.comms``)."""
+        for name, command, t_s in self.in_flight.due(k):
+            if t_s >= self.drones[name].command_t_s:
+                self.hold(name, command, t_s)
+
+    def capture(self, t_s: float, fs: DroneStates) -> None:
+        """Motion capture at sim time ``t_s`` [s] of the simulated drones (states ``fs``,
+        ``flown`` order): the frames that have arrived by then are kept for :meth:`frames_of`
+        (``world.realism.sensing``; nothing without it). Call it at every physics step's time."""
+        if self.mocap is not None:
+            for f in self.mocap.step(t_s, fs.x_w, fs.q):
+                self.seen[f.drone].append(f)
+
+    def frames_of(self, name: str) -> list[MocapFrame]:
+        """The frames of simulated drone ``name`` that arrived since the last call."""
+        i = self.flown_index[name]
+        out, self.seen[i] = self.seen[i], []
+        return out
 
     def read(self, names: list[str] | None = None) -> DroneStates:
         """Ground truth of the drones ``names`` (every drone when None)."""
@@ -160,9 +213,16 @@ class Stepper:
         ``v_tick_w`` (n, 3), ``names`` order) left out."""
         if fs is None:
             fs = self.sim.read_states(self.flown)
+        if not first:  # (the tick's own time was captured with its measurement)
+            self.capture(self.sim.t_s, fs)
         for a, (x_w, q) in poses.items():
             self.sim.set_pose(a, x_w, q)
-        self.sim.apply_rotors_all(self.flown, self.rotor_thrusts(fs, self.stale(), first), fs)
+        f_N = self.rotor_thrusts(fs, self.stale(), first)
+        if self.plant is not None:
+            out = self.plant.step(fs.x_w, fs.v_w, fs.R, f_N)
+            f_N = out.f_N
+            self.sim.apply_external_all(self.flown, out.force_w, out.torque_b, fs)
+        self.sim.apply_rotors_all(self.flown, f_N, fs)
         return {p for p in self.sim.step() if "ground" not in p or self._impact(p, v_tick_w)}
 
     def _impact(self, pair: tuple[str, str], v_w: np.ndarray) -> bool:

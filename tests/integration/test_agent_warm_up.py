@@ -32,7 +32,7 @@ for k in (1, 2):
     agent.source.table.update_records(bundle.states.records, agent.others, tp.Counter())
     body = dict(x=np.array([-1.0, 0, 1]), v=np.zeros(3), q=np.array([0, 0, 0, 1.0]), w=np.zeros(3))
     tick = decode(encode("tick", run, "world", k, 0.2 * k, k, near=["cf2", "cf3"], items=[], gone=[], done=False,
-                         **body), run)
+                         frames=[], **body), run)
     measurement = agent.on_tick(tick)
     ready = agent.source.missing(k) == 0  # (the states of tick k - 1 of the two the world names)
     agent.lockstep = k == 1  # then realtime at 0.4 s: ages checked

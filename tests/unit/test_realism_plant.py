@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from swarm.model import QuadModel, QuadParams, QuadState, step_rk4
-from swarm.realism import RealismSettings
 from swarm.realism.plant import Plant, PlantParams
+from swarm.realism.settings import RealismSettings
 from swarm.rotation import quat_to_R
 
 NOMINAL = QuadParams()

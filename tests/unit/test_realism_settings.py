@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from swarm.config import ConfigError, dump, load, resolve
-from swarm.realism import PRESETS, RealismSettings
+from swarm.realism.settings import PRESETS, RealismSettings
 
 
 def scenario(realism: object = None) -> dict:

@@ -93,7 +93,7 @@ def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_x
             dxy2 = dx * dx + dy * dy
             if not dxy2 < range_xy * range_xy:
                 continue
-            s = r_p / (4.0 * dz)
+            s = r_p / (4.0 * max(dz, 1e-6))  # finite: the cap binds long before 1 um
             alpha = peak_N * s * s
             beta = slope * dz + offset_m
             b2 = beta * beta
@@ -103,6 +103,8 @@ def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_x
                 e = math.exp(-0.5 * dxy2 / b2)
             else:
                 e = 0.0
+            if e == 0.0:
+                continue
             f = alpha * e
             cap = cap_fraction * max(thrust_N[j], 0.0)
             if f > cap:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from swarm.model import QuadParams, rotor_geometry
@@ -85,6 +85,8 @@ _coord = st.floats(-50, 50, allow_nan=False)
     st.lists(st.tuples(_coord, _coord, _coord), min_size=1, max_size=8),
     st.lists(st.floats(0, 1), min_size=8, max_size=8),
 )
+@example(points=[(0.0, 0.0, 1e-176), (0.0, 5.0, 0.0)], thrusts=[0.0] * 8)  # inf * 0 once
+@example(points=[(0.0, 0.0, 1e-176), (0.0, 0.0, 0.0)], thrusts=[0.3] * 8)
 def test_downwash_is_finite_downward_bounded_and_zero_with_none_above(points, thrusts):
     x = np.array(points, float)
     T = np.array(thrusts[: len(points)])

@@ -580,6 +580,20 @@ def sweep(
 @click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share of each neighbour pair")
 @click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="right_hand", show_default=True)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
+@click.option(
+    "--realism",
+    type=click.Choice(["crazyflie_lab", "ideal"]),
+    default="crazyflie_lab",
+    show_default=True,
+    help="world.realism: a Crazyflie lab (downwash, drag, motors, wind, motion capture, links), or the perfect world",
+)
+@click.option(
+    "--neighbours",
+    type=click.Choice(["agents", "world"]),
+    default="agents",
+    show_default=True,
+    help="neighbours.source: the agents' own states, or the world's roster of every drone (ground truth: ideal only)",
+)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
 def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None:
     """Write a generated scenario: a swap (antipodal points of a circle or a sphere, or
@@ -595,7 +609,7 @@ def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None
     o = options
     settings = SwapSettings(
         speed_mps=o["speed"], perturb_m=o["perturb"], rotation_rad=math.radians(o["rotate_deg"]), seed=o["seed"],
-        mode=o["mode"],
+        mode=o["mode"], realism=o["realism"], neighbours=o["neighbours"],
     )  # fmt: skip
     if kind not in ("trap",) and n is None:
         n = 4 if kind == "corridor" else 6 if kind in ("doorway", "forest") else None

@@ -138,7 +138,7 @@ class AgentStep:
             )
         return cls(
             QuadModel(agent.quad_params()),
-            filter_config_for(agent, still, level, route),
+            filter_config_for(agent, still, level, route, realism),
             PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,

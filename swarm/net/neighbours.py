@@ -128,9 +128,10 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
     """The rows of ``slots`` of ``table`` (:meth:`_Slots.fields`) at sim time ``t_now`` [s]
     (see NeighbourTable.arrays) into ``out`` (OBSTACLE); kept[n]: slot n made a row.
     ``lost``: the table's (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep
-    them stopped 0.0). Returns the number of rows."""
+    them stopped 0.0, accel_bound_mps2, velocity_error_mps). Returns the number of rows."""
     sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, _, sl_gone = table
     timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
+    accel, vel_err = lost[4], lost[5]
     m = 0
     for n in range(slots.shape[0]):
         i = slots[n]
@@ -152,7 +153,7 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
             for d in range(3):
                 ob.c[d] = sl_x[i, j, d] + sl_v[i, j, d] * age
                 ob.cd[d] = sl_v[i, j, d]
-            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s)
+            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s) + (0.5 * accel * age + vel_err) * age
             ob.is_nb = not sl_solo[i, j]
         for d in range(3):
             ob.cdd[d] = 0.0
@@ -179,9 +180,25 @@ class NeighbourTable:
         growth_mps: float,
         hard_limit_s: float,
         on_lost: str = "keep_stopped",
+        accel_bound_mps2: float = 0.0,
+        velocity_error_mps: float = 0.0,
     ) -> None:
+        """``accel_bound_mps2``, ``velocity_error_mps``: a row's radius also grows by
+        ``(a / 2 age + e) age`` with its state's age [s], what extrapolating it at constant
+        velocity can miss when the neighbour accelerates at up to ``a`` and its velocity is off by
+        up to ``e`` (``world.realism``: ``swarm.tuning.prediction_bounds``; 0: not at all)."""
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
-        self._lost = np.array([timeout_s, growth_mps, hard_limit_s, 1.0 if on_lost == "drop" else 0.0])
+        self.accel_bound_mps2, self.velocity_error_mps = accel_bound_mps2, velocity_error_mps
+        self._lost = np.array(
+            [
+                timeout_s,
+                growth_mps,
+                hard_limit_s,
+                1.0 if on_lost == "drop" else 0.0,
+                accel_bound_mps2,
+                velocity_error_mps,
+            ]
+        )
         self.slot: dict[str, int] = {}  # name -> slot, in the order first heard
         self.names: list[str] = []  # slot -> name
         self.s = _Slots.empty(0, self.HISTORY)

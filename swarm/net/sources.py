@@ -31,6 +31,7 @@ from swarm.net.neighbours import HELD_TICKS, HeardNeighbours, NearNeighbours, Ne
 from swarm.realism.comms import CommsModel
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
+from swarm.tuning import prediction_bounds
 
 
 def _keep_newest(by_tick: dict, n: int) -> None:
@@ -252,7 +253,7 @@ class BundleSource(_NearSource):
         records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.1) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
         t = self.table
-        table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost)
+        table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
         table.update_records(b.states.records, set(names), tp.Counter())
         table.arrays(0.0, 0, names)
         table.arrays(0.0)
@@ -355,11 +356,13 @@ def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSou
     others = {a.id for a in cfg.agents} - {agent_id}
     if cfg.neighbours.source == "world":
         return RosterSource(others)
-    f = cfg.failure
-    table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
+    f, realism = cfg.failure, cfg.world.realism
+    accel, vel_err = prediction_bounds(cfg.agent(agent_id).quad_params(), realism)
+    table = NeighbourTable(
+        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
+    )
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
-    realism = cfg.world.realism
     comms = None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)
     if cfg.uses_bundles:
         return BundleSource(agent_id, others, table, run, counter, interest, keys, comms)

@@ -28,7 +28,7 @@ from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep
-from swarm.tuning import filter_config_for
+from swarm.tuning import filter_config_for, prediction_bounds
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -300,10 +300,13 @@ def simulate_swarm(
         for a in agents
     ]
     f = _FAILURE
+    accel, vel_err = prediction_bounds(model.params, r)
     heard = [
         NearNeighbours(
             set(names) - {names[i]},
-            NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost),
+            NeighbourTable(
+                f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
+            ),
             math.inf,
             names[i],
             comms,
@@ -387,7 +390,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                filter_config_for(a, still, CommandLevel.ATTITUDE, route),
+                filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism),
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,

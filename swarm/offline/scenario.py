@@ -23,7 +23,12 @@ class SwapSettings:
     control_hz: float = 100.0
     physics_hz: float = 300.0
     mode: str = "lockstep"
-    neighbours: str = "world"  # world roster (O(N) deliveries) or agents' mesh
+    # agents: each agent publishes its state and hears its neighbours' (the mission's shape, by the
+    # relay's bundles on one machine); world: the world's roster of every drone, as motion capture gives it
+    neighbours: str = "agents"
+    # world.realism: the lab's imperfections (downwash, drag, motors, wind, motion capture, links),
+    # or ideal: the perfect world
+    realism: str = "crazyflie_lab"
     sensing_radius_m: float = 2.5
     duration_s: float | None = None  # default: 2.5 x the longest straight path / speed + 5 s
     # 1/s and m/s: the filter's class-K gain and velocity buffer (the default buffer, written out).
@@ -54,6 +59,7 @@ def _scenario(name: str, starts: FloatArray, goals: FloatArray, s: SwapSettings,
         "goal_tolerance_m": 0.15,
         "time": {"mode": s.mode, "physics_hz": s.physics_hz, "control_hz": s.control_hz},
         "neighbours": {"source": s.neighbours},
+        "world": {"realism": s.realism},
         "defaults": {
             "speed_mps": s.speed_mps,
             "command_level": "attitude",

@@ -318,3 +318,22 @@ class Estimator:
             np.sqrt(P[:, 1, 1]),
             t_s - self.t_fused_s,
         )
+
+
+def steady_std(p: EstimatorParams, rate_hz: float, drop_fraction: float, latency_s: float) -> tuple[float, float]:
+    """The largest standard deviations of an axis of the :class:`Estimator`'s position [m] and
+    velocity [m/s] in steady state when it is read: its own covariance predicted from a frame's
+    capture over the latency and up to the next frame that arrives (one period, two where
+    frames drop), the largest over the axes. The margins the agents' filter keeps for the noise
+    of motion capture are multiples of them (``swarm.tuning``)."""
+    period = 1.0 / rate_hz
+    X = np.zeros((3, 2))
+    P = np.zeros((3, 2, 2))
+    P[:, 0, 0] = p.r2_m2
+    P[:, 1, 1] = p.initial_velocity_std_mps**2
+    zero, qd = np.zeros(3), p.q_density
+    for _ in range(2000):  # the Riccati recursion to its fixed point (the filter's time constant is ~10 frames)
+        _predict(X, P, zero, period, qd)
+        _update(X, P, zero, p.r2_m2)
+    _predict(X, P, zero, latency_s + period * (2.0 if drop_fraction > 0 else 1.0), qd)
+    return float(np.sqrt(P[:, 0, 0].max())), float(np.sqrt(P[:, 1, 1].max()))

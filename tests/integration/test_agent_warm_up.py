@@ -9,8 +9,10 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 PROBE = """
-import json
+import json, sys
 import numpy as np
 from swarm.net import statewire, transport as tp
 from swarm.agents.agent import AgentProcess
@@ -20,7 +22,7 @@ from swarm.net.neighbours import _rows, _store, _newest
 from swarm.model import all_finite
 from swarm.offline.scenario import SwapSettings, circle_swap
 
-cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents"), name="warm"), "warm")
+cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents", realism=sys.argv[1]), name="warm"), "warm")
 kernels = (all_finite, statewire._verdicts, _store, _rows, _newest)
 run = "warm-run"
 agent = AgentProcess(cfg, "cf1", run)  # (built and warmed up; no session opened)
@@ -47,9 +49,14 @@ print(json.dumps(dict(
 """
 
 
-def test_after_the_warm_up_a_bundled_tick_compiles_nothing():
-    out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, timeout=300, check=True)
+@pytest.mark.parametrize("realism", ["ideal", "crazyflie_lab"])
+def test_after_the_warm_up_a_bundled_tick_compiles_nothing(realism):
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, realism], capture_output=True, text=True, timeout=300, check=True
+    )
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["rows"] == 3 and got["finite"] and got["ready"], got  # the realtime tick used all three neighbours
+    assert got["rows"] == 3 and got["finite"], got  # the realtime tick used all three neighbours
+    # (in the lab a state is usable only at its link's fate, so lockstep may still wait for one)
+    assert got["ready"] or realism != "ideal", got
     assert all(n >= 1 for n in got["before"].values()), got  # each kernel loaded or compiled by the warm-up
     assert got["after"] == got["before"], got  # and no tick needed another signature

@@ -40,6 +40,7 @@ import math
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -119,7 +120,7 @@ def firmware_row(run: Path, names: list[str], cal: object) -> dict:
         missed.append(tr.end.get("missed_packets", 0) / max(1, sent + tr.end.get("missed_packets", 0)))
         states[name] = [s for _, s in tr.transitions()]
     g = np.array(gaps) * 1e3 if gaps else np.array([math.nan])
-    summary = next(
+    summary: dict[str, Any] = next(
         (json.loads(m.group(1)) for line in (run / "logs" / "sitl.log").read_text().splitlines()
          if (m := re.match(r"SITL_FW_SUMMARY (.*)", line))),
         {},

@@ -39,12 +39,12 @@ WEIGHT_N = CRAZYSIM.mass_kg * 9.81
 
 
 WARM = """
-from swarm.agents.agent import Agent
+from swarm.agents.agent import AgentProcess
 from swarm.config import load
 from swarm.world.main import World
 cfg = load("configs/mixed_firmware.yaml")
 World(cfg, "warm").warm_up()
-Agent(cfg, "real1"), Agent(cfg, "sim1")
+AgentProcess(cfg, "real1", "warm"), AgentProcess(cfg, "sim1", "warm")
 """
 
 

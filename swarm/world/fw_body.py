@@ -1,9 +1,13 @@
 """The body a Crazyflie firmware flies in the loop (``swarm.world.sitl_fw``): pure and compiled.
 
-* **Motors.** Each of the four PWM commands the firmware sends on CRTP port 9 becomes a
+* **Motors.** Each of the four PWM commands the firmware sends on CRTP port 9 asks for a
   thrust ``a u^2 + b u`` [N], ``u = PWM / 65535``, with the simulated motors' constants
-  (``swarm.crazyflie_fw.CRAZYSIM``, from the firmware's ``power_distribution_sitl.c``),
-  at once: no motor lag, as the project's own rigid body has none.
+  (``swarm.crazyflie_fw.CRAZYSIM``, from the firmware's ``power_distribution_sitl.c``):
+  the rotor speed that makes it, which the rotor reaches through a first-order lag, 12.5 ms
+  up and 25 ms down, as in ``swarm.realism.motors`` (CrazySim's Gazebo motor model, whose
+  constants it cites; thrust goes with the speed squared). The firmware's gains are tuned
+  for motors that lag: on a body whose thrust follows the PWM at once its attitude-rate
+  loop rings (docs/design.md, "Firmware in the loop").
 * **Layout.** M1 front right, M2 back right, M3 back left, M4 front left, each
   ``ARM_LENGTH / sqrt 2`` from the body axes; M1 and M3 turn the body about -z, M2 and M4
   about +z, ``thrustToTorque`` metres times their thrust: the inverse of the firmware's
@@ -33,6 +37,7 @@ from numba import njit
 
 from swarm.crazyflie_fw import CRAZYSIM, MOTOR_XY, MOTOR_YAW
 from swarm.model import QuadParams
+from swarm.realism.motors import MotorParams
 from swarm.rotation import FloatArray
 
 G_PER_LSB = 2.0 * 16.0 / 65536.0  # sensors_sitl.c SENSORS_G_PER_LSB_CFG
@@ -53,6 +58,21 @@ def motor_thrusts(pwm, a_N, b_N, f):
     for i in range(4):
         u = pwm[i] / 65535.0
         f[i] = a_N * u * u + b_N * u
+
+
+@njit(cache=True)
+def lagged_thrusts(pwm, a_N, b_N, spin, tau_up_s, tau_down_s, dt, f):
+    """The thrusts [N] (4,) into ``f`` after ``dt`` [s] of the PWM commands (4,) held: each
+    rotor's speed, kept in ``spin`` (4,) as the square root of the thrust it makes
+    [sqrt N], moves toward the speed of ``a u^2 + b u`` by ``1 - exp(-dt / tau)``, with
+    ``tau_up_s`` while it rises and ``tau_down_s`` while it falls (0: at once)."""
+    motor_thrusts(pwm, a_N, b_N, f)
+    for i in range(4):
+        target = math.sqrt(max(f[i], 0.0))
+        tau = tau_up_s if target > spin[i] else tau_down_s
+        a = math.exp(-dt / tau) if tau > 0.0 else 0.0
+        spin[i] = a * spin[i] + (1.0 - a) * target
+        f[i] = spin[i] * spin[i]
 
 
 @njit(cache=True)
@@ -108,12 +128,13 @@ def _clip16(v):
 
 
 @njit(cache=True)
-def step(s, pwm, a_N, b_N, B, J, J_inv, m, g, dt, imu):
-    """One millisecond of the body: motor thrusts from ``pwm``, the RK4 step, the floor,
-    and the IMU reading at its end into ``imu`` (6,) int16 counts (accelerometer x, y, z,
-    gyro x, y, z, body frame). Returns the collective thrust [N]."""
+def step(s, pwm, a_N, b_N, spin, tau_up_s, tau_down_s, B, J, J_inv, m, g, dt, imu):
+    """One millisecond of the body: motor thrusts from ``pwm`` through the rotors' lag
+    (:func:`lagged_thrusts`), the RK4 step, the floor, and the IMU reading at its end into
+    ``imu`` (6,) int16 counts (accelerometer x, y, z, gyro x, y, z, body frame). Returns
+    the collective thrust [N]."""
     f = np.empty(4)
-    motor_thrusts(pwm, a_N, b_N, f)
+    lagged_thrusts(pwm, a_N, b_N, spin, tau_up_s, tau_down_s, dt, f)
     v0 = s[3:6].copy()
     rk4(s, f, B, J, J_inv, m, g, dt)
     x, y, z, w = s[6], s[7], s[8], s[9]
@@ -148,10 +169,16 @@ def step(s, pwm, a_N, b_N, B, J, J_inv, m, g, dt, imu):
 
 
 class FirmwareBody:
-    """One body: its state and constants, stepped by :meth:`step` with the latest PWM."""
+    """One body: its state and constants, stepped by :meth:`step` with the latest PWM;
+    ``motors`` gives the rotors' time constants (``MotorParams(0, 0)``: thrust at once)."""
 
-    def __init__(self, x_w: FloatArray, yaw_rad: float, params: QuadParams | None = None) -> None:
+    def __init__(
+        self, x_w: FloatArray, yaw_rad: float, params: QuadParams | None = None, motors: MotorParams | None = None
+    ) -> None:
         p = params or QuadParams(mass_kg=CRAZYSIM.mass_kg)
+        lag = motors or MotorParams()
+        self.tau_up_s, self.tau_down_s = lag.time_constant_up_s, lag.time_constant_down_s
+        self.spin = np.zeros(4)  # each rotor's speed as the square root of its thrust [sqrt N]
         self.m, self.g = p.mass_kg, p.g_mps2
         self.J = np.diag([p.Ixx_kgm2, p.Iyy_kgm2, p.Izz_kgm2])
         self.J_inv = np.linalg.inv(self.J)
@@ -166,8 +193,9 @@ class FirmwareBody:
 
     def step(self, dt_s: float) -> None:
         self.thrust_N = step(
-            self.s, self.pwm, self.a_N, self.b_N, self.B, self.J, self.J_inv, self.m, self.g, dt_s, self.imu
-        )
+            self.s, self.pwm, self.a_N, self.b_N, self.spin, self.tau_up_s, self.tau_down_s,
+            self.B, self.J, self.J_inv, self.m, self.g, dt_s, self.imu,
+        )  # fmt: skip
 
     @property
     def x_w(self) -> FloatArray:

@@ -22,7 +22,8 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   answers what it is asked (a link echo, a log request) and nothing more.
 * **Its body.** The firmware sends four motor PWM values on CRTP port 9 every stabilizer
   tick; they fly a Crazyflie body (``swarm.world.fw_body``: the firmware's quadratic motor
-  map, yaw torque and motor layout, the project's rigid body, the floor).
+  map, yaw torque and motor layout, the simulated rotors' lag, the project's rigid body,
+  the floor).
 * **Its sensors.** Every millisecond of wall-clock time (the firmware's stabilizer runs
   once per sensor packet and assumes 1 kHz, ``src/modules/src/stabilizer.c``) one
   accelerometer-and-gyro packet goes in on port 9 (``src/hal/src/sensors_sitl.c``). A

@@ -57,10 +57,10 @@ def warm_kernels() -> None:
 
 
 def _firmware_scenario(cf2: Path, **over: object) -> ScenarioConfig:
-    """configs/mixed_firmware.yaml with the test's firmware and a fixed 12.5 s (the simulated drones
-    brake on a late command: a stalled CI machine is not what this tests)."""
+    """configs/mixed_firmware.yaml (14 s) with the test's firmware, run to its end (the simulated
+    drones brake on a late command: a stalled CI machine is not what this tests). Their crossing
+    took 6.3 to 9.9 s in ten runs on a 2-core machine: the hold measured after it ends by 11 s."""
     base: dict[str, object] = {
-        "duration_s": 12.5,
         "stop_when_all_reached": False,
         "time": {"late_command": "brake", "start_timeout_s": 120.0},
         "mocap": {"options": {"cf2": str(cf2)}},
@@ -156,7 +156,8 @@ def test_the_firmware_locks_after_an_emergency_stop_and_its_watchdog_after_the_g
     assert 0.0 < locked - estops[0] < 0.2, (locked - estops[0], states)
     assert states[-1][1] == "locked"
     after = tr.body_t > locked + 0.05
-    assert tr.body_thrust_N[after].max() == 0.0 and tr.body_x[-1, 2] == 0.0  # motors off: it fell
+    assert tr.body_pwm[after].max() == 0.0 and tr.body_x[-1, 2] == 0.0  # motors off: it fell
+    assert tr.body_thrust_N[tr.body_t > locked + 0.15].max() < 0.01 * WEIGHT_N  # (the rotors spun down)
 
     tr = _trace(h.out, "real2")
     assert not [w for _, w in tr.packets if w.startswith("estop")]
@@ -167,7 +168,7 @@ def test_the_firmware_locks_after_an_emergency_stop_and_its_watchdog_after_the_g
     assert 0.45 < level < 0.8 and 1.95 < locked < 2.4, (level, locked, tr.transitions())  # (its supervisor: 25 Hz)
     between = (tr.body_t > last_sp + level + 0.05) & (tr.body_t < last_sp + locked - 0.05)
     assert tr.body_thrust_N[between].min() > 0.8 * WEIGHT_N  # levelled out with its thrust kept
-    assert tr.body_thrust_N[tr.body_t > last_sp + locked + 0.05].max() == 0.0 and tr.body_x[-1, 2] == 0.0
+    assert tr.body_pwm[tr.body_t > last_sp + locked + 0.05].max() == 0.0 and tr.body_x[-1, 2] == 0.0
     assert tr.transitions()[-1][1] == "locked"
 
 

@@ -13,6 +13,7 @@ from swarm.agents.crazyflie import thrust_command
 from swarm.config import ConfigError, ThrustCalibration, resolve
 from swarm.crazyflie_fw import CRAZYSIM, ThrustMap, collective_thrust_N, thrust_map
 from swarm.model import QuadModel, QuadParams, step_rk4
+from swarm.realism.motors import MotorParams
 from swarm.rotation import euler_to_quat, quat_to_R
 from swarm.world.fw_body import DEG_PER_LSB, G_PER_LSB, FirmwareBody, firmware_mixer, rk4
 from swarm.world.sitl_fw import FwState, fw_state
@@ -97,7 +98,7 @@ def test_a_thrust_calibration_can_be_quadratic():
 
 
 def test_the_imu_reads_as_the_firmware_scales_it():
-    body = FirmwareBody(np.array([0.0, 0.0, 0.0]), math.radians(30))
+    body = FirmwareBody(np.array([0.0, 0.0, 0.0]), math.radians(30), motors=MotorParams(0.0, 0.0))  # thrust at once
     body.step(DT)
     assert list(body.imu) == [0, 0, round(1.0 / G_PER_LSB), 0, 0, 0]  # at rest on the floor: 1 g up, any yaw
     body.s[2] = 1.0  # in the air, motors off: free fall, the accelerometer feels nothing
@@ -115,6 +116,27 @@ def test_the_imu_reads_as_the_firmware_scales_it():
     body.s[10] = 100.0  # beyond the gyro's 2000 deg/s: the int16 saturates
     body.step(DT)
     assert body.imu[3] == 32767
+
+
+def test_the_rotors_lag_as_the_simulated_motors_do():
+    """A rotor's speed reaches 63 % of a step in its time constant (12.5 ms up, 25 ms down:
+    swarm.realism.motors' CrazySim values), its thrust 40 %; held, it makes the thrust the PWM
+    asks for (the firmware's map)."""
+    up_s, down_s = MotorParams().time_constant_up_s, MotorParams().time_constant_down_s
+    assert (up_s, down_s) == (0.0125, 0.025)
+    body = FirmwareBody(np.array([0.0, 0.0, 1.0]), 0.0)
+    target = CRAZYSIM.thrust.collective_N(40_000)
+    body.pwm[:] = 40_000
+    for _ in range(25):  # 25 ms: two time constants up
+        body.step(DT)
+    assert body.thrust_N == pytest.approx((1 - math.exp(-2)) ** 2 * target, rel=1e-9)
+    for _ in range(300):
+        body.step(DT)
+    assert body.thrust_N == pytest.approx(target, rel=1e-9)
+    body.pwm[:] = 0
+    for _ in range(25):  # one time constant down: speed e^-1 of it, thrust e^-2
+        body.step(DT)
+    assert body.thrust_N == pytest.approx(math.exp(-2) * target, rel=1e-9)
 
 
 def test_a_body_rests_on_the_floor_level_until_its_motors_lift_it():

@@ -321,23 +321,14 @@ class FirmwareDrone:
                 pass
 
     def poll(self, now: float) -> None:
-        """Everything waiting on both sockets."""
-        while True:
-            try:
-                pk, addr = self.fw_sock.recvfrom(64)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:
-                break
-            self._from_firmware(pk, addr, now)
-        while True:
-            try:
-                pk, addr = self.cl_sock.recvfrom(64)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:
-                break
-            self._from_client(pk, addr, now)
+        """Everything waiting on both sockets (until one would block, or fails)."""
+        for sock, take in ((self.fw_sock, self._from_firmware), (self.cl_sock, self._from_client)):
+            while True:
+                try:
+                    pk, addr = sock.recvfrom(64)
+                except OSError:  # (BlockingIOError: nothing more waiting)
+                    break
+                take(pk, addr, now)
 
     def _from_firmware(self, pk: bytes, addr: tuple[str, int], now: float) -> None:
         if self.fw_addr is None:

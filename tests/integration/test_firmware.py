@@ -100,14 +100,14 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         held = (t > end - 1.5) & (t < end)
         assert held.sum() > 100 and crossed < cfg.duration_s - 3.0, (name, held.sum(), crossed)
         z = x[held, 2]
-        assert np.abs(z - 1.0).max() < 0.03 and abs(z.mean() - 1.0) < 0.01, (name, z.min(), z.max(), z.mean())
-        assert np.abs(yaw[held]).max() < 3.0  # it turned to its yaw
+        assert np.abs(z - 1.0).max() < 0.01 and abs(z.mean() - 1.0) < 0.005, (name, z.min(), z.max(), z.mean())
+        assert np.abs(yaw[held]).max() < 1.0  # it turned to its yaw
         assert x[-1, 2] == 0.0  # landed, on the floor
         # the thrust it made (its motors' PWM through their map) against the thrust meant (the setpoints')
         made = tr.body_thrust_N[held].mean()
         in_hold = (tr.sp_t - t0 > t[held][0]) & (tr.sp_t - t0 < t[held][-1])
         meant = np.mean([cal.collective_N(c) for c in tr.sp[in_hold, 3]])
-        assert abs(made / meant - 1.0) < 0.02 and abs(made / WEIGHT_N - 1.0) < 0.03, (made, meant)
+        assert abs(made / meant - 1.0) < 0.01 and abs(made / WEIGHT_N - 1.0) < 0.01, (made, meant)
         # the setpoints it logs decode as sent: roll, pitch as on the wire, yaw rate negated, thrust
         sent = {(r, p, -y, float(c)) for r, p, y, c in tr.sp}
         flying = np.array([s == "flying" for s in tr.fw_state])
@@ -115,10 +115,13 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         exact = sum(any(all(abs(a - b) <= 1e-4 * max(1.0, abs(b)) for a, b in zip(v, s, strict=True))
                         for s in sent) for v in logged[::5])  # fmt: skip
         assert exact >= 0.9 * len(logged[::5]), (exact, len(logged[::5]))
-        # its estimate (Kalman, fed the motion capture as extpos) follows the body
+        # its estimate (Kalman, fed the motion capture as an external pose) follows the body while
+        # the agent flies it (from its first thrust to its last: after that no pose comes)
         body_at = np.column_stack([np.interp(tr.fw_t, tr.body_t, x[:, i]) for i in range(3)])
-        err = np.linalg.norm(tr.fw_estimate[flying] - body_at[flying], axis=1)
-        assert np.median(err) < 0.01, np.median(err)
+        thrust_t = tr.sp_t[tr.sp[:, 3] > 0]
+        posed = (tr.fw_t > thrust_t[0]) & (tr.fw_t < thrust_t[-1])
+        err = np.linalg.norm(tr.fw_estimate[posed] - body_at[posed], axis=1)
+        assert np.median(err) < 0.005 and np.percentile(err, 95) < 0.02, (np.median(err), np.percentile(err, 95))
         # the supervisor's view: ready, flying, and ready again (landed), never locked
         states = [s for _, s in tr.transitions()]
         assert states[-1] == "ready" and "flying" in states and "locked" not in states, states

@@ -102,6 +102,7 @@ MONITOR_VARS = (
     "stateEstimateZ.y",
     "stateEstimateZ.z",
 )
+LEVEL_OUT_AFTER_S = 0.45  # supervisor.c levels out 500 ms after the newest setpoint (COMMANDER_WDT_TIMEOUT_STABILIZE)
 BIT_CAN_FLY, BIT_FLYING, BIT_TUMBLED, BIT_LOCKED, BIT_CRASHED = 3, 4, 5, 6, 7  # supervisor.c infoBitfield
 
 
@@ -112,8 +113,10 @@ def header(port: int, channel: int) -> int:
 class FwState(StrEnum):
     """The supervisor's state as its log shows it (``supervisor.info`` and the setpoint it
     flies). ``level_out`` is not a bit: it is read off the setpoint, roll, pitch and yaw rate
-    zeroed with the thrust kept (supervisor.c ``supervisorOverrideSetpoint``). ``ready``
-    covers ready to fly and landed (both may fly, neither flies)."""
+    zeroed with the thrust kept (supervisor.c ``supervisorOverrideSetpoint``), once the
+    client's newest setpoint is :data:`LEVEL_OUT_AFTER_S` old (a client may send such a
+    setpoint itself, and the log's thrust can trail a motors-off setpoint by a sample).
+    ``ready`` covers ready to fly and landed (both may fly, neither flies)."""
 
     NOT_READY = "not_ready"
     READY = "ready"
@@ -123,14 +126,18 @@ class FwState(StrEnum):
     CRASHED = "crashed"
 
 
-def fw_state(info: int, roll_deg: float, pitch_deg: float, yaw_dps: float, thrust: float) -> FwState:
-    """The state of one monitor sample (see :class:`FwState`)."""
+def fw_state(
+    info: int, roll_deg: float, pitch_deg: float, yaw_dps: float, thrust: float, setpoint_age_s: float = math.inf
+) -> FwState:
+    """The state of one monitor sample (see :class:`FwState`); ``setpoint_age_s``: how long
+    ago the client's newest setpoint came."""
     if info >> BIT_LOCKED & 1:
         return FwState.LOCKED
     if info >> BIT_CRASHED & 1:
         return FwState.CRASHED
     if info >> BIT_FLYING & 1:
         level = roll_deg == 0.0 and pitch_deg == 0.0 and yaw_dps == 0.0 and thrust > 0.0
+        level = level and setpoint_age_s >= LEVEL_OUT_AFTER_S
         return FwState.LEVEL_OUT if level else FwState.FLYING
     return FwState.READY if info >> BIT_CAN_FLY & 1 else FwState.NOT_READY
 
@@ -265,6 +272,7 @@ class FirmwareDrone:
     outbox: deque[bytes] = field(default_factory=deque)
     counters: Counters = field(default_factory=Counters)
     talked_s: float = -math.inf  # monotonic time of the client's newest packet
+    setpoint_s: float = -math.inf  # ... and of its newest setpoint (RPYT or the stop)
     handed_back: bool = False
     last_sample: dict[str, float] = field(default_factory=dict)
     state: FwState = FwState.NOT_READY
@@ -376,11 +384,13 @@ class FirmwareDrone:
         port, ch, data = pk[0] >> 4, pk[0] & 0x03, pk[1:]
         if port == 3 and ch == 0 and len(data) == 14:  # crtp_commander_rpyt.c: roll, pitch, yaw rate, thrust
             r, p, y, thrust = struct.unpack("<fffH", data)
+            self.setpoint_s = now
             self.write({"k": "sp", "t": now, "roll": r, "pitch": p, "yaw": y, "thrust": thrust})
         elif port == 7 and ch == 1 and data[:1] == b"\x00":  # crtp_commander.c metaNotifySetpointsStop
             self.handed_back = True
             self.write({"k": "pkt", "t": now, "what": "notify_stop"})
         elif port == 7 and ch == 0 and data[:1] == b"\x00":  # crtp_commander_generic.c stopType
+            self.setpoint_s = now
             self.write({"k": "pkt", "t": now, "what": "stop"})
         elif port == 6 and ch == 1 and data[:1] == b"\x03":  # crtp_localization_service.c EMERGENCY_STOP
             self.write({"k": "pkt", "t": now, "what": "estop"})
@@ -397,6 +407,7 @@ class FirmwareDrone:
             values.get("ctrltarget.pitch", math.nan),
             values.get("ctrltarget.yaw", math.nan),
             values.get("stabilizer.thrust", 0.0),
+            now - self.setpoint_s,
         )
         if state is not self.state:
             self.state = state

@@ -166,7 +166,8 @@ def test_the_firmware_locks_after_an_emergency_stop_and_its_watchdog_after_the_g
     assert not [w for _, w in tr.packets if w.startswith("estop")]
     last_sp = tr.sp_t[-1]
     st = np.array(tr.fw_state)
-    level = _first(tr.fw_t, st == "level_out", last_sp) - last_sp
+    zeroed = (tr.fw_setpoint[:, :3] == 0.0).all(axis=1) & (tr.fw_setpoint[:, 3] > 0)  # its log: attitude zeroed,
+    level = _first(tr.fw_t, zeroed, last_sp) - last_sp  # thrust kept (supervisorOverrideSetpoint)
     locked = _first(tr.fw_t, st == "locked", last_sp) - last_sp
     assert 0.45 < level < 0.8 and 1.95 < locked < 2.4, (level, locked, tr.transitions())  # (its supervisor: 25 Hz)
     between = (tr.body_t > last_sp + level + 0.05) & (tr.body_t < last_sp + locked - 0.05)

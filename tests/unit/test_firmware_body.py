@@ -166,3 +166,9 @@ def test_a_body_rests_on_the_floor_level_until_its_motors_lift_it():
 )
 def test_supervisor_states_from_its_log(info, setpoint, state):
     assert fw_state(info, *setpoint) is state
+
+
+def test_a_zero_attitude_setpoint_is_levelling_out_only_once_the_client_is_silent():
+    flying, zero = 0b0001_1110, (0.0, 0.0, 0.0, 36_000.0)
+    assert fw_state(flying, *zero, setpoint_age_s=0.01) is FwState.FLYING  # a vertical climb, sent so
+    assert fw_state(flying, *zero, setpoint_age_s=0.52) is FwState.LEVEL_OUT

@@ -29,6 +29,7 @@ def _roster_fill(xvr, rows, is_nb, out):
             ob.axis[j] = 0.0
         ob.r = xvr[o + 6]
         ob.is_nb = is_nb[i]
+        ob.is_agent = True
 
 
 def roster_arrays(xvr: FloatArray, rows: IntArray, is_neighbour: BoolArray) -> ObstacleArrays:
@@ -156,6 +157,7 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
         for d in range(3):
             ob.cdd[d] = 0.0
             ob.axis[d] = 0.0
+        ob.is_agent = True
         kept[n] = True
         m += 1
     return m

@@ -229,7 +229,7 @@ def simulate_swarm(
         statuses = []
         setpoints = []
         for i in range(n):
-            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
+            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]], True)
             held = _gives_way(agents[i], trackers, i, t, states[i], goals[i], xb[others[i]], vb[others[i]])
             if held is not None:  # giving way: hover, or back out of a passage
                 F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, held)
@@ -317,6 +317,9 @@ class SwarmOutcome:
     time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
     min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.offline.metrics)
     negative_h_ticks: int = 0  # agent ticks with such an h below 0
+    downwash_pairs: int = 0  # pairs ever inside their downwash keep-out ellipsoid (swarm.offline.metrics)
+    downwash_pair_ticks: int = 0  # pair-ticks they were
+    min_downwash_distance: float | None = None  # smallest scaled distance of a pair [unit-free] (below 1: inside)
 
     @property
     def success(self) -> bool:
@@ -373,4 +376,7 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         ratios,
         min_h if math.isfinite(min_h) else None,
         int(figures.negative.sum()),
+        len(figures.downwash),
+        figures.downwash_ticks,
+        figures.min_downwash if math.isfinite(figures.min_downwash) else None,
     )

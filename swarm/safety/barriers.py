@@ -528,8 +528,8 @@ def keep_out_frame(r, keep_xy, keep_z):
     the ellipsoid's radii are ``r_xy = max(r, keep_xy)`` and ``r_z = max(r, keep_z)``.
     Returns ``(r_xy, sz)``: in the frame ``S = diag(1, 1, sz)``, ``sz = r_xy / r_z``, the
     ellipsoid is the ball of radius ``r_xy``; ``(r, 1.0)`` without a keep-out."""
-    r_xy = max(r, keep_xy)
-    return r_xy, r_xy / max(r, keep_z)
+    r_xy = np.maximum(r, keep_xy)  # (elementwise: arrays of pairs too)
+    return r_xy, r_xy / np.maximum(r, keep_z)
 
 
 def scaled_distance(p: FloatArray, r_xy: FloatArray | float, r_z: FloatArray | float) -> FloatArray:
@@ -681,7 +681,7 @@ def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb, ref_clear, sz):
 class BarrierRows:
     """Barrier values and gradient coefficients of ``n`` rows."""
 
-    Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and the live direction d the values refer to, in the row's frame
+    Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and live direction d, in the row's frame (sz)
     coef: FloatArray  # (n, 9) columns H, A_P, B_P, A_W, B_W, PW, WW, C_D, RATE
     inside: BoolArray  # (n,): |P p| <= r, the row holds the escape barrier
     sz: FloatArray | None = None  # (n,) each row's frame S = diag(1, 1, sz) (keep-out ellipsoid); None: all 1

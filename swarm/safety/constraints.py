@@ -559,7 +559,9 @@ def assemble_with(
         C,
         d,
     )
-    return Rows(BarrierRows(Y, coef, inside, sz), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight)
+    return Rows(
+        BarrierRows(Y, coef, inside, sz), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight
+    )
 
 
 __all__ = [

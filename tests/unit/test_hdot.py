@@ -117,7 +117,9 @@ def test_attitude_rows_take_the_body_centre_velocity_with_the_body_rates():
     rng = np.random.default_rng(5)
     state = random_state(rng, rates=3.0)
     own = filt._own(state)
-    np.testing.assert_allclose(own.xv_b[1], body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)[1])
+    np.testing.assert_allclose(
+        own.xv_b[1], body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)[1]
+    )
     assert np.linalg.norm(own.xv_b[1] - state.v_w) > 0.01  # l |Omega| of a few cm/s
     obs = ObstacleArrays.build(state.x_w + np.array([1.2, 0.4, 0.3]), [0.2])
     u = np.array([0.05, -0.02, model.params.weight_N])

@@ -74,15 +74,27 @@ def test_inside_the_ellipsoid_is_the_escape_row_of_its_frame(u, w, r_xy, r_z, de
 
 
 @settings(max_examples=300, deadline=None)
-@given(p=vec, w=vec, r_xy=radius, r_z=radius, kind=st.sampled_from(list(BarrierKind)), live=st.booleans())
-def test_gradients_map_back_by_the_frame(p, w, r_xy, r_z, kind, live):
+@given(
+    p=vec,
+    w=vec,
+    r_xy=radius,
+    r_z=radius,
+    kind=st.sampled_from(list(BarrierKind)),
+    live=st.booleans(),
+    horizon_s=st.sampled_from([None, 2.0]),
+    contact_s=st.sampled_from([0.0, 0.8]),
+)
+def test_gradients_map_back_by_the_frame(p, w, r_xy, r_z, kind, live, horizon_s, contact_s):
     """dh/dp and dh/dw in the world, ``S dh/dp'`` and ``S dh/dw'``, against central
     differences of the row's h in world coordinates (live rows outside the cone, where at
-    speed they are the exact C3BF row: inside it they turn with the side rule)."""
+    speed they are the exact C3BF row: inside it they turn with the side rule), with the
+    horizon allowance and the contact horizon of a neighbour's row taken in the frame too."""
     sz = r_xy / r_z
     assume(scaled_distance(p, r_xy, r_z) > 1.05 and np.linalg.norm(w * [1, 1, sz]) > 10 * LIVE_W_HI_MPS)
     assume(not live or cone_h(p[None], w[None], [r_xy], scale_z=[sz])[0][0] > 1e-3)
-    kw = dict(eps=1e-3, gamma_ho=0.7, live=live, scale_z=[sz])
+    kw = dict(
+        eps=1e-3, gamma_ho=0.7, live=live, scale_z=[sz], horizon_s=horizon_s, contact_s=contact_s, is_neighbour=[True]
+    )
 
     def h(pp, ww):
         return evaluate_pw(kind, pp[None], ww[None], np.array([r_xy]), **kw).h[0]

@@ -205,6 +205,9 @@ the escape row, horizon allowance, contact horizon, free braking, far gain):
 Its gradients map back by S (symmetric): ``dh/dp = S dh/dp'``, ``dh/dw = S dh/dw'``
 (``BarrierRows.sz``). Where ``r_xy = r_z`` (no keep-out, or one within the sphere), ``S = I``
 and the row is the sphere's, bit for bit. Obstacles keep their rows; a drone's row has no axis.
+A row whose radius grew for its state's age (``OBSTACLE.grow``: the prediction bounds and a lost
+neighbour's growth, ``swarm.net.neighbours``) keeps the ellipsoid of ``k + grow`` on both axes,
+which holds every point within ``grow`` of the ellipsoid of ``k``.
 """
 
 from __future__ import annotations

@@ -267,7 +267,7 @@ def free_target(obs, sel, r_own, xv_b, A0, w_hi, keep_xy, keep_z):
             continue
         rr, sz = ob.r + r_own, 1.0
         if ob.is_agent:
-            rr, sz = keep_out_frame(rr, keep_xy, keep_z)
+            rr, sz = keep_out_frame(rr, keep_xy + ob.grow, keep_z + ob.grow)
         a = ob.axis
         ap, aw = 0.0, 0.0
         for k in range(3):
@@ -364,8 +364,9 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     them.
 
     A row of another drone (``is_agent``) keeps the keep-out ellipsoid of ``params.keep_xy``,
-    ``params.keep_z`` (:func:`swarm.safety.barriers.keep_out_frame`): its barrier is taken in the
-    frame ``S = diag(1, 1, sz)`` where the ellipsoid is a ball (``S p``, ``S w``, ``S a_ref``; its
+    ``params.keep_z``, each plus the row's ``grow`` (:func:`swarm.safety.barriers.keep_out_frame`):
+    its barrier is taken in the frame ``S = diag(1, 1, sz)`` where the ellipsoid is a ball (``S p``,
+    ``S w``, ``S a_ref``; its
     far gain too), and its gradient in w maps back by S for ``Lg_h``, the own and the obstacle's
     accelerations and the buffer's ``|dh/dw|`` (a margin in world velocity).
 
@@ -416,7 +417,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         ob = obs[sel[i]]
         r, sz = ob.r + r_own, 1.0
         if ob.is_agent:  # another drone: the keep-out ellipsoid, a sphere in the frame diag(1, 1, sz)
-            r, sz = keep_out_frame(r, par.keep_xy, par.keep_z)
+            r, sz = keep_out_frame(r, par.keep_xy + ob.grow, par.keep_z + ob.grow)
         scale[i] = sz
         for k in range(3):
             p[k] = ob.c[k] - xv_b[0, k]

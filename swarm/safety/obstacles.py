@@ -19,6 +19,7 @@ OBSTACLE = np.dtype(
         ("axis", "f8", 3),  # unit axis of a cylinder [world], zeros for a sphere
         ("is_nb", "?"),  # another agent taking its share (a neighbour row)
         ("is_agent", "?"),  # another drone, with or without its share: its row keeps the keep-out ellipsoid
+        ("grow", "f8"),  # m: what ``r`` grew by for its state's age (a drone's keep-out ellipsoid grows by it too)
     ],
     align=True,
 )
@@ -59,6 +60,7 @@ class ObstacleArrays:
         rec["axis"] = axis_w
         rec["is_nb"] = is_neighbour
         rec["is_agent"] = (rec["is_nb"] & ~rec["axis"].any(axis=1)) if is_agent is None else is_agent
+        rec["grow"] = 0.0
         self.rec = rec
 
     @staticmethod
@@ -97,6 +99,11 @@ class ObstacleArrays:
     def is_neighbour(self) -> BoolArray:
         """(n,) another agent taking its share of the pair (a neighbour row)."""
         return self.rec["is_nb"]
+
+    @property
+    def grow_m(self) -> FloatArray:
+        """(n,) m: what each radius grew by for its state's age (``swarm.net.neighbours``)."""
+        return self.rec["grow"]
 
     @property
     def is_agent(self) -> BoolArray:

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from swarm.config import resolve
 from swarm.errors import ConfigError, InputError
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState
+from swarm.net.neighbours import NeighbourTable
 from swarm.safety.barriers import LIVE_W_HI_MPS, BarrierKind, cone_h, evaluate_pw, keep_out_frame, scaled_distance
 from swarm.safety.constraints import free_target
 from swarm.safety.filter import FilterConfig, SafetyFilter
@@ -223,6 +224,40 @@ def test_the_still_target_keeps_out_of_a_stopped_drones_ellipsoid():
         P, T = np.array([0.0, 0.0, 0.45 * sz]), target * [1, 1, sz]
         assert P @ T + math.sqrt(P @ P - r_xy**2) * np.linalg.norm(T) >= 0.0  # outside the cone of its frame
         assert np.linalg.norm(target) == pytest.approx(np.linalg.norm(A0))
+
+
+def test_a_neighbours_keep_out_grows_on_both_axes_with_its_states_age():
+    """A neighbour's row in an imperfect world grows by ``g = (a/2 age + e) age`` for its
+    state's age (``NeighbourTable``'s prediction bounds, plus a lost neighbour's growth): its
+    keep-out ellipsoid grows by ``g`` on both axes, the row of a fresh state with keep-out radii
+    ``k + g`` (up to rounding); a fresh state (g = 0) keeps ``k``, bit for bit."""
+    a, e, age = 6.9, 0.05, 0.08
+    table = NeighbourTable(timeout_s=0.05, growth_mps=0.5, hard_limit_s=2.0, accel_bound_mps2=a, velocity_error_mps=e)
+    x_b, v_b = np.array([0.3, 0.1, 1.35]), np.array([-0.4, 0.0, -0.2])
+    table.update("b", 1.0, 100, x_b, v_b, 0.07)
+    g = 0.5 * (age - 0.05) + (0.5 * a * age + e) * age  # lost growth past the timeout, and the prediction bound
+    rows = table.arrays(1.0 + age)
+    assert rows.is_agent.tolist() == [True]
+    assert rows.grow_m[0] == pytest.approx(g, rel=1e-12) and rows.radius_m[0] == pytest.approx(0.07 + g, rel=1e-12)
+    state = QuadState.hover([0.0, 0.0, 1.0])
+    state.v_w = np.array([0.5, 0.0, 0.1])
+    for level in CommandLevel:
+        cfg = FilterConfig(level=level)
+        got = SafetyFilter(MODEL, cfg).rows(state, rows)
+        grown = QuadModel(QuadParams(keep_out_xy_m=0.12 + g, keep_out_z_m=0.30 + g))
+        fresh = ObstacleArrays.build(rows.c_w, rows.radius_m, rows.c_dot_w, is_neighbour=[True])
+        want = SafetyFilter(grown, cfg).rows(state, fresh)
+        assert got.barrier.sz[0] < 1.0 and got.barrier.sz[0] == pytest.approx(want.barrier.sz[0], rel=1e-12)
+        assert got.h[0] == pytest.approx(want.h[0], rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(got.Lg_h, want.Lg_h, rtol=1e-9, atol=1e-12)
+        table_now = NeighbourTable(timeout_s=0.05, growth_mps=0.5, hard_limit_s=2.0, accel_bound_mps2=a)
+        table_now.update("b", 1.0, 100, x_b, v_b, 0.07)
+        now = table_now.arrays(1.0)
+        assert now.grow_m[0] == 0.0
+        plain = ObstacleArrays.build(x_b, [0.07], v_b, is_neighbour=[True])
+        np.testing.assert_array_equal(
+            SafetyFilter(MODEL, cfg).rows(state, now).h, SafetyFilter(MODEL, cfg).rows(state, plain).h
+        )
 
 
 def test_a_drone_row_is_a_sphere_without_an_axis():

@@ -35,15 +35,12 @@ Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
     a0_own = g e3 + R (-l Omega x (Omega x e3) + l hat(e3) Omega'_drift),
     Omega'_drift = -J^-1 (Omega x J Omega)
 
-Attitude level (thrust-vector point mass): ``A = -I / m`` and, about the body centre
-``x + l R e3`` with its velocity ``v + l R (Omega x e3)`` (the point and velocity the roster
-reports for every other drone, so a pair's two rows see mirrored ``p`` and ``w``),
-
-    a0_own = g e3 - l R (Omega x (Omega x e3)),
-
-the body rates held over the tick: this level commands the thrust vector, not the body
-rates' change, so ``l R (Omega' x e3)`` is left to the attitude loop's lag (the velocity
-buffer's).
+Attitude level (thrust-vector point mass): ``A = -I / m``, ``a0_own = g e3``, about the
+body centre ``x + l R e3`` moving with the centre of mass (this level has no rotation
+state), the point the roster reports for every other drone: a pair's two rows then see
+mirrored ``p`` and ``w`` up to the body rates' term ``l R (Omega x e3)`` of a neighbour's
+reported velocity, which this level leaves out of its own (docs/design.md, "What the rows
+guarantee": taken in, it made swaps from rest fly least-violation ticks).
 
 **Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.1 m/s). A row with
 class-K gain ``g k`` (``g = max(gamma, rate)``, ``k`` the far-neighbour factor, 1 for other
@@ -130,7 +127,7 @@ AIRFRAME = np.dtype(
         ("J", "f8", 3),  # kg m^2: inertia diagonal (body)
         ("mass", "f8"),  # kg
         ("K", "f8", (3, 4)),  # rotor level: A = R K [m/s^2 per N] (module docstring)
-        ("Aa_att", "f8", (3, 4)),  # attitude level: [A | g e3], before the body rates' term
+        ("Aa_att", "f8", (3, 4)),  # attitude level: the constant [A | a0_own]
     ],
     align=True,
 )
@@ -162,8 +159,7 @@ def _own_rotor(x, v, q, Om, af):
 
 def airframe(level: CommandLevel, model: QuadModel) -> np.ndarray:
     """The (1,) :data:`AIRFRAME` array of ``model`` at ``level``: ``K`` (rotor level, with
-    ``M = J^-1 B[1:4]``) and the attitude level's ``[A | g e3]`` (its rotation term is added
-    per state: :func:`own_affine`)."""
+    ``M = J^-1 B[1:4]``) and the attitude level's constant ``[A | a0_own]``."""
     p = model.params
     M = model.J_inv @ model.B[1:]
     out = np.zeros(1, dtype=AIRFRAME)
@@ -189,24 +185,16 @@ class OwnDynamics:
 @njit(cache=True)
 def own_affine(air, x, v, q, Om):
     """(xv_b, Aa) of :class:`OwnAffine` for the (1,) :data:`AIRFRAME` array ``air``: the
-    rotor level's from the state, or at the attitude level the body centre ``x + l R e3``,
-    its velocity ``v + l R (Omega x e3)`` and ``Aa_att`` with ``-l R (Omega x (Omega x e3))``
-    added to ``a0_own`` (module docstring)."""
+    rotor level's from the state, or at the attitude level the body centre ``x + l R e3``
+    with the centre of mass's velocity and the constant ``Aa_att``."""
     af = air[0]
     if af.rotor:
         return _own_rotor(x, v, q, Om, af)
     R = np.empty((3, 3))
     quat_to_R_into(q, R)
     xv_b = np.empty((2, 3))
-    wx, wy, wz = Om[0], Om[1], Om[2]
-    body_point_into(R, x, v, wx, wy, af.l, xv_b)
-    Aa = af.Aa_att.copy()
-    l = af.l  # noqa: E741
-    k0 = (-l * wz * wx, -l * wz * wy, l * (wx * wx + wy * wy))  # -l Omega x (Omega x e3), body
-    m = Aa.shape[1] - 1
-    for i in range(3):
-        Aa[i, m] += R[i, 0] * k0[0] + R[i, 1] * k0[1] + R[i, 2] * k0[2]
-    return xv_b, Aa
+    body_point_into(R, x, v, 0.0, 0.0, af.l, xv_b)  # (this level has no rotation state)
+    return xv_b, af.Aa_att.copy()
 
 
 BUFFER_PER_SPEED = 0.1

@@ -1,17 +1,15 @@
 """h' = Lf h + Lg h u, checked against a central difference of h along simulated motion
 of the agent and of the obstacle (static, constant velocity and accelerating obstacles;
-spheres, cylinders and other drones' keep-out ellipsoids; both command levels, the attitude
-level rotating at its body rates). Dropping the obstacle's velocity term, the body-centre
-offset or the body rates' term of the body centre's velocity makes this fail."""
+spheres, cylinders and other drones' keep-out ellipsoids; both command levels). Dropping the
+obstacle's velocity term or the body-centre offset makes this fail."""
 
 import zlib
 
 import numpy as np
 import pytest
 
-from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, step_rk4, thrust_vector_accel
+from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4, thrust_vector_accel
 from swarm.offline.closed_loop import obstacles_at
-from swarm.rotation import R_to_quat, hat, quat_to_R
 from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
@@ -25,23 +23,11 @@ MOTIONS = {
 }
 
 
-def _rotated(R, Omega_b, t):
-    """``R exp(t hat(Omega_b))``: the attitude ``t`` [s] later at constant body rates (Rodrigues)."""
-    th = float(np.linalg.norm(Omega_b)) * t
-    if th == 0.0:
-        return R
-    K = hat(Omega_b / np.linalg.norm(Omega_b))
-    return R @ (np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K)
-
-
 def _advance(level, model, state, u, dt):
-    """The rotor level's rigid body (RK4), or the attitude level's point mass under the
-    thrust vector ``u`` turning at its constant body rates."""
     if level is CommandLevel.ROTORS:
         return step_rk4(model, state, u, dt)
     a = thrust_vector_accel(model.params, u)
-    q = R_to_quat(_rotated(quat_to_R(state.q), state.Omega_b, dt))
-    return QuadState(state.x_w + state.v_w * dt + 0.5 * a * dt * dt, state.v_w + a * dt, q, state.Omega_b)
+    return QuadState(state.x_w + state.v_w * dt + 0.5 * a * dt * dt, state.v_w + a * dt, state.q, state.Omega_b)
 
 
 def _richardson(h_of_t, d=2e-5):
@@ -106,27 +92,3 @@ def test_dropping_the_obstacle_velocity_would_be_caught():
     right = filt.rows(state, obs)
     assert abs(right.Lf_h[0] + right.Lg_h[0] @ u - fd) < 1e-6
     assert abs(wrong - fd) > 1e-2
-
-
-def test_attitude_rows_take_the_body_centre_velocity_with_the_body_rates():
-    """The attitude level's own body centre moves at ``v + l R (Omega x e3)``, as every other
-    drone's does in its neighbours' rows and in the metrics (``swarm.model.body_centre``);
-    rows built as if it moved with the centre of mass miss h' at body rates."""
-    model = QuadModel()
-    filt = SafetyFilter(model, FilterConfig(level=CommandLevel.ATTITUDE))
-    rng = np.random.default_rng(5)
-    state = random_state(rng, rates=3.0)
-    own = filt._own(state)
-    np.testing.assert_allclose(
-        own.xv_b[1], body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)[1]
-    )
-    assert np.linalg.norm(own.xv_b[1] - state.v_w) > 0.01  # l |Omega| of a few cm/s
-    obs = ObstacleArrays.build(state.x_w + np.array([1.2, 0.4, 0.3]), [0.2])
-    u = np.array([0.05, -0.02, model.params.weight_N])
-    fd = _richardson(lambda t: filt.rows(_advance(CommandLevel.ATTITUDE, model, state, u, t), obs).h[0])
-    right = filt.rows(state, obs)
-    assert abs(right.Lf_h[0] + right.Lg_h[0] @ u - fd) < 1e-6
-    still = state.copy()
-    still.Omega_b = np.zeros(3)  # the rows of a drone without its body rates' term
-    wrong = filt.rows(still, obs)
-    assert abs(wrong.Lf_h[0] + wrong.Lg_h[0] @ u - fd) > 1e-2

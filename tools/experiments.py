@@ -450,8 +450,9 @@ def _lab_table(path: Path) -> str:
     (``path``) beside the same point in the ideal world (``liveness.jsonl``)."""
     ideal = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness.jsonl")}
     out = [
-        "| scene | rho | start | ideal: success, contacts, inside the safety radius, mean ratio | "
-        "lab: success, contacts, inside the safety radius, mean ratio | lab: estimate p95 [mm], commands lost |",
+        "| scene | rho | start | ideal: success, contacts, inside the safety radius, downwash pair-ticks, "
+        "mean ratio | lab: success, contacts, inside the safety radius, downwash pair-ticks, mean ratio | "
+        "lab: estimate p95 [mm], commands lost |",
         "|" + "---|" * 6,
     ]
 
@@ -459,7 +460,8 @@ def _lab_table(path: Path) -> str:
         if r is None:
             return "-"
         ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
-        return f"{r['success_rate']:.2f}, {r['collisions']}, {r['margin_violations']}, {ratio}"
+        dw = r.get("downwash_pair_ticks", "-")
+        return f"{r['success_rate']:.2f}, {r['collisions']}, {r['margin_violations']}, {dw}, {ratio}"
 
     for r in _jsonl(path):
         random = r["family"] in ("sphere_field", "forest")

@@ -417,6 +417,9 @@ class SwarmOutcome:
     time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
     min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.offline.metrics)
     negative_h_ticks: int = 0  # agent ticks with such an h below 0
+    downwash_pairs: int = 0  # pairs ever inside their downwash keep-out ellipsoid (swarm.offline.metrics)
+    downwash_pair_ticks: int = 0  # pair-ticks they were
+    min_downwash_distance: float | None = None  # smallest scaled distance of a pair [unit-free] (below 1: inside)
 
     @property
     def success(self) -> bool:
@@ -473,4 +476,7 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         ratios,
         min_h if math.isfinite(min_h) else None,
         int(figures.negative.sum()),
+        len(figures.downwash),
+        figures.downwash_ticks,
+        figures.min_downwash if math.isfinite(figures.min_downwash) else None,
     )

@@ -148,7 +148,9 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = AgentStep.of_agent(me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism)
+        self.step = AgentStep.of_agent(
+            me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism, control_hz=cfg.time.control_hz
+        )
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
         self.source = pick(cfg, agent_id, run, self.counter)
@@ -392,7 +394,7 @@ class AgentProcess:
         tick (a real drone: the tracker of its flight phase)."""
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
         x_b = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.step.model.params.l_m)[0]
-        neighbours = self.source.rows(msg.t, msg.k, x_b, self.lockstep)
+        neighbours = self.source.rows(msg.t + self.step.lead_s, msg.k, x_b, self.lockstep)
         if self.plan is None:
             return self.step(msg.t, state, self.obstacles, neighbours, frames=msg.body.get("frames"))
         tracker = self.plan.tracker(state.x_w)

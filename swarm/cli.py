@@ -675,11 +675,14 @@ def cf_recover(uri: str) -> None:
 
 @cf.command("check")
 @click.argument("uri")
-@click.option("--firmware", default="2026.04", show_default=True, help="the release on the drone (its thrust map)")
+@click.option(
+    "--firmware", default="2026.04", show_default=True, help="the firmware on the drone (its thrust map), or crazysim"
+)
 @click.option("--pwm-per-newton", type=float, default=None, help="a calibration of your own instead")
 def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
     """PROPELLERS OFF: send a known setpoint sequence and compare what the firmware decoded
-    (its ctrltarget log) with what its rules say it must: signs and thrust on your drone."""
+    (its ctrltarget and stabilizer.thrust logs) with what its rules say it must: signs and
+    thrust on your drone."""
     from swarm.agents.cf_admin import check
     from swarm.config import ThrustCalibration
 
@@ -690,6 +693,9 @@ def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
         sys.exit(2)
     rows = _cf_call(lambda: check(uri, cal))
     bad = 0
+    missing = rows[0]["missing"] if rows else []  # type: ignore[index]
+    if missing:
+        click.echo(f"the firmware logs no {', '.join(missing)}: those cannot be checked")
     for r in rows:  # type: ignore[attr-defined]
         fw = ", ".join(f"{k} {v:.3g}" for k, v in r["firmware"].items()) or "(nothing logged)"
         want = ", ".join(f"{k} {v:.3g}" for k, v in r["expected"].items())

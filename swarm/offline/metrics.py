@@ -33,6 +33,7 @@ import numpy as np
 from swarm.config import ScenarioConfig
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
+from swarm.offline.ledger import Ledger
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
 from swarm.planning import StaticObstacles, obstacle_horizon_s
 from swarm.safety.barriers import cone_h, horizon_allowance
@@ -211,8 +212,16 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
 
-def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
-    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``)."""
+def compute(
+    cfg: ScenarioConfig,
+    records: list[dict[str, Any]],
+    recorder_dropped: int = 0,
+    sent: dict[str, int] | None = None,
+) -> dict[str, Any]:
+    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
+    ``sent``: what each sender says it sent (:func:`swarm.offline.ledger.sent_counts`), to
+    find what the recording lacks at the end of a stream."""
+    ledger = Ledger.of(cfg)
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
@@ -226,6 +235,8 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     stalls: list[dict[str, Any]] = []
     for r in records:
         kind = r["kind"]
+        if "topic" in r:  # as recorded (not one of the measurements a clock carries)
+            ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
         if kind == "measurement":
             aid = measurement_agent(r)
             x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
@@ -293,6 +304,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             **motion,
         }
     final = statuses[-1] if statuses else {}
+    gaps = ledger.gaps(sent, int(final["k"]) if final.get("done") else None)
     live_ever = {x for s in statuses for x in s["live"]}
     lost = sorted(live_ever - set(final.get("live", [])))
     return {
@@ -323,6 +335,8 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         + sum(v["dropped_messages"] for v in agents.values())
         + recorder_dropped,
         "lost_agents": lost,
+        "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
+        "lost_messages": sum(g.messages for g in gaps),
         "agents": agents,
     }
 

@@ -107,9 +107,20 @@ class Keys:
     def everything(self) -> str:
         return f"{self.root}/**"
 
+    @property
+    def recorded(self) -> list[str]:
+        """What the recorder records (:data:`RECORDED`)."""
+        return [f"{self.root}/{k}" for k in RECORDED]
+
     @staticmethod
     def last(key: str) -> str:
         return key.rsplit("/", 1)[-1]
+
+
+RECORDED = ("world/clock", "world/status", "world/collision", "world/stall", "world/*/measurement", "agent/*/command")
+"""The keys under ``swarm/<run>/`` the recorder records: the world's clock, status, contacts,
+stalls and real drones' measurements, and the agents' commands with their filter reports
+(not states, bundles or ticks: the clock carries every measured state)."""
 
 
 def session_config(
@@ -124,8 +135,16 @@ def session_config(
     other through the endpoints they connect to (gossip), never by multicast; with
     ``gossip`` off they link only to the endpoints they connect to. ``lowlatency``: Zenoh's
     low-latency transport (QoS off, which it needs): a ``put`` is written to the socket in
-    the calling thread, with no transmit thread to wake."""
+    the calling thread, with no transmit thread to wake.
+
+    Every put on a :data:`RECORDED` key waits for room in a full link rather than being
+    dropped (Zenoh's congestion control ``block``; a put's default is ``drop``): a stalled
+    recorder then holds its senders back once the link's queue and the kernel's buffers
+    are full, instead of losing their messages. (The low-latency transport writes the
+    socket in the caller and always waits.)"""
     conf = zenoh.Config()
+    blocked = [{"key_exprs": [f"swarm/*/{k}" for k in RECORDED], "config": {"congestion_control": "block"}}]
+    conf.insert_json5("qos/publication", json.dumps(blocked))
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if not gossip:
@@ -290,17 +309,42 @@ def _wait_for_first(conf: zenoh.Config, mode: str) -> None:
 
 @dataclass
 class Counter:
-    """Messages dropped per reason."""
+    """Messages dropped per reason (and, where the sender is known, per sender and reason)."""
 
     dropped: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
     rx_bytes: int = 0  # payload bytes of every sample decoded (kept or dropped)
     rx_messages: int = 0  # samples decoded (kept or dropped)
+    by_sender: dict[str, dict[str, int]] = field(default_factory=dict)
 
-    def drop(self, reason: str) -> None:
+    def drop(self, reason: str, sender: str | None = None) -> None:
         self.dropped += 1
         key = reason.split(":")[0][:40]
         self.reasons[key] = self.reasons.get(key, 0) + 1
+        if sender is not None:
+            per = self.by_sender.setdefault(sender, {})
+            per[reason] = per.get(reason, 0) + 1
+
+
+def rejected(*by_sender: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
+    """Counts of dropped messages per sender and reason, summed over several counts."""
+    out: dict[str, dict[str, int]] = {}
+    for counts in by_sender:
+        for sender, reasons in counts.items():
+            per = out.setdefault(sender, {})
+            for reason, n in reasons.items():
+                per[reason] = per.get(reason, 0) + n
+    return out
+
+
+def state_sender(key: str) -> str | None:
+    """The agent whose state a key carries (``.../agent/<id>/state``, ``.../cell/i/j/k/<id>``), or None."""
+    parts = key.split("/")
+    if len(parts) >= 4 and parts[-3] == "agent" and parts[-1] == "state":
+        return parts[-2]
+    if len(parts) >= 6 and parts[-5] == "cell":
+        return parts[-1]
+    return None
 
 
 def open_channel(session: zenoh.Session, key: str, capacity: int = 4096) -> Any:
@@ -345,7 +389,7 @@ def decode_sample(
     try:
         return decode(data, run, kinds, fields)
     except DecodeError as exc:
-        counter.drop(str(exc))
+        counter.drop(str(exc), state_sender(str(sample.key_expr)))
         return None
 
 

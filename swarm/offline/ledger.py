@@ -73,7 +73,7 @@ class Ledger:
             if kind == "clock":
                 s = _Stream(1, True, last=-1)  # the first clock is tick 0
             elif kind == "command":
-                s = _Stream(self.command_step, False)
+                s = _Stream(self.command_step, False, last=0)  # an agent counts from 0: its first is one step on
             elif kind == "measurement":  # a real drone's, relayed from motion capture
                 s = _Stream(1, False)
             else:
@@ -120,7 +120,10 @@ class Ledger:
             held = seen + sum(g.messages for g in (s.gaps if s else []))
             if n_sent > held:
                 from_k = s.last_k + 1 if s else 0
-                to_k = last_k if last_k is not None and last_k >= from_k else None
+                if s.by_tick if s else name.endswith("/clock"):  # one per tick: the next ticks
+                    to_k: int | None = from_k + n_sent - held - 1
+                else:
+                    to_k = last_k if last_k is not None and last_k >= from_k else None
                 out.append(Gap(name, from_k, to_k, n_sent - held))
         return sorted(out, key=lambda g: (g.stream, g.from_k))
 

@@ -228,13 +228,6 @@ def _schema_bytes(kind: str) -> bytes:
     return _SCHEMA_BYTES[kind]
 
 
-def recorded_keys(keys: tp.Keys) -> list[str]:
-    """What the recorder subscribes to: the world's clock, status, contacts, stalls and
-    real drones' measurements, and the agents' commands with their filter reports."""
-    world = f"{keys.root}/world"
-    return [keys.clock, keys.status, keys.collision, keys.stall, f"{world}/*/measurement", keys.all_commands]
-
-
 def main(
     run: str,
     out_dir: Path,
@@ -254,7 +247,7 @@ def main(
     # channels, not callbacks: between batches Zenoh queues the samples itself, no Python
     # runs per message. Not the agents' states, their bundles or the world's tick messages:
     # the clock carries every drone's measured state and the obstacles already
-    subs = [tp.open_channel(session, key, QUEUE) for key in recorded_keys(keys)]
+    subs = [tp.open_channel(session, key, QUEUE) for key in keys.recorded]
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
     rec.startup_cpu_s = time.process_time()

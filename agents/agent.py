@@ -67,6 +67,7 @@ class Agent:
         self.att = AttitudeController(self.model)
         f = cfg.failure
         self.table = NeighbourTable(f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost)
+        self.table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say
         self.goal = np.asarray(me.final_goal)
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.obstacles = ObstacleArrays.empty()
@@ -495,6 +496,7 @@ class AgentProcess:
     def _measurement(self, m: Message) -> None:
         self.pending.append(m)
         self.msg_seen.setdefault(m.k, time.monotonic())
+        self.agent.table.at(m.t)  # how far the run is: no neighbour's state is much newer
 
     def handle(self, sample: Any) -> None:
         """One sample: a measurement, a neighbour's state or their bundle, this agent's tick
@@ -690,6 +692,7 @@ class AgentProcess:
             "rx_messages": counter.rx_messages,
             "missed_neighbours": agent.missed,
             "cells_declared": agent.interest.declared,
+            "rejected": tp.rejected(agent.table.rejected, counter.by_sender),  # per sender and reason
         }
 
     def run(self) -> int:

@@ -75,6 +75,7 @@ class DroneSlot:
     yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
+    behind: bool = False  # lockstep: let a tick time out; not waited for until it answers the tick sent
 
 
 GROUND_IMPACT_MPS = 0.5
@@ -310,6 +311,7 @@ class World:
         if m.k < slot.command_k:
             return  # older than what we hold
         slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
+        slot.behind = slot.behind and m.k < k_now
         sent = slot.sent_at.pop(m.k, None)
         if sent is not None:
             slot.answered += 1
@@ -470,7 +472,7 @@ class World:
         held: list[str] = []  # the agents still missing when the wait became a stall
         while True:
             self.poll_liveliness()
-            waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
+            waiting = [a for a in live if slots[a].alive and slots[a].command_k < k and not slots[a].behind]
             if not waiting or self.stop:
                 break
             now = time.monotonic()
@@ -483,11 +485,15 @@ class World:
                 c.late += len(waiting)
                 for a in waiting:
                     slots[a].sent_at.pop(k, None)
+                    slots[a].behind = True  # (an agent that never answers costs one timeout, not one per tick)
                 break
             # wake once the missing commands can all be here (not on each one), at the latest
             # after 20 ms to look at liveliness
             self.cmd_in.wait_for(len(waiting), min(wait_until, now + 0.02))
             self.poll_commands(k)
+        for a in live:  # behind since a timeout: late, not waited for
+            if slots[a].behind and slots[a].command_k < k and slots[a].sent_at.pop(k, None) is not None:
+                c.late += 1
         if held:
             c.stalls += 1
             waited = time.monotonic() - wait_from

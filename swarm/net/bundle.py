@@ -17,6 +17,10 @@ When tick k is due:
 * realtime: once every live agent has published a state since the last bundles, or
   ``wait_s`` after the first of those; each bundle holds the newest state of each.
 
+An agent the bundles went out without (at the deadline) is not waited for again until a
+state of it is taken: a stopped agent, or one whose every state the relay drops
+(:class:`Intake`), costs the others one deadline, not one per tick.
+
 No I/O here: :class:`Bundler` takes states and the live set, and says what to send.
 """
 
@@ -26,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm.net.statewire import AHEAD, OUT_OF_ORDER, REPEATED, Plausible
 from swarm.rotation import FloatArray
 
 
@@ -49,6 +54,7 @@ class Bundler:
         self.lockstep, self.wait_s = lockstep, wait_s
         self.held = {a: _Held({}) for a in self.ids}
         self.live: set[str] = set()
+        self.late: set[str] = set()  # the bundles went out without them; not waited for until heard
         self.next_k = 0  # lockstep: the tick whose bundles are due next
         self.first_s: float | None = None  # wall time [s] the first state the next bundles wait for arrived
         self.sent_k = -1  # the newest tick bundled
@@ -62,6 +68,7 @@ class Bundler:
         wall time ``now_s`` [s]; stale ticks (already bundled in lockstep) are kept too:
         a late neighbour's state is better than none."""
         held = self.held[agent_id]
+        self.late.discard(agent_id)
         held.by_k[k] = (x_w, record)
         if len(held.by_k) > self.HISTORY:
             del held.by_k[min(held.by_k)]
@@ -73,9 +80,13 @@ class Bundler:
 
     def waiting_for(self) -> int:
         """How many live agents the next bundles still wait for."""
+        return len(self._missing())
+
+    def _missing(self) -> list[str]:
+        """The live agents (not late) the next bundles wait for."""
         if self.lockstep:
-            return sum(1 for a in self.live if max(self.held[a].by_k, default=-1) < self.next_k)
-        return sum(1 for a in self.live if not self.held[a].fresh)
+            return [a for a in self.live - self.late if max(self.held[a].by_k, default=-1) < self.next_k]
+        return [a for a in self.live - self.late if not self.held[a].fresh]
 
     def due(self, now_s: float) -> bool:
         """Are the next bundles due at wall time ``now_s`` [s]?"""
@@ -92,6 +103,7 @@ class Bundler:
         others within its interest radius (in the order of ``ids``); marks them sent at
         wall time ``now_s`` [s]."""
         k = self.next_k if self.lockstep else max(max(h.by_k) for h in self.held.values() if h.fresh)
+        self.late.update(self._missing())  # (due at the deadline: these did not come)
         names, xs, records = [], [], []
         for a in self.ids:
             got = self._state(a, k)
@@ -127,3 +139,48 @@ class Bundler:
         by_k = self.held[agent_id].by_k
         ks = [kk for kk in by_k if kk <= k] if self.lockstep else list(by_k)
         return by_k[max(ks)] if ks else None
+
+
+class Intake:
+    """Which of the states the relay hears it takes, per sender (no I/O): each must be
+    plausible (:class:`swarm.net.statewire.Plausible`), one per tick with the ticks in
+    order, and no more than ``ahead_ticks`` ahead of the run (the newest tick the world
+    has reported, :meth:`run_at`). That is the relay's rate limit per sender, in the run's
+    own time: a flood of states for one tick keeps one; a limit in wall time would drop an
+    honest agent's backlog after any stall, and lockstep runs faster than real time.
+    Everything else is dropped and counted against its sender (:attr:`rejected`)."""
+
+    def __init__(self, limits: Plausible | None, ahead_ticks: int) -> None:
+        self.limits, self.ahead_ticks = limits, ahead_ticks
+        self.last_k: dict[str, int] = {}  # sender -> newest tick taken
+        self.run_k = -1  # newest tick the world has reported
+        self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
+
+    def run_at(self, k: int) -> None:
+        self.run_k = max(self.run_k, k)
+
+    def early(self, sender: str, k: int) -> str | None:
+        """The checks on the tick alone (before a record is read whole): why a state of
+        tick ``k`` from ``sender`` is not taken, or None."""
+        last = self.last_k.get(sender, -1)
+        if k == last:
+            return REPEATED
+        if k < last:
+            return OUT_OF_ORDER
+        if self.run_k >= 0 and k > self.run_k + self.ahead_ticks:
+            return AHEAD
+        return None
+
+    def admit(self, sender: str, k: int, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> bool:
+        """Take a well-formed state of ``sender`` (tick ``k``, body centre ``x_w`` [m, world],
+        velocity ``v_w`` [m/s], radius ``r_m`` [m]), or count why not."""
+        why = self.early(sender, k) or (self.limits.reason(x_w, v_w, r_m) if self.limits else None)
+        if why is not None:
+            self.reject(sender, why)
+            return False
+        self.last_k[sender] = k
+        return True
+
+    def reject(self, sender: str, reason: str) -> None:
+        per = self.rejected.setdefault(sender, {})
+        per[reason] = per.get(reason, 0) + 1

@@ -1,7 +1,15 @@
 """What an agent knows of the other agents (docs/design.md, "Failures"): last published state,
 extrapolated at constant velocity, with a radius that grows once the state is older
 than the timeout; past the hard limit, or once the neighbour's liveliness is gone, it
-is kept as a stopped obstacle at its last position or dropped, as configured."""
+is kept as a stopped obstacle at its last position or dropped, as configured.
+
+It takes only what a neighbour can have meant (docs/design.md, "A run's own agents"): with
+:attr:`NeighbourTable.limits` set, a plausible state (:class:`swarm.net.statewire.Plausible`),
+one per neighbour and tick with the ticks in order, none ahead of the newest tick this
+agent has heard of by more than ``limits.ahead_s`` (:meth:`NeighbourTable.at`). Anything
+else is dropped and counted against its sender (:attr:`NeighbourTable.rejected`), and the
+neighbour is kept as its last good state allows: a neighbour that goes silent or
+implausible is extrapolated and grows, not forgotten."""
 
 from __future__ import annotations
 
@@ -11,6 +19,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from swarm.net import statewire
 from swarm.rotation import BoolArray, FloatArray, IntArray
 from swarm.safety.obstacles import OBSTACLE, ObstacleArrays
 
@@ -162,6 +171,47 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
 
 
 _ANY_TICK = np.iinfo(np.int64).max
+_VERDICTS = (
+    None,
+    statewire.REPEATED,
+    statewire.OUT_OF_ORDER,
+    statewire.AHEAD,
+    statewire.OUTSIDE,
+    statewire.TOO_FAST,
+    statewire.TOO_LARGE,
+)  # _admit's codes 1..6
+
+
+@njit(cache=True)
+def _admit(latest, last_seq, slots, k, seq, t, x, v, r, lim, horizon_s, out):
+    """out[n] for record n (tick k, sequence number seq, time t [s], centre x [m, world],
+    velocity v [m/s], radius r [m]) from slot slots[n] whose newest tick and its sequence
+    number are latest, last_seq: 0 take it, -1 a copy of the state held (a relay bundles a
+    late neighbour's state again: not an offence), else the index of its reason in
+    ``_VERDICTS``. ``lim``: ``Plausible.as_array``; ``horizon_s``: no state is newer."""
+    for n in range(slots.shape[0]):
+        i, kk = slots[n], k[n]
+        if kk == latest[i]:
+            out[n] = -1 if seq[n] == last_seq[i] else 1
+            continue
+        if kk < latest[i]:
+            out[n] = 2
+            continue
+        if t[n] > horizon_s:
+            out[n] = 3
+            continue
+        v2 = 0.0
+        out[n] = 0
+        for d in range(3):
+            if not lim[d] <= x[n, d] <= lim[3 + d]:
+                out[n] = 4
+            v2 += v[n, d] * v[n, d]
+        if out[n] == 0 and v2 > lim[6] * lim[6]:
+            out[n] = 5
+        elif out[n] == 0 and r[n] > lim[7]:
+            out[n] = 6
+        if out[n] == 0:
+            latest[i], last_seq[i] = kk, seq[n]
 
 
 class NeighbourTable:
@@ -186,6 +236,31 @@ class NeighbourTable:
         self.s = _Slots.empty(0, self.HISTORY)
         self.gone: set[str] = set()
         self.row_names: list[str] = []  # names of the rows the last arrays() built
+        self._limits: statewire.Plausible | None = None
+        self.now_s = -np.inf  # sim time [s] of the newest tick this agent has heard of (at(), arrays())
+        self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) sequence number of each slot's newest state
+        self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
+
+    @property
+    def limits(self) -> statewire.Plausible | None:
+        """What a neighbour's state may say (None: anything well-formed). Setting it loads
+        the compiled check now, not on the first bundle of the flight."""
+        return self._limits
+
+    @limits.setter
+    def limits(self, limits: statewire.Plausible | None) -> None:
+        self._limits = limits
+        if limits is not None:
+            # two records: the fields of one are contiguous arrays, a type of their own to numba
+            rec = np.zeros(2, dtype=statewire.STATE)
+            fields = (rec["k"], rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
+            scratch = (np.full(2, 1, np.int64), np.zeros(2, np.uint64), np.zeros(2, np.int64))
+            _admit(*scratch, *fields, limits.as_array(), 0.0, np.empty(2, np.int8))
+
+    def at(self, t_s: float) -> None:
+        """This agent has heard of sim time ``t_s`` [s] (a measurement, its tick): no
+        neighbour's state is more than ``limits.ahead_s`` newer."""
+        self.now_s = max(self.now_s, t_s)
 
     @property
     def history(self) -> list[str]:
@@ -197,6 +272,7 @@ class NeighbourTable:
         if i is None:
             if len(self.names) == self.s.k.shape[0]:
                 self.s = self.s.grown(max(4, len(self.names)))
+                self.last_seq = np.concatenate([self.last_seq, np.zeros(max(4, len(self.names)), np.uint64)])
             i = self.slot[name] = len(self.names)
             self.names.append(name)
         return i
@@ -208,6 +284,11 @@ class NeighbourTable:
             return
         i = self._slot(name)
         s, j = self.s, k % self.HISTORY
+        if self.limits is not None:
+            why = self._why(i, k, t_s, x_w, v_w, radius_m)
+            if why is not None:
+                self._reject(name, why)
+                return
         if s.k[i, j] > k:
             return
         s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
@@ -215,8 +296,9 @@ class NeighbourTable:
 
     def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
         """Every checked :data:`swarm.net.statewire.STATE` record of ``records`` whose sender is
-        one of ``known``; any other is dropped and counted on ``counter``
-        (:class:`swarm.net.transport.Counter`). One compiled call writes them all."""
+        one of ``known`` (and, with :attr:`limits`, that it may take: the module docstring);
+        any other is dropped and counted on ``counter`` (:class:`swarm.net.transport.Counter`).
+        Compiled calls check and write them all."""
         slots, keep = [], []
         for n, src in enumerate(records["src"].tolist()):
             name = src.decode()
@@ -228,8 +310,40 @@ class NeighbourTable:
         if not slots:
             return
         rec = records if len(keep) == len(records) else records[keep]
+        sl = np.array(slots, dtype=np.int64)
+        if self.limits is not None:
+            verdict = np.empty(len(sl), dtype=np.int8)
+            lim, horizon = self.limits.as_array(), self.now_s + self.limits.ahead_s
+            x, v = rec["x"], rec["v"]
+            _admit(
+                self.s.latest, self.last_seq, sl, rec["k"], rec["seq"], rec["t"], x, v, rec["r"], lim, horizon, verdict
+            )
+            if verdict.any():
+                for n in np.flatnonzero(verdict > 0).tolist():
+                    reason = _VERDICTS[verdict[n]]
+                    assert reason is not None
+                    counter.drop(reason)
+                    self._reject(self.names[sl[n]], reason)
+                ok = verdict == 0
+                rec, sl = rec[ok], sl[ok]
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
-        _store(self.s.fields(), np.array(slots, dtype=np.int64), states)
+        _store(self.s.fields(), sl, states)
+
+    def _why(self, i: int, k: int, t_s: float, x_w: Any, v_w: Any, radius_m: float) -> str | None:
+        """Why a state of slot ``i`` is not taken (:attr:`limits` set), or None."""
+        assert self.limits is not None
+        latest = int(self.s.latest[i])
+        if k == latest:
+            return statewire.REPEATED
+        if k < latest:
+            return statewire.OUT_OF_ORDER
+        if t_s > self.now_s + self.limits.ahead_s:
+            return statewire.AHEAD
+        return self.limits.reason(tuple(x_w), tuple(v_w), radius_m)
+
+    def _reject(self, name: str, reason: str) -> None:
+        per = self.rejected.setdefault(name, {})
+        per[reason] = per.get(reason, 0) + 1
 
     def mark_gone(self, name: str) -> None:
         self.gone.add(name)
@@ -275,6 +389,7 @@ class NeighbourTable:
         or ``solo`` is an obstacle row (``is_neighbour`` false): it is not doing its share,
         so this agent takes all of the pair. ``names``: only these neighbours (in this
         order), and the gone ones."""
+        self.now_s = max(self.now_s, t_now)
         if names is None:
             slots = list(range(len(self.names)))
         else:

@@ -11,7 +11,7 @@ and ``swarm metrics`` checks the file again (``metrics.json``):
   of the commands on either side;
 * the real drones' motion-capture measurements: one sequence of their own, step 1.
 
-What each sender says it sent (its summary line, :func:`sent_counts`) closes the books: a
+What each sender says it sent (its summary line, :func:`summaries`, :func:`sent_counts`) closes the books: a
 sender that sent more than the recording holds lost the rest after its last recorded
 message (a tail), which no sequence number can show. Each hole is a :class:`Gap` with the
 ticks it spans.
@@ -132,11 +132,14 @@ class Ledger:
         return {name: s.seen for name, s in sorted(self.streams.items())}
 
 
-def sent_counts(logs: Path) -> dict[str, int]:
-    """What each process of a run says it sent, from the summary lines in its log
-    (``logs/<process>.log``): the world's clocks (one per tick, 0 to its last) and each
-    agent's commands. Processes without a summary (killed, or run elsewhere) are left out."""
-    out: dict[str, int] = {}
+SUMMARY_TAGS = ("WORLD_SUMMARY", "AGENT_SUMMARY", "ROUTER_SUMMARY")
+
+
+def summaries(logs: Path) -> dict[str, dict[str, Any]]:
+    """The summary line each process of a run wrote last in its log (``logs/<process>.log``:
+    ``WORLD_SUMMARY``, ``AGENT_SUMMARY``, ``ROUTER_SUMMARY``, then JSON), by process name.
+    Processes without one (killed, or run elsewhere) are left out."""
+    out: dict[str, dict[str, Any]] = {}
     for path in sorted(logs.glob("*.log")) if logs.is_dir() else ():
         try:
             text = path.read_text(errors="replace")
@@ -144,14 +147,23 @@ def sent_counts(logs: Path) -> dict[str, int]:
             continue
         for line in text.splitlines():
             tag, _, body = line.partition(" ")
-            if tag not in ("WORLD_SUMMARY", "AGENT_SUMMARY"):
-                continue
-            try:
-                summary = json.loads(body)
-            except ValueError:
-                continue
-            if tag == "WORLD_SUMMARY" and isinstance(summary.get("ticks"), int):
-                out["world/clock"] = summary["ticks"] + 1
-            elif tag == "AGENT_SUMMARY" and isinstance(summary.get("ticks"), int) and "id" in summary:
-                out[f"{summary['id']}/command"] = summary["ticks"]
+            if tag in SUMMARY_TAGS:
+                try:
+                    summary = json.loads(body)
+                except ValueError:
+                    continue
+                if isinstance(summary, dict):
+                    out[path.stem] = summary
+    return out
+
+
+def sent_counts(said: dict[str, dict[str, Any]]) -> dict[str, int]:
+    """What each process says it sent (``said``: :func:`summaries`): the world's clocks
+    (one per tick, 0 to its last) and each agent's commands."""
+    out: dict[str, int] = {}
+    for name, summary in said.items():
+        if name == "world" and isinstance(summary.get("ticks"), int):
+            out["world/clock"] = summary["ticks"] + 1
+        elif name.startswith("agent-") and isinstance(summary.get("ticks"), int):
+            out[f"{summary.get('id', name.removeprefix('agent-'))}/command"] = summary["ticks"]
     return out

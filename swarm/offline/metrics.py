@@ -33,7 +33,7 @@ import numpy as np
 from swarm.config import ScenarioConfig
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
-from swarm.offline.ledger import Ledger
+from swarm.offline.ledger import Ledger, sent_counts
 from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
 from swarm.planning import StaticObstacles, obstacle_horizon_s
 from swarm.safety.barriers import cone_h, horizon_allowance
@@ -216,12 +216,14 @@ def compute(
     cfg: ScenarioConfig,
     records: list[dict[str, Any]],
     recorder_dropped: int = 0,
-    sent: dict[str, int] | None = None,
+    said: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
-    ``sent``: what each sender says it sent (:func:`swarm.offline.ledger.sent_counts`), to
-    find what the recording lacks at the end of a stream."""
+    ``said``: each process's summary line (:func:`swarm.offline.ledger.summaries`): what it
+    sent, to find what the recording lacks at the end of a stream, and what it dropped from
+    whom, to name the offenders."""
     ledger = Ledger.of(cfg)
+    silence = Silence()
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
@@ -235,8 +237,9 @@ def compute(
     stalls: list[dict[str, Any]] = []
     for r in records:
         kind = r["kind"]
-        if "topic" in r:  # as recorded (not one of the measurements a clock carries)
+        if "topic" in r and "seq" in r:  # as recorded (not one of the measurements a clock carries)
             ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
+            silence.see(r)
         if kind == "measurement":
             aid = measurement_agent(r)
             x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
@@ -299,12 +302,13 @@ def compute(
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
             "deadlock_at_s": stuck,
+            "longest_silence_s": silence.longest_s.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
             "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
             **motion,
         }
     final = statuses[-1] if statuses else {}
-    gaps = ledger.gaps(sent, int(final["k"]) if final.get("done") else None)
+    gaps = ledger.gaps(sent_counts(said or {}), int(final["k"]) if final.get("done") else None)
     live_ever = {x for s in statuses for x in s["live"]}
     lost = sorted(live_ever - set(final.get("live", [])))
     return {
@@ -337,8 +341,50 @@ def compute(
         "lost_agents": lost,
         "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
         "lost_messages": sum(g.messages for g in gaps),
+        "offenders": offenders(said or {}, silence.longest_s, cfg.failure.neighbour_hard_limit_s),
         "agents": agents,
     }
+
+
+class Silence:
+    """How long [s of sim time] each agent was live (in the clock's live list) without a
+    command: fed the recorded messages in file order."""
+
+    def __init__(self) -> None:
+        self.last_s: dict[str, float] = {}  # agent -> its newest command, or when first seen live [s]
+        self.longest_s: dict[str, float] = {}
+
+    def see(self, r: dict[str, Any]) -> None:
+        if r["kind"] == "command":
+            self.last_s[r["src"]] = max(self.last_s.get(r["src"], r["t"]), r["t"])
+        elif r["kind"] == "clock":
+            t = float(r["t"])
+            for a in r["live"]:
+                quiet = t - self.last_s.setdefault(a, t)
+                if quiet > self.longest_s.get(a, 0.0):
+                    self.longest_s[a] = quiet
+
+
+def offenders(
+    said: dict[str, dict[str, Any]], silence_s: dict[str, float], silent_after_s: float
+) -> dict[str, dict[str, Any]]:
+    """The run's agents that misbehaved, with what the others did about it: every sender
+    whose messages a receiver dropped (``said``: the summaries' ``rejected``, per sender and
+    reason: the relay's and each agent's), and every agent live for more than
+    ``silent_after_s`` without a command (``silence_s``)."""
+    out: dict[str, dict[str, Any]] = {}
+    for receiver, summary in sorted(said.items()):
+        for sender, reasons in (summary.get("rejected") or {}).items():
+            o = out.setdefault(sender, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            for reason, n in reasons.items():
+                o["reasons"][reason] = o["reasons"].get(reason, 0) + int(n)
+                o["dropped"] += int(n)
+            o["dropped_by"].append(receiver)
+    for agent, quiet in silence_s.items():
+        if quiet > silent_after_s or agent in out:
+            o = out.setdefault(agent, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            o["longest_silence_s"] = quiet
+    return dict(sorted(out.items()))
 
 
 def _motion(t_s: np.ndarray, v_w: np.ndarray, path_w: np.ndarray) -> dict[str, Any]:

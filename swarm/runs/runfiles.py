@@ -14,7 +14,7 @@ from mcap.stream_reader import StreamReader
 
 from swarm.config import ScenarioConfig, load
 from swarm.net.messages import expand_record
-from swarm.offline.ledger import sent_counts
+from swarm.offline.ledger import summaries
 from swarm.offline.metrics import compute
 
 
@@ -103,7 +103,7 @@ def write_metrics(run_dir: Path, stop_reason: str | None = None, **extra: Any) -
             stop_reason = json.loads(old.read_text()).get("stop_reason")
         except ValueError:
             stop_reason = None
-    metrics = compute(cfg, rec.records if rec else [], dropped, sent_counts(run_dir / "logs"))
+    metrics = compute(cfg, rec.records if rec else [], dropped, summaries(run_dir / "logs"))
     whole = rec is not None and rec.complete and metrics["finished"] and not metrics["lost_messages"]
     metrics["complete"] = bool(whole)
     metrics["recording"] = (

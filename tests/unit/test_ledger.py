@@ -7,7 +7,7 @@ from pathlib import Path
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm.offline.ledger import Gap, Ledger, sent_counts
+from swarm.offline.ledger import Gap, Ledger, sent_counts, summaries
 
 
 def _clocks(ledger: Ledger, ticks: list[int]) -> None:
@@ -68,11 +68,14 @@ def test_the_gaps_count_exactly_what_was_lost(kept, step):
         assert g.to_k is not None and not any(kept[g.from_k : g.to_k + 1])
 
 
-def test_sent_counts_read_the_summary_lines(tmp_path: Path):
+def test_what_each_process_says_it_sent_is_read_from_its_summary_line(tmp_path: Path):
     logs = tmp_path / "logs"
     logs.mkdir()
     (logs / "world.log").write_text('pybullet\nWORLD_SUMMARY {"ticks": 736, "late": 0}\n')
-    (logs / "agent-cf1.log").write_text('x\nAGENT_SUMMARY {"id": "cf1", "ticks": 700}\n')
+    (logs / "agent-cf1.log").write_text('x\nAGENT_SUMMARY {"id": "cf1", "ticks": 700, "rejected": {}}\n')
     (logs / "agent-cf2.log").write_text("killed before its summary\n")
-    assert sent_counts(logs) == {"world/clock": 737, "cf1/command": 700}
-    assert sent_counts(tmp_path / "nowhere") == {}
+    (logs / "router.log").write_text('ROUTER_SUMMARY {"bundles": 3, "rejected": {"cf1": {"state: x": 2}}}\n')
+    said = summaries(logs)
+    assert sorted(said) == ["agent-cf1", "router", "world"]
+    assert sent_counts(said) == {"world/clock": 737, "cf1/command": 700}
+    assert summaries(tmp_path / "nowhere") == {}

@@ -1,0 +1,189 @@
+"""A run's own agent that misbehaves: what its states may say (statewire.Plausible), what the
+relay takes from it (bundle.Intake), what each neighbour table takes, and how the metrics
+name it. Pure parts, by their definitions."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.config import load
+from swarm.net import statewire
+from swarm.net import transport as tp
+from swarm.net.bundle import Bundler, Intake
+from swarm.net.neighbours import NeighbourTable
+from swarm.offline.metrics import Silence, offenders
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+RUN = "r1"
+LIMITS = statewire.Plausible((-5.0, -5.0, -1.0), (5.0, 5.0, 4.0), 30.0, 0.1, ahead_s=1.0)
+
+
+def test_the_bounds_hold_every_start_and_goal_and_the_speed_is_flat_out_across_them():
+    cfg = load(CONFIGS / "swap_2.yaml")
+    p = statewire.Plausible.of(cfg)
+    lo, hi = np.array(p.lo_w), np.array(p.hi_w)
+    for a in cfg.agents:
+        for pt in (a.start, a.final_goal):
+            assert np.all(lo + statewire.BOUNDS_MARGIN_M - 1e-9 <= pt) and np.all(np.array(pt) <= hi - 4.99)
+    params = cfg.agents[0].airframe.params()
+    a_max = (params.thrust_to_weight + 1.0) * 9.81  # all rotors flat out, gravity helping
+    assert p.max_speed_mps == pytest.approx(math.sqrt(2.0 * a_max * float(np.linalg.norm(hi - lo))))
+    assert p.max_radius_m == params.body_radius_m
+    assert p.ahead_s == pytest.approx(2.0 / cfg.time.control_hz)  # lockstep: two ticks
+    assert p.reason((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), 0.07) is None
+    assert p.reason((1000.0, 0.0, 1.0), (0.0, 0.0, 0.0), 0.07) == statewire.OUTSIDE  # a kilometre away
+    assert p.reason((0.0, 0.0, 1.0), (0.0, 0.0, p.max_speed_mps + 0.1), 0.07) == statewire.TOO_FAST
+    assert p.reason((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), 5.0) == statewire.TOO_LARGE
+
+
+def test_the_relay_takes_one_plausible_state_per_sender_and_tick_in_order():
+    intake = Intake(LIMITS, ahead_ticks=120)
+    x, v = (0.0, 0.0, 1.0), (0.0, 0.0, 0.0)
+    assert intake.admit("cf3", 5, x, v, 0.07)
+    for _ in range(999):  # a thousand states for one tick: one taken
+        assert not intake.admit("cf3", 5, x, v, 0.07)
+    assert not intake.admit("cf3", 4, x, v, 0.07)  # an old tick again
+    assert intake.admit("cf1", 4, x, v, 0.07)  # (another sender's ticks are its own)
+    assert not intake.admit("cf3", 6, (0.0, 1000.0, 1.0), v, 0.07)
+    assert not intake.admit("cf3", 6, x, (300.0, 0.0, 0.0), 0.07)
+    intake.run_at(10)
+    assert not intake.admit("cf3", 10 + 121, x, v, 0.07)  # more than a second ahead of the world
+    assert intake.admit("cf3", 10 + 120, x, v, 0.07)
+    assert intake.rejected == {
+        "cf3": {
+            statewire.REPEATED: 999,
+            statewire.OUT_OF_ORDER: 1,
+            statewire.OUTSIDE: 1,
+            statewire.TOO_FAST: 1,
+            statewire.AHEAD: 1,
+        }
+    }
+
+
+def test_the_relay_waits_once_for_an_agent_whose_states_never_come():
+    b = Bundler(["a", "b", "c"], [2.0, 2.0, 2.0], lockstep=True, wait_s=0.5)
+    for n in "abc":
+        b.set_live(n, True)
+    z = np.zeros(3)
+    for n in "ab":
+        b.add(n, 0, z, b"", 10.0)
+    assert not b.due(10.4) and b.due(10.5)  # c holds tick 0 up until the deadline
+    b.take(10.5)
+    for n in "ab":
+        b.add(n, 1, z, b"", 10.6)
+    assert b.due(10.6)  # not tick 1: the bundles went without it once
+    b.take(10.6)
+    b.add("c", 1, z, b"", 10.7)  # heard again: waited for again
+    b.add("a", 2, z, b"", 10.8)
+    assert b.waiting_for() == 2 and not b.due(10.8)
+
+
+def _bundle(states: list[tuple]) -> np.ndarray:
+    """The records a bundle carries, checked as an agent checks them (statewire.read_bundle)."""
+    records = [statewire.encode_state(RUN, *s) for s in states]
+    return statewire.read_bundle(statewire.encode_bundle(RUN, "cf1", 1, 0.0, 0, records), RUN).states.records
+
+
+def _state(seq: int, k: int, x=(0.0, 0.0, 1.0), v=(0.0, 0.0, 0.0), r=0.07, src="cf3") -> tuple:
+    """(src, seq, t, k, x, v, r) of :func:`statewire.encode_state`, at 100 Hz."""
+    return (src, seq, k * 0.01, k, x, v, r)
+
+
+def _table() -> NeighbourTable:
+    t = NeighbourTable(timeout_s=0.1, growth_mps=0.5, hard_limit_s=1.0, on_lost="keep_stopped")
+    t.limits = LIMITS
+    t.at(0.0)
+    return t
+
+
+def test_a_neighbour_table_drops_and_counts_each_kind_of_bad_state_against_its_sender():
+    t, counter = _table(), tp.Counter()
+    good = _state(2, 0)
+    t.update_records(_bundle([good]), {"cf2", "cf3"}, counter)
+    t.update_records(_bundle([good]), {"cf2", "cf3"}, counter)  # the relay bundles a late state again: fine
+    assert counter.dropped == 0 and t.state("cf3").k == 0
+    bad = [
+        _state(3, 0),  # the same tick, another state: a repeat
+        _state(4, 1, x=(0.0, 1000.0, 1.0)),  # a kilometre away
+        _state(5, 1, v=(0.0, 100.0, 0.0)),  # faster than any airframe
+        _state(6, 1, r=3.0),  # a sphere of 3 m
+        _state(7, 500),  # 5 s ahead of the newest tick heard of
+    ]
+    t.update_records(_bundle(bad), {"cf2", "cf3"}, counter)
+    t.update_records(_bundle([_state(8, 2), _state(9, 1)]), {"cf2", "cf3"}, counter)  # the second: out of order
+    assert t.state("cf3").k == 2 and counter.dropped == 6
+    assert t.rejected == {
+        "cf3": {
+            statewire.REPEATED: 1,
+            statewire.OUTSIDE: 1,
+            statewire.TOO_FAST: 1,
+            statewire.TOO_LARGE: 1,
+            statewire.AHEAD: 1,
+            statewire.OUT_OF_ORDER: 1,
+        }
+    }
+    # and through the other intake (a state message per neighbour: interest all, cells)
+    t.update("cf2", 0.0, 0, np.zeros(3), np.zeros(3), 0.07)
+    t.update("cf2", 0.0, 0, np.zeros(3), np.zeros(3), 0.07)
+    t.update("cf2", 0.01, 1, np.array([0.0, 0.0, 900.0]), np.zeros(3), 0.07)
+    assert t.rejected["cf2"] == {statewire.REPEATED: 1, statewire.OUTSIDE: 1}
+
+
+def test_a_flood_of_one_tick_keeps_one_state():
+    t, counter = _table(), tp.Counter()
+    t.update_records(_bundle([_state(1 + i, 3) for i in range(1000)]), {"cf3"}, counter)
+    assert counter.dropped == 999 and t.rejected["cf3"] == {statewire.REPEATED: 999}
+    assert t.state("cf3").k == 3
+
+
+def test_a_neighbour_gone_implausible_is_kept_as_its_last_good_state_allows():
+    t, counter = _table(), tp.Counter()
+    x0, v0 = (1.0, 0.0, 1.0), (-0.5, 0.0, 0.0)
+    t.update_records(_bundle([_state(1, 0, x=x0, v=v0)]), {"cf3"}, counter)
+    for k in range(1, 100):  # then only NaN (dropped as the bundle is read) and a kilometre away
+        t.at(k * 0.01)
+        t.update_records(_bundle([_state(1 + k, k, x=(1000.0, 0.0, 1.0))]), {"cf3"}, counter)
+    rows = t.arrays(0.5)
+    assert t.row_names == ["cf3"]  # not forgotten
+    np.testing.assert_allclose(rows.c_w[0], [1.0 - 0.5 * 0.5, 0.0, 1.0])  # extrapolated from the last good state
+    assert rows.radius_m[0] == pytest.approx(0.07 + 0.5 * (0.5 - 0.1))  # and grown past the timeout
+    late = t.arrays(2.0)
+    np.testing.assert_allclose(late.c_w[0], x0)  # past the hard limit: a stopped obstacle where it was last
+    nan = statewire.encode_state(RUN, "cf3", 500, 1.0, 100, (math.nan, 0.0, 1.0), v0, 0.07)
+    checked = statewire.read_bundle(statewire.encode_bundle(RUN, "cf1", 2, 1.0, 100, [nan]), RUN).states
+    assert len(checked.records) == 0 and sum(checked.dropped.values()) == 1
+
+
+def test_decode_failures_of_a_state_are_counted_against_its_keys_agent():
+    assert tp.state_sender("swarm/r1/agent/cf3/state") == "cf3"
+    assert tp.state_sender("swarm/r1/cell/1/-2/0/cf3") == "cf3"
+    assert tp.state_sender("swarm/r1/world/clock") is None
+    c = tp.Counter()
+    c.drop("state: not finite", "cf3")
+    c.drop("state: not finite", "cf3")
+    assert tp.rejected(c.by_sender, {"cf3": {"x": 1}, "cf2": {"y": 2}}) == {
+        "cf3": {"state: not finite": 2, "x": 1},
+        "cf2": {"y": 2},
+    }
+
+
+def test_the_metrics_name_the_offenders_and_the_silent():
+    silence = Silence()
+    for k in range(300):  # cf1 answers every tick; cf3 is live and never commands
+        silence.see({"kind": "clock", "t": k * 0.01, "live": ["cf1", "cf3"]})
+        silence.see({"kind": "command", "src": "cf1", "t": k * 0.01})
+    assert silence.longest_s["cf1"] == pytest.approx(0.0) and silence.longest_s["cf3"] == pytest.approx(2.99)
+    said = {
+        "agent-cf1": {"rejected": {"cf2": {statewire.OUTSIDE: 4}}},
+        "router": {"rejected": {"cf2": {statewire.REPEATED: 999, statewire.OUTSIDE: 1}}},
+        "world": {"ticks": 299},
+    }
+    out = offenders(said, silence.longest_s, silent_after_s=1.0)
+    assert sorted(out) == ["cf2", "cf3"]
+    assert out["cf2"]["dropped"] == 1004 and out["cf2"]["dropped_by"] == ["agent-cf1", "router"]
+    assert out["cf2"]["reasons"][statewire.OUTSIDE] == 5
+    assert out["cf3"]["dropped"] == 0 and out["cf3"]["longest_silence_s"] == pytest.approx(2.99)

@@ -75,7 +75,7 @@ class DroneSlot:
     yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
-    behind: bool = False  # lockstep: let a tick time out; not waited for until it answers the tick sent
+    behind: bool = False  # lockstep: let a tick time out; not waited for until it answers again
 
 
 GROUND_IMPACT_MPS = 0.5
@@ -311,7 +311,7 @@ class World:
         if m.k < slot.command_k:
             return  # older than what we hold
         slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
-        slot.behind = slot.behind and m.k < k_now
+        slot.behind = False  # it answers again (a backlog's oldest tick first): waited for again
         sent = slot.sent_at.pop(m.k, None)
         if sent is not None:
             slot.answered += 1

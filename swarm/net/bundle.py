@@ -26,6 +26,7 @@ No I/O here: :class:`Bundler` takes states and the live set, and says what to se
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,42 +144,43 @@ class Bundler:
 
 class Intake:
     """Which of the states the relay hears it takes, per sender (no I/O): each must be
-    plausible (:class:`swarm.net.statewire.Plausible`), one per tick with the ticks in
-    order, and no more than ``ahead_ticks`` ahead of the run (the newest tick the world
-    has reported, :meth:`run_at`). That is the relay's rate limit per sender, in the run's
-    own time: a flood of states for one tick keeps one; a limit in wall time would drop an
-    honest agent's backlog after any stall, and lockstep runs faster than real time.
-    Everything else is dropped and counted against its sender (:attr:`rejected`)."""
+    plausible (:class:`swarm.net.statewire.Plausible`), newer in sim time than the last one
+    taken from its sender (one per tick: a repeat or an older one is dropped), and no more
+    than ``ahead_s`` [s] ahead of the run (the newest time the world has reported,
+    :meth:`run_at`). That is the relay's rate limit per sender, in the run's own time: a
+    flood of one tick's state keeps one; a limit in wall time would drop an honest agent's
+    backlog after any stall, and lockstep runs faster than real time. Everything else is
+    dropped and counted against its sender (:attr:`rejected`)."""
 
-    def __init__(self, limits: Plausible | None, ahead_ticks: int) -> None:
-        self.limits, self.ahead_ticks = limits, ahead_ticks
-        self.last_k: dict[str, int] = {}  # sender -> newest tick taken
-        self.run_k = -1  # newest tick the world has reported
+    def __init__(self, limits: Plausible | None, ahead_s: float) -> None:
+        self.limits, self.ahead_s = limits, ahead_s
+        self.last_t: dict[str, float] = {}  # sender -> sim time [s] of its newest state taken
+        self.run_t = -math.inf  # the newest sim time [s] the world has reported
         self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
 
-    def run_at(self, k: int) -> None:
-        self.run_k = max(self.run_k, k)
+    def run_at(self, t_s: float) -> None:
+        self.run_t = max(self.run_t, t_s)
 
-    def early(self, sender: str, k: int) -> str | None:
-        """The checks on the tick alone (before a record is read whole): why a state of
-        tick ``k`` from ``sender`` is not taken, or None."""
-        last = self.last_k.get(sender, -1)
-        if k == last:
+    def early(self, sender: str, t_s: float) -> str | None:
+        """The checks on the time alone (before a record is read whole): why a state of sim
+        time ``t_s`` [s] from ``sender`` is not taken, or None."""
+        last = self.last_t.get(sender, -math.inf)
+        if t_s == last:
             return REPEATED
-        if k < last:
+        if t_s < last:
             return OUT_OF_ORDER
-        if self.run_k >= 0 and k > self.run_k + self.ahead_ticks:
+        if math.isfinite(self.run_t) and t_s > self.run_t + self.ahead_s:
             return AHEAD
         return None
 
-    def admit(self, sender: str, k: int, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> bool:
-        """Take a well-formed state of ``sender`` (tick ``k``, body centre ``x_w`` [m, world],
-        velocity ``v_w`` [m/s], radius ``r_m`` [m]), or count why not."""
-        why = self.early(sender, k) or (self.limits.reason(x_w, v_w, r_m) if self.limits else None)
+    def admit(self, sender: str, t_s: float, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> bool:
+        """Take a well-formed state of ``sender`` (sim time ``t_s`` [s], body centre ``x_w``
+        [m, world], velocity ``v_w`` [m/s], radius ``r_m`` [m]), or count why not."""
+        why = self.early(sender, t_s) or (self.limits.reason(x_w, v_w, r_m) if self.limits else None)
         if why is not None:
             self.reject(sender, why)
             return False
-        self.last_k[sender] = k
+        self.last_t[sender] = t_s
         return True
 
     def reject(self, sender: str, reason: str) -> None:

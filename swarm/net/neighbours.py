@@ -5,7 +5,7 @@ is kept as a stopped obstacle at its last position or dropped, as configured.
 
 It takes only what a neighbour can have meant (docs/design.md, "A run's own agents"): with
 :attr:`NeighbourTable.limits` set, a plausible state (:class:`swarm.net.statewire.Plausible`),
-one per neighbour and tick with the ticks in order, none ahead of the newest tick this
+each newer than the last taken of its neighbour (one per tick), none ahead of the newest tick this
 agent has heard of by more than ``limits.ahead_s`` (:meth:`NeighbourTable.at`). Anything
 else is dropped and counted against its sender (:attr:`NeighbourTable.rejected`), and the
 neighbour is kept as its last good state allows: a neighbour that goes silent or
@@ -13,6 +13,7 @@ implausible is extrapolated and grows, not forgotten."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -183,18 +184,18 @@ _VERDICTS = (
 
 
 @njit(cache=True)
-def _admit(latest, last_seq, slots, k, seq, t, x, v, r, lim, horizon_s, out):
-    """out[n] for record n (tick k, sequence number seq, time t [s], centre x [m, world],
-    velocity v [m/s], radius r [m]) from slot slots[n] whose newest tick and its sequence
-    number are latest, last_seq: 0 take it, -1 a copy of the state held (a relay bundles a
-    late neighbour's state again: not an offence), else the index of its reason in
+def _admit(last_t, last_seq, slots, seq, t, x, v, r, lim, horizon_s, out):
+    """out[n] for record n (sequence number seq, sim time t [s], centre x [m, world],
+    velocity v [m/s], radius r [m]) from slot slots[n], whose newest state taken has time
+    last_t and sequence number last_seq: 0 take it, -1 a copy of that state (a relay bundles
+    a late neighbour's state again: not an offence), else the index of its reason in
     ``_VERDICTS``. ``lim``: ``Plausible.as_array``; ``horizon_s``: no state is newer."""
     for n in range(slots.shape[0]):
-        i, kk = slots[n], k[n]
-        if kk == latest[i]:
+        i = slots[n]
+        if t[n] == last_t[i]:
             out[n] = -1 if seq[n] == last_seq[i] else 1
             continue
-        if kk < latest[i]:
+        if t[n] < last_t[i]:
             out[n] = 2
             continue
         if t[n] > horizon_s:
@@ -211,7 +212,7 @@ def _admit(latest, last_seq, slots, k, seq, t, x, v, r, lim, horizon_s, out):
         elif out[n] == 0 and r[n] > lim[7]:
             out[n] = 6
         if out[n] == 0:
-            latest[i], last_seq[i] = kk, seq[n]
+            last_t[i], last_seq[i] = t[n], seq[n]
 
 
 class NeighbourTable:
@@ -238,7 +239,8 @@ class NeighbourTable:
         self.row_names: list[str] = []  # names of the rows the last arrays() built
         self._limits: statewire.Plausible | None = None
         self.now_s = -np.inf  # sim time [s] of the newest tick this agent has heard of (at(), arrays())
-        self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) sequence number of each slot's newest state
+        self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
+        self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) and its sequence number
         self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
 
     @property
@@ -253,8 +255,8 @@ class NeighbourTable:
         if limits is not None:
             # two records: the fields of one are contiguous arrays, a type of their own to numba
             rec = np.zeros(2, dtype=statewire.STATE)
-            fields = (rec["k"], rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
-            scratch = (np.full(2, 1, np.int64), np.zeros(2, np.uint64), np.zeros(2, np.int64))
+            fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
+            scratch = (np.full(2, 1.0), np.zeros(2, np.uint64), np.zeros(2, np.int64))
             _admit(*scratch, *fields, limits.as_array(), 0.0, np.empty(2, np.int8))
 
     def at(self, t_s: float) -> None:
@@ -272,7 +274,9 @@ class NeighbourTable:
         if i is None:
             if len(self.names) == self.s.k.shape[0]:
                 self.s = self.s.grown(max(4, len(self.names)))
-                self.last_seq = np.concatenate([self.last_seq, np.zeros(max(4, len(self.names)), np.uint64)])
+                more = max(4, len(self.names))
+                self.last_t = np.concatenate([self.last_t, np.full(more, -np.inf)])
+                self.last_seq = np.concatenate([self.last_seq, np.zeros(more, np.uint64)])
             i = self.slot[name] = len(self.names)
             self.names.append(name)
         return i
@@ -285,7 +289,7 @@ class NeighbourTable:
         i = self._slot(name)
         s, j = self.s, k % self.HISTORY
         if self.limits is not None:
-            why = self._why(i, k, t_s, x_w, v_w, radius_m)
+            why = self._why(i, t_s, x_w, v_w, radius_m)
             if why is not None:
                 self._reject(name, why)
                 return
@@ -313,11 +317,8 @@ class NeighbourTable:
         sl = np.array(slots, dtype=np.int64)
         if self.limits is not None:
             verdict = np.empty(len(sl), dtype=np.int8)
-            lim, horizon = self.limits.as_array(), self.now_s + self.limits.ahead_s
-            x, v = rec["x"], rec["v"]
-            _admit(
-                self.s.latest, self.last_seq, sl, rec["k"], rec["seq"], rec["t"], x, v, rec["r"], lim, horizon, verdict
-            )
+            fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
+            _admit(self.last_t, self.last_seq, sl, *fields, self.limits.as_array(), self._horizon_s(), verdict)
             if verdict.any():
                 for n in np.flatnonzero(verdict > 0).tolist():
                     reason = _VERDICTS[verdict[n]]
@@ -329,17 +330,24 @@ class NeighbourTable:
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
         _store(self.s.fields(), sl, states)
 
-    def _why(self, i: int, k: int, t_s: float, x_w: Any, v_w: Any, radius_m: float) -> str | None:
-        """Why a state of slot ``i`` is not taken (:attr:`limits` set), or None."""
+    def _horizon_s(self) -> float:
+        """No neighbour's state is newer [s, sim time] (none known before the first tick heard of)."""
         assert self.limits is not None
-        latest = int(self.s.latest[i])
-        if k == latest:
+        return self.now_s + self.limits.ahead_s if math.isfinite(self.now_s) else math.inf
+
+    def _why(self, i: int, t_s: float, x_w: Any, v_w: Any, radius_m: float) -> str | None:
+        """Why a state of slot ``i`` is not taken (:attr:`limits` set), or None; taken: noted."""
+        assert self.limits is not None
+        if t_s == self.last_t[i]:
             return statewire.REPEATED
-        if k < latest:
+        if t_s < self.last_t[i]:
             return statewire.OUT_OF_ORDER
-        if t_s > self.now_s + self.limits.ahead_s:
+        if t_s > self._horizon_s():
             return statewire.AHEAD
-        return self.limits.reason(tuple(x_w), tuple(v_w), radius_m)
+        why = self.limits.reason(tuple(x_w), tuple(v_w), radius_m)
+        if why is None:
+            self.last_t[i] = t_s
+        return why
 
     def _reject(self, name: str, reason: str) -> None:
         per = self.rejected.setdefault(name, {})

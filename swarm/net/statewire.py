@@ -97,11 +97,6 @@ def record_time(record: bytes) -> float:
     return float(struct.unpack_from("<d", record, 32)[0])
 
 
-def record_tick(payload: bytes) -> int | None:
-    """Control tick of a state record, read alone; None unless ``payload`` is the size of one."""
-    return int(struct.unpack_from("<q", payload, 24)[0]) if len(payload) == STATE.itemsize else None
-
-
 def encode_bundle(run: str, dst: str, seq: int, t: float, k: int, records: list[bytes]) -> bytes:
     """A bundle of ``records`` (each as :func:`encode_state` made it) for agent ``dst``."""
     head = _BUNDLE_PACK.pack(BUNDLE_MAGIC, VERSION, len(records), seq, run_tag(run), k, float(t), dst.encode())

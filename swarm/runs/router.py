@@ -47,7 +47,7 @@ class BundleRelay:
         wait_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s if lockstep else 0.5 / cfg.time.control_hz
         self.bundler = Bundler(ids, [cfg.interest_radius_m(a) for a in ids], lockstep, wait_s)
         # the world's status (10 Hz) says how far the run is; a state may be a second ahead of it
-        self.intake = Intake(statewire.Plausible.of(cfg), round(1.1 * cfg.time.control_hz))
+        self.intake = Intake(statewire.Plausible.of(cfg), 1.1)
         self.state_keys = {self.keys.state(a): a for a in ids}
         self.status = tp.open_channel(session, self.keys.status, 1024)
         self.inbox = tp.Inbox(session, self.keys.all_states)
@@ -67,7 +67,7 @@ class BundleRelay:
         for s in tp.drain(self.status):  # first: how far the run is, for the states that came with it
             m = tp.decode_sample(s, self.run, self.counter, ("status",), ("done",))
             if m is not None:
-                self.intake.run_at(m.k)
+                self.intake.run_at(m.t)
         for s in self.inbox.drain():
             self._take(s)
         for name, up in tp.liveliness_events(self.live_sub):
@@ -80,8 +80,8 @@ class BundleRelay:
         if sender is None:
             self.counter.drop("state: on no agent's key")
             return
-        k = statewire.record_tick(data)
-        early = None if k is None else self.intake.early(sender, k)
+        t = statewire.record_time(data) if len(data) == statewire.STATE.itemsize else None
+        early = None if t is None else self.intake.early(sender, t)
         if early is not None:  # (a flood's repeats: no more work)
             self._drop(sender, early)
             return
@@ -93,7 +93,7 @@ class BundleRelay:
         if f[14].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
             self._drop(sender, "state: sender is not its key's agent")
             return
-        if not self.intake.admit(sender, f[5], f[7:10], f[10:13], f[13]):
+        if not self.intake.admit(sender, f[6], f[7:10], f[10:13], f[13]):
             self.counter.drop("state: implausible")
             return
         self.bundler.add(sender, f[5], np.array(f[7:10]), data, time.monotonic())

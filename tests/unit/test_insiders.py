@@ -26,9 +26,10 @@ def test_the_bounds_hold_every_start_and_goal_and_the_speed_is_flat_out_across_t
     cfg = load(CONFIGS / "swap_2.yaml")
     p = statewire.Plausible.of(cfg)
     lo, hi = np.array(p.lo_w), np.array(p.hi_w)
-    for a in cfg.agents:
-        for pt in (a.start, a.final_goal):
-            assert np.all(lo + statewire.BOUNDS_MARGIN_M - 1e-9 <= pt) and np.all(np.array(pt) <= hi - 4.99)
+    pts = np.array([p for a in cfg.agents for p in (a.start, a.final_goal)])
+    np.testing.assert_allclose(lo[:2], pts[:, :2].min(axis=0) - statewire.BOUNDS_MARGIN_M)
+    np.testing.assert_allclose(hi, pts.max(axis=0) + statewire.BOUNDS_MARGIN_M)
+    assert lo[2] == -1.0  # below the floor: 1 m
     params = cfg.agents[0].airframe.params()
     a_max = (params.thrust_to_weight + 1.0) * 9.81  # all rotors flat out, gravity helping
     assert p.max_speed_mps == pytest.approx(math.sqrt(2.0 * a_max * float(np.linalg.norm(hi - lo))))
@@ -41,18 +42,18 @@ def test_the_bounds_hold_every_start_and_goal_and_the_speed_is_flat_out_across_t
 
 
 def test_the_relay_takes_one_plausible_state_per_sender_and_tick_in_order():
-    intake = Intake(LIMITS, ahead_ticks=120)
+    intake = Intake(LIMITS, ahead_s=1.0)
     x, v = (0.0, 0.0, 1.0), (0.0, 0.0, 0.0)
-    assert intake.admit("cf3", 5, x, v, 0.07)
+    assert intake.admit("cf3", 5.0, x, v, 0.07)  # (before the world's first status: no horizon yet)
     for _ in range(999):  # a thousand states for one tick: one taken
-        assert not intake.admit("cf3", 5, x, v, 0.07)
-    assert not intake.admit("cf3", 4, x, v, 0.07)  # an old tick again
-    assert intake.admit("cf1", 4, x, v, 0.07)  # (another sender's ticks are its own)
-    assert not intake.admit("cf3", 6, (0.0, 1000.0, 1.0), v, 0.07)
-    assert not intake.admit("cf3", 6, x, (300.0, 0.0, 0.0), 0.07)
-    intake.run_at(10)
-    assert not intake.admit("cf3", 10 + 121, x, v, 0.07)  # more than a second ahead of the world
-    assert intake.admit("cf3", 10 + 120, x, v, 0.07)
+        assert not intake.admit("cf3", 5.0, x, v, 0.07)
+    assert not intake.admit("cf3", 4.99, x, v, 0.07)  # an old tick again
+    assert intake.admit("cf1", 4.99, x, v, 0.07)  # (another sender's ticks are its own)
+    assert not intake.admit("cf3", 5.01, (0.0, 1000.0, 1.0), v, 0.07)
+    assert not intake.admit("cf3", 5.01, x, (300.0, 0.0, 0.0), 0.07)
+    intake.run_at(5.0)
+    assert not intake.admit("cf3", 6.02, x, v, 0.07)  # more than a second ahead of the world
+    assert intake.admit("cf3", 5.99, x, v, 0.07)
     assert intake.rejected == {
         "cf3": {
             statewire.REPEATED: 999,
@@ -133,6 +134,13 @@ def test_a_neighbour_table_drops_and_counts_each_kind_of_bad_state_against_its_s
     assert t.rejected["cf2"] == {statewire.REPEATED: 1, statewire.OUTSIDE: 1}
 
 
+def test_before_its_first_tick_an_agent_takes_any_plausible_time():
+    t = NeighbourTable(timeout_s=0.1, growth_mps=0.5, hard_limit_s=1.0)
+    t.limits = LIMITS
+    t.update_records(_bundle([_state(1, 500)]), {"cf3"}, tp.Counter())
+    assert t.state("cf3").k == 500 and t.rejected == {}
+
+
 def test_a_flood_of_one_tick_keeps_one_state():
     t, counter = _table(), tp.Counter()
     t.update_records(_bundle([_state(1 + i, 3) for i in range(1000)]), {"cf3"}, counter)
@@ -176,7 +184,7 @@ def test_the_metrics_name_the_offenders_and_the_silent():
     for k in range(300):  # cf1 answers every tick; cf3 is live and never commands
         silence.see({"kind": "clock", "t": k * 0.01, "live": ["cf1", "cf3"]})
         silence.see({"kind": "command", "src": "cf1", "t": k * 0.01})
-    assert silence.longest_s["cf1"] == pytest.approx(0.0) and silence.longest_s["cf3"] == pytest.approx(2.99)
+    assert silence.longest_s["cf1"] == pytest.approx(0.01) and silence.longest_s["cf3"] == pytest.approx(2.99)
     said = {
         "agent-cf1": {"rejected": {"cf2": {statewire.OUTSIDE: 4}}},
         "router": {"rejected": {"cf2": {statewire.REPEATED: 999, statewire.OUTSIDE: 1}}},

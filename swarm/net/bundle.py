@@ -145,7 +145,8 @@ class Bundler:
 class Intake:
     """Which of the states the relay hears it takes, per sender (no I/O): each must be
     plausible (:class:`swarm.net.statewire.Plausible`), newer in sim time than the last one
-    taken from its sender (one per tick: a repeat or an older one is dropped), and no more
+    taken from its sender (one per tick: a repeat or an older one is dropped; one link per
+    agent reaches the relay, in order), and no more
     than ``ahead_s`` [s] ahead of the run (the newest time the world has reported,
     :meth:`run_at`). That is the relay's rate limit per sender, in the run's own time: a
     flood of one tick's state keeps one; a limit in wall time would drop an honest agent's

@@ -5,7 +5,7 @@ is kept as a stopped obstacle at its last position or dropped, as configured.
 
 It takes only what a neighbour can have meant (docs/design.md, "A run's own agents"): with
 :attr:`NeighbourTable.limits` set, a plausible state (:class:`swarm.net.statewire.Plausible`),
-each newer than the last taken of its neighbour (one per tick), none ahead of the newest tick this
+one per neighbour and tick in order (a state or two late is taken), none ahead of the newest tick this
 agent has heard of by more than ``limits.ahead_s`` (:meth:`NeighbourTable.at`). Anything
 else is dropped and counted against its sender (:attr:`NeighbourTable.rejected`), and the
 neighbour is kept as its last good state allows: a neighbour that goes silent or
@@ -189,13 +189,14 @@ def _admit(last_t, last_seq, slots, seq, t, x, v, r, lim, horizon_s, out):
     velocity v [m/s], radius r [m]) from slot slots[n], whose newest state taken has time
     last_t and sequence number last_seq: 0 take it, -1 a copy of that state (a relay bundles
     a late neighbour's state again: not an offence), else the index of its reason in
-    ``_VERDICTS``. ``lim``: ``Plausible.as_array``; ``horizon_s``: no state is newer."""
+    ``_VERDICTS``. ``lim``: ``Plausible.as_array``; ``horizon_s``: no state is newer. A state
+    up to ``lim[8]`` [s] older than last_t is taken (into the history) without moving it."""
     for n in range(slots.shape[0]):
         i = slots[n]
         if t[n] == last_t[i]:
             out[n] = -1 if seq[n] == last_seq[i] else 1
             continue
-        if t[n] < last_t[i]:
+        if t[n] < last_t[i] - lim[8]:
             out[n] = 2
             continue
         if t[n] > horizon_s:
@@ -211,7 +212,7 @@ def _admit(last_t, last_seq, slots, seq, t, x, v, r, lim, horizon_s, out):
             out[n] = 5
         elif out[n] == 0 and r[n] > lim[7]:
             out[n] = 6
-        if out[n] == 0:
+        if out[n] == 0 and t[n] > last_t[i]:
             last_t[i], last_seq[i] = t[n], seq[n]
 
 
@@ -340,13 +341,13 @@ class NeighbourTable:
         assert self.limits is not None
         if t_s == self.last_t[i]:
             return statewire.REPEATED
-        if t_s < self.last_t[i]:
+        if t_s < self.last_t[i] - self.limits.behind_s:
             return statewire.OUT_OF_ORDER
         if t_s > self._horizon_s():
             return statewire.AHEAD
         why = self.limits.reason(tuple(x_w), tuple(v_w), radius_m)
         if why is None:
-            self.last_t[i] = t_s
+            self.last_t[i] = max(self.last_t[i], t_s)
         return why
 
     def _reject(self, name: str, reason: str) -> None:

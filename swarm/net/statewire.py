@@ -216,6 +216,7 @@ def read_bundle(payload: bytes, run: str) -> Bundle:
     return Bundle(dst.decode(), seq, t, k, check_states(records, run))
 
 
+REORDER_TICKS = 8  # (a neighbour table's history: swarm.net.neighbours.NeighbourTable.HISTORY)
 BOUNDS_MARGIN_M = 5.0
 """How far beyond every start, goal and waypoint of the run a drone may plausibly be [m]."""
 G_MPS2 = 9.81
@@ -235,13 +236,17 @@ class Plausible:
     may be ahead of the newest tick the receiver has heard of: in lockstep two ticks (every
     agent acts on the tick the world sent, whose clock may reach one agent a little after
     another's state of it), in realtime a second (an agent acts on the newest measurement it
-    has; none is a second ahead of the world)."""
+    has; none is a second ahead of the world). ``behind_s``: how much older than the newest
+    state taken from its sender a state may come and still be taken (it fills a receiver's
+    history by tick, never replaces a newer state): :data:`REORDER_TICKS` ticks, as the links of
+    a mesh now and then hand a receiver a sender's state after its next one; older is dropped."""
 
     lo_w: tuple[float, float, float]
     hi_w: tuple[float, float, float]
     max_speed_mps: float
     max_radius_m: float
     ahead_s: float = 1.0  # s
+    behind_s: float = 0.0  # s
 
     @classmethod
     def of(cls, cfg: ScenarioConfig) -> Plausible:
@@ -255,7 +260,7 @@ class Plausible:
         r_max = max(p.body_radius_m for p in params)
         ahead_s = 2.0 / cfg.time.control_hz if cfg.time.mode.value == "lockstep" else 1.0
         lo_w, hi_w = (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
-        return cls(lo_w, hi_w, v_max, r_max, ahead_s)
+        return cls(lo_w, hi_w, v_max, r_max, ahead_s, REORDER_TICKS / cfg.time.control_hz)
 
     def reason(self, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> str | None:
         """Why a finite state (body centre ``x_w`` [m, world], velocity ``v_w`` [m/s],
@@ -270,13 +275,13 @@ class Plausible:
         return None
 
     def as_array(self) -> np.ndarray:
-        """(lo x, y, z, hi x, y, z, max speed, max radius) for compiled checks."""
-        return np.array([*self.lo_w, *self.hi_w, self.max_speed_mps, self.max_radius_m])
+        """(lo x, y, z, hi x, y, z, max speed, max radius, behind_s) for compiled checks."""
+        return np.array([*self.lo_w, *self.hi_w, self.max_speed_mps, self.max_radius_m, self.behind_s])
 
 
 OUTSIDE = "state: outside the world's bounds"
 TOO_FAST = "state: faster than the airframe can fly"
 TOO_LARGE = "state: larger than any airframe of the run"
 REPEATED = "state: a tick it already sent"
-OUT_OF_ORDER = "state: a tick older than one it sent"
+OUT_OF_ORDER = "state: a tick well before one it sent"
 AHEAD = "state: ahead of the run"

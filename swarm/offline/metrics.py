@@ -25,6 +25,7 @@ Safety figures, all from the measured (ground-truth) states:
 from __future__ import annotations
 
 import math
+from array import array
 from collections import defaultdict
 from typing import Any
 
@@ -276,6 +277,7 @@ def compute(
             min_clear = min(min_clear, float(surface_clearance(c, obs).min()))
         bar.add([index[aid] for aid in bodies], x, c, cd, obs, [str(i.get("id", j)) for j, i in enumerate(items)])
 
+    quiet = silence.longest_s
     agents: dict[str, Any] = {}
     for a in cfg.agents:
         m = sorted(meas.get(a.id, []), key=lambda e: e[1])
@@ -302,7 +304,7 @@ def compute(
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
             "deadlock_at_s": stuck,
-            "longest_silence_s": silence.longest_s.get(a.id, 0.0),  # live without a command (sim time)
+            "longest_silence_s": quiet.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
             "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
             **motion,
@@ -341,28 +343,38 @@ def compute(
         "lost_agents": lost,
         "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
         "lost_messages": sum(g.messages for g in gaps),
-        "offenders": offenders(said or {}, silence.longest_s, cfg.failure.neighbour_hard_limit_s),
+        "offenders": offenders(said or {}, quiet, cfg.failure.neighbour_hard_limit_s),
         "agents": agents,
     }
 
 
 class Silence:
     """How long [s of sim time] each agent was live (in the clock's live list) without a
-    command: fed the recorded messages in file order."""
+    command: fed the recorded messages in any order (the recorder writes a batch's clocks
+    before its commands), then :attr:`longest_s`."""
 
     def __init__(self) -> None:
-        self.last_s: dict[str, float] = {}  # agent -> its newest command, or when first seen live [s]
-        self.longest_s: dict[str, float] = {}
+        self.commands: dict[str, array] = {}  # agent -> sim times [s] of its commands
+        self.live: dict[str, list[float]] = {}  # agent -> [first, last] sim time [s] it was live
 
     def see(self, r: dict[str, Any]) -> None:
         if r["kind"] == "command":
-            self.last_s[r["src"]] = max(self.last_s.get(r["src"], r["t"]), r["t"])
+            self.commands.setdefault(r["src"], array("d")).append(float(r["t"]))
         elif r["kind"] == "clock":
             t = float(r["t"])
             for a in r["live"]:
-                quiet = t - self.last_s.setdefault(a, t)
-                if quiet > self.longest_s.get(a, 0.0):
-                    self.longest_s[a] = quiet
+                span = self.live.setdefault(a, [t, t])
+                span[0], span[1] = min(span[0], t), max(span[1], t)
+
+    @property
+    def longest_s(self) -> dict[str, float]:
+        out = {}
+        for a, (first, last) in self.live.items():
+            ts = np.sort(np.frombuffer(self.commands.get(a, array("d")), dtype=float))
+            ts = ts[(ts >= first) & (ts <= last)]
+            edges = np.concatenate([[first], ts, [last]])
+            out[a] = float(np.diff(edges).max())
+        return out
 
 
 def offenders(

@@ -19,7 +19,7 @@ from swarm.offline.metrics import Silence, offenders
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 RUN = "r1"
-LIMITS = statewire.Plausible((-5.0, -5.0, -1.0), (5.0, 5.0, 4.0), 30.0, 0.1, ahead_s=1.0)
+LIMITS = statewire.Plausible((-5.0, -5.0, -1.0), (5.0, 5.0, 4.0), 30.0, 0.1, ahead_s=1.0, behind_s=0.08)
 
 
 def test_the_bounds_hold_every_start_and_goal_and_the_speed_is_flat_out_across_them():
@@ -35,6 +35,7 @@ def test_the_bounds_hold_every_start_and_goal_and_the_speed_is_flat_out_across_t
     assert p.max_speed_mps == pytest.approx(math.sqrt(2.0 * a_max * float(np.linalg.norm(hi - lo))))
     assert p.max_radius_m == params.body_radius_m
     assert p.ahead_s == pytest.approx(2.0 / cfg.time.control_hz)  # lockstep: two ticks
+    assert p.behind_s == pytest.approx(statewire.REORDER_TICKS / cfg.time.control_hz)
     assert p.reason((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), 0.07) is None
     assert p.reason((1000.0, 0.0, 1.0), (0.0, 0.0, 0.0), 0.07) == statewire.OUTSIDE  # a kilometre away
     assert p.reason((0.0, 0.0, 1.0), (0.0, 0.0, p.max_speed_mps + 0.1), 0.07) == statewire.TOO_FAST
@@ -115,8 +116,8 @@ def test_a_neighbour_table_drops_and_counts_each_kind_of_bad_state_against_its_s
         _state(7, 500),  # 5 s ahead of the newest tick heard of
     ]
     t.update_records(_bundle(bad), {"cf2", "cf3"}, counter)
-    t.update_records(_bundle([_state(8, 2), _state(9, 1)]), {"cf2", "cf3"}, counter)  # the second: out of order
-    assert t.state("cf3").k == 2 and counter.dropped == 6
+    t.update_records(_bundle([_state(8, 20), _state(9, 1)]), {"cf2", "cf3"}, counter)  # the second: long before
+    assert t.state("cf3").k == 20 and counter.dropped == 6
     assert t.rejected == {
         "cf3": {
             statewire.REPEATED: 1,
@@ -139,6 +140,16 @@ def test_before_its_first_tick_an_agent_takes_any_plausible_time():
     t.limits = LIMITS
     t.update_records(_bundle([_state(1, 500)]), {"cf3"}, tp.Counter())
     assert t.state("cf3").k == 500 and t.rejected == {}
+
+
+def test_a_state_a_tick_late_fills_the_history_and_is_no_offence():
+    t, counter = _table(), tp.Counter()
+    t.update_records(_bundle([_state(4, 2)]), {"cf3"}, counter)
+    t.update_records(_bundle([_state(2, 1)]), {"cf3"}, counter)  # (a mesh's links reorder now and then)
+    assert counter.dropped == 0 and t.state("cf3", 1).k == 1 and t.state("cf3").k == 2
+    t.update("cf2", 0.02, 2, np.zeros(3), np.zeros(3), 0.07)
+    t.update("cf2", 0.01, 1, np.zeros(3), np.zeros(3), 0.07)
+    assert t.rejected == {} and t.state("cf2", 1).k == 1
 
 
 def test_a_flood_of_one_tick_keeps_one_state():
@@ -183,6 +194,7 @@ def test_the_metrics_name_the_offenders_and_the_silent():
     silence = Silence()
     for k in range(300):  # cf1 answers every tick; cf3 is live and never commands
         silence.see({"kind": "clock", "t": k * 0.01, "live": ["cf1", "cf3"]})
+    for k in range(300):  # (a batch's commands come after its clocks in the file)
         silence.see({"kind": "command", "src": "cf1", "t": k * 0.01})
     assert silence.longest_s["cf1"] == pytest.approx(0.01) and silence.longest_s["cf3"] == pytest.approx(2.99)
     said = {

@@ -245,7 +245,7 @@ class Agent:
         if self.from_world or k == 0:
             return 0  # the clock of tick k carried every neighbour's tick-k state
         table = self.table
-        return sum(1 for n in live if n in self.others and n not in table.gone and table.latest_k(n) < k - 1)
+        return sum(1 for n in live if n in self.others and n not in table.gone and table.waits_for(n, k - 1))
 
     def _neighbour_rows(self, t: float, k: int, x_b: np.ndarray, lockstep: bool) -> ObstacleArrays:
         """Rows of the other agents at ``t`` [s]: the world's roster, or their states

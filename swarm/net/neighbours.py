@@ -243,6 +243,8 @@ class NeighbourTable:
         self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
         self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) and its sequence number
         self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
+        self.late: set[str] = set()  # lockstep: went without at a tick's deadline; not waited for until heard
+        self._asked: dict[str, int] = {}  # name -> the tick waits_for() last said it waits for
 
     @property
     def limits(self) -> statewire.Plausible | None:
@@ -294,6 +296,7 @@ class NeighbourTable:
             if why is not None:
                 self._reject(name, why)
                 return
+        self.late.discard(name)
         if s.k[i, j] > k:
             return
         s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
@@ -328,6 +331,8 @@ class NeighbourTable:
                     self._reject(self.names[sl[n]], reason)
                 ok = verdict == 0
                 rec, sl = rec[ok], sl[ok]
+        if self.late:
+            self.late.difference_update(self.names[i] for i in sl.tolist())
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
         _store(self.s.fields(), sl, states)
 
@@ -359,6 +364,16 @@ class NeighbourTable:
         i = self.slot.get(name)
         if i is not None:
             self.s.gone[i] = True
+
+    def waits_for(self, name: str, k: int) -> bool:
+        """Lockstep: is there still ``name``'s state of tick ``k`` to wait for? Not once this
+        agent went without its state at a tick's deadline (:meth:`arrays` then finds it
+        missing), until a state of it is taken: a neighbour gone silent or implausible costs
+        one timeout, not one per tick."""
+        if name in self.late or self.latest_k(name) >= k:
+            return False
+        self._asked[name] = k
+        return True
 
     def latest_k(self, name: str) -> int:
         i = self.slot.get(name)
@@ -399,6 +414,9 @@ class NeighbourTable:
         so this agent takes all of the pair. ``names``: only these neighbours (in this
         order), and the gone ones."""
         self.now_s = max(self.now_s, t_now)
+        if k_max is not None and self._asked:  # the tick is flown: whoever it still waited for is late
+            self.late.update(n for n, k in self._asked.items() if k <= k_max and self.latest_k(n) < k)
+            self._asked = {n: k for n, k in self._asked.items() if k > k_max}
         if names is None:
             slots = list(range(len(self.names)))
         else:

@@ -56,6 +56,8 @@ def _run(start_run, monkeypatch, mode: str, topology: str) -> tuple[dict, RunHan
         duration_s=12.0,
         agents=AGENTS,
         network={"topology": topology},
+        # in the mesh every agent hears every other's own state key (by cells, a state goes to its cell)
+        neighbours={"interest": "all"} if topology == "mesh" else {},
         time={"lockstep_timeout_s": 1.0},  # (an agent that never answers costs the world one timeout)
     )
     h = start_run(cfg, f"{mode}-{topology}")
@@ -102,7 +104,7 @@ def test_an_agent_that_never_commands_costs_one_timeout_and_is_named(start_run, 
     m, h = _run(start_run, monkeypatch, "mute", "star")
     _safe_and_home(m)
     o = m["offenders"][ROGUE]
-    assert o["dropped"] == 0 and o["longest_silence_s"] > 5.0, o  # live the whole run, never a command
+    assert o["dropped"] == 0 and o["longest_silence_s"] > 0.9 * m["duration_s"], o  # live all along, never a command
     assert list(m["offenders"]) == [ROGUE]
     # the world waited for it once (a stall), then no more: the run took one timeout longer, not one per tick
     assert m["stalls"] == 1 and m["stall_events"][0]["agents"] == [ROGUE], m["stall_events"]

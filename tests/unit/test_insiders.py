@@ -152,6 +152,17 @@ def test_a_state_a_tick_late_fills_the_history_and_is_no_offence():
     assert t.rejected == {} and t.state("cf2", 1).k == 1
 
 
+def test_an_agent_waits_once_for_a_neighbour_whose_states_stop():
+    t, counter = _table(), tp.Counter()
+    for k in range(3):
+        t.update_records(_bundle([_state(1 + k, k)]), {"cf3"}, counter)
+    assert not t.waits_for("cf3", 2) and t.waits_for("cf3", 3)  # tick 4 needs its state of 3: wait
+    t.arrays(0.04, 3)  # the deadline passed: tick 4 flown without it
+    assert not t.waits_for("cf3", 4) and not t.waits_for("cf3", 50)  # not waited for again ...
+    t.update_records(_bundle([_state(9, 5)]), {"cf3"}, counter)
+    assert t.waits_for("cf3", 6)  # ... until a state of it is taken
+
+
 def test_a_flood_of_one_tick_keeps_one_state():
     t, counter = _table(), tp.Counter()
     t.update_records(_bundle([_state(1 + i, 3) for i in range(1000)]), {"cf3"}, counter)

@@ -22,7 +22,9 @@ Keys of the last line: ``end`` (true), ``stop_reason``, ``minutes``, ``complete`
 file ends with its footer, the world said done, no stream has a hole: metrics.json),
 ``readable_to_s`` (sim time of the last message the file gives back, read to its end),
 ``duration_s``, ``messages``, ``lost_messages``, ``recording_mb``, ``metrics_s`` (wall time
-[s] the launcher took to compute metrics.json), ``rss_growth_pct`` (per process, its
+[s] the launcher took to compute metrics.json), ``launcher_peak_rss_mb`` (this process's
+largest resident memory, reached computing them: the whole file is read into memory),
+``rss_growth_pct`` (per process, its
 resident memory at the last report against the first's) and ``on_time_drift_pct`` (the
 last report's on-time fraction less the first's, in percent).
 """
@@ -33,6 +35,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -165,6 +168,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "lost_messages": m.get("lost_messages"),
         "recording_mb": round((h.out / "run.mcap").stat().st_size / 2**20, 1),
         "metrics_s": round(metrics_s, 1),
+        "launcher_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         "rss_growth_pct": {
             p: round(100.0 * (last["rss_mb"][p] / first["rss_mb"][p] - 1.0), 2)
             for p in first["rss_mb"]

@@ -5,6 +5,8 @@
 * ``swarm.model``, ``swarm.rotation``, ``swarm.control``, ``swarm.crazyflie_fw``: the
   quadrotor, its reference controllers and the Crazyflie firmware's rules.
 * ``swarm.config``: scenario files, checked.
+* ``swarm.realism``: the world's imperfections (aerodynamics, motors, wind, sensing,
+  communication) for both simulators; pure, no I/O.
 * ``swarm.net``: the runtime's wiring (Zenoh transport, messages, access control,
   neighbour tables, bundles).
 * ``swarm.offline``: what runs without the swarm's processes (the in-process closed loop,
@@ -20,9 +22,8 @@ from pathlib import Path as _Path
 
 if not _os.environ.get("NUMBA_CACHE_DIR"):  # (a cache elsewhere is the caller's to manage)
     from swarm.kernel_cache import clear_stale as _clear_stale
-    from swarm.kernel_cache import source_dirs as _source_dirs
 
-    _clear_stale(_source_dirs(_Path(__file__).resolve().parent))
+    _clear_stale([_Path(__file__).resolve().parent])
 
 from swarm._moved import install as _install_moved
 

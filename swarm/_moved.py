@@ -1,5 +1,5 @@
-"""The import paths of modules that moved into ``swarm.safety``, ``swarm.net``,
-``swarm.offline`` and ``swarm.runs``: importing an old path gives the module at its new one
+"""The import paths of modules that moved (into ``swarm.safety``, ``swarm.net``,
+``swarm.offline`` and ``swarm.runs``, or were renamed there): importing an old path gives the module at its new one
 (the same module object) with a :class:`DeprecationWarning`. Kept for one release
 (CHANGELOG)."""
 
@@ -32,8 +32,10 @@ MOVED = {
     "swarm.closed_loop": "swarm.offline.closed_loop",
     "swarm.metrics": "swarm.offline.metrics",
     "swarm.scenario": "swarm.offline.scenario",
-    "swarm.scene": "swarm.runs.scene",
-    "swarm.layout": "swarm.runs.layout",
+    "swarm.scene": "swarm.runs.foxglove_scene",
+    "swarm.layout": "swarm.runs.foxglove_layout",
+    "swarm.runs.scene": "swarm.runs.foxglove_scene",
+    "swarm.runs.layout": "swarm.runs.foxglove_layout",
 }
 """Old module path -> new module path."""
 

@@ -325,7 +325,7 @@ def record(
     """Start the recorder alone."""
     _pin_cpu()
     from swarm.net import transport as tp
-    from swarm.offline.ledger import Ledger
+    from swarm.runs.ledger import Ledger
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -340,6 +340,40 @@ def record(
     tp.exit_when_sent(record_main(run_name, out, conf, linger_s, live_port, ids, ledger), "recorder")
 
 
+@cli.command("ros2-bridge")
+@click.argument("config")
+@click.option("--run", "run_id")
+@click.option("--port", type=int, help="the run's router port (network.port)")
+@_SECRETS
+def ros2_bridge(config: str, run_id: str | None, port: int | None, secrets: Path | None) -> None:
+    """Start the run's ROS 2 bridge alone (ros2.enabled; docs/ros2.md)."""
+    _pin_cpu()
+    from swarm.net import transport as tp
+    from swarm.ros2.bridge import main as bridge_main
+
+    cfg, run_name = _process_args(config, run_id, port, None)
+    if not cfg.ros2.enabled:
+        click.echo(f"config error: {config}: ros2.enabled is false", err=True)
+        sys.exit(2)
+    conf = _zenoh_config(cfg, run_name, tp.Role.ROS2, secrets)
+    os._exit(bridge_main(cfg, run_name, conf))
+
+
+@cli.command("ros2-bag")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="default RUN_DIR/ros2_bag")
+def ros2_bag(run_dir: Path, out: Path | None) -> None:
+    """Write a run as a ROS 2 bag (MCAP, ros2msg/cdr) that ros2 bag, Foxglove and rosbags open."""
+    from swarm.ros2.bag import write_bag
+
+    try:
+        path, n = write_bag(run_dir, out)
+    except ConfigError as exc:
+        click.echo(f"config error: {exc}", err=True)
+        sys.exit(2)
+    click.echo(f"{path}: {n} messages")
+
+
 @cli.command()
 @click.argument("config")
 @click.option("--out", required=True, type=click.Path(file_okay=False, path_type=Path))
@@ -352,6 +386,10 @@ def secrets(config: str, out: Path) -> None:
     cfg = _load_or_exit(config, {})
     ensure_secrets(cfg, out)
     click.echo(f"credentials: {out}")
+    if cfg.ros2.enabled and cfg.network.port:  # what a ROS 2 participant sources (docs/ros2.md)
+        from swarm.ros2.participant import write_env
+
+        click.echo(f"ROS 2 participants: source {write_env(cfg, out, out)}")
 
 
 @cli.command()
@@ -544,6 +582,20 @@ def sweep(
 @click.option("--rho", type=float, default=1.0, show_default=True, help="responsibility share of each neighbour pair")
 @click.option("--tiebreak", type=click.Choice(["none", "right_hand"]), default="right_hand", show_default=True)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]), default="lockstep", show_default=True)
+@click.option(
+    "--realism",
+    type=click.Choice(["crazyflie_lab", "ideal"]),
+    default="crazyflie_lab",
+    show_default=True,
+    help="world.realism: a Crazyflie lab (downwash, drag, motors, wind, motion capture, links), or the perfect world",
+)
+@click.option(
+    "--neighbours",
+    type=click.Choice(["agents", "world"]),
+    default="agents",
+    show_default=True,
+    help="neighbours.source: the agents' own states, or the world's roster of every drone (ground truth: ideal only)",
+)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
 def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None:
     """Write a generated scenario: a swap (antipodal points of a circle or a sphere, or
@@ -559,7 +611,7 @@ def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None
     o = options
     settings = SwapSettings(
         speed_mps=o["speed"], perturb_m=o["perturb"], rotation_rad=math.radians(o["rotate_deg"]), seed=o["seed"],
-        mode=o["mode"],
+        mode=o["mode"], realism=o["realism"], neighbours=o["neighbours"],
     )  # fmt: skip
     if kind not in ("trap",) and n is None:
         n = 4 if kind == "corridor" else 6 if kind in ("doorway", "forest") else None

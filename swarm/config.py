@@ -16,14 +16,17 @@ from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from swarm.crazyflie_fw import pwm_per_newton
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, Layout, QuadParams
 from swarm.planning import PlannerSettings
+from swarm.realism.settings import RealismSettings
 from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig
+from swarm.strict import Strict as _Strict
+from swarm.strict import merge as _merge
 
 SCHEMA_VERSION = 1
 
@@ -35,25 +38,6 @@ class TimeMode(StrEnum):
     """The world steps only when every live agent has answered tick k (deterministic)."""
     REALTIME = "realtime"
     """The world runs on the wall clock; agents run on each new measurement."""
-
-
-_NUMBERS = (float, int, float | None, int | None)
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _numbers_are_numbers(cls, data: Any) -> Any:
-        """A number field takes a number, not ``true`` (which pydantic reads as 1) or a
-        string (``"5"``): a YAML typo must not fly as a different value."""
-        if isinstance(data, dict):
-            for name, f in cls.model_fields.items():
-                v = data.get(name)
-                if f.annotation in _NUMBERS and (isinstance(v, bool | str)):
-                    raise ValueError(f"{name}: must be a number, got {v!r}")
-        return data
 
 
 def _finite(v: Any) -> Any:
@@ -216,7 +200,7 @@ class PlannerConfig(_Strict):
     lanes: bool = True
     # s: on a path planned round walls, the filter's obstacle rows relax the cones of obstacles more
     # than about this far in time with the horizon allowance (filter.obstacle_horizon_s), stretched by
-    # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.planning.obstacle_horizon_s); None: never
+    # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.tuning.obstacle_horizon_s); None: never
     obstacle_horizon_s: float | None = Field(3.0, gt=0, allow_inf_nan=False)
 
     def settings(self) -> PlannerSettings:
@@ -477,6 +461,21 @@ MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each 
 AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
+class Ros2Settings(_Strict):
+    """The run seen and steered from ROS 2 (``swarm.ros2``, docs/ros2.md): a bridge process
+    that publishes the swarm as ROS 2 topics the way rmw_zenoh maps them, through the
+    run's Zenoh router, and takes a goal per drone and land / stop for all. Off by default
+    (nothing starts, nothing is subscribed)."""
+
+    enabled: bool = False
+    domain_id: int = Field(0, ge=0, le=232)  # ROS_DOMAIN_ID: the first chunk of every key
+    namespace: str = Field("", pattern=r"^$|^[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")  # "lab": /lab/cf1/pose
+    frame_id: str = Field("world", pattern=r"^[A-Za-z_][A-Za-z0-9_/]*$")  # the fixed frame of poses and /tf
+    rate_hz: float = Field(30.0, gt=0, le=1000)  # poses, velocities, /tf and /clock (at most one per tick)
+    status_hz: float = Field(10.0, gt=0, le=1000)  # each drone's filter status and the obstacles' markers
+    bag: bool = False  # write the run as a ROS 2 bag (MCAP, ros2msg/cdr) into <run>/ros2_bag at its end
+
+
 def machine_cpus() -> int:
     """CPUs this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -490,6 +489,13 @@ class LimitSettings(_Strict):
     @property
     def agents(self) -> int:
         return self.max_agents or AGENTS_PER_CPU * machine_cpus()
+
+
+class WorldSettings(_Strict):
+    """The simulated world."""
+
+    # its imperfections: downwash, drag, motors, wind, sensing, comms (swarm.realism.settings)
+    realism: RealismSettings = RealismSettings()
 
 
 class ScenarioConfig(_Strict):
@@ -509,6 +515,8 @@ class ScenarioConfig(_Strict):
     mocap: MocapSettings | None = None  # required when any agent is a real Crazyflie
     gui: bool = False
     limits: LimitSettings = LimitSettings()
+    ros2: Ros2Settings = Ros2Settings()
+    world: WorldSettings = WorldSettings()
 
     @model_validator(mode="after")
     def _machine(self) -> ScenarioConfig:
@@ -602,6 +610,15 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _estimates_need_states(self) -> ScenarioConfig:
+        if self.world.realism.sensing.enabled and self.neighbours.source == "world":
+            raise ValueError(
+                "world.realism.sensing: the agents act on motion-capture estimates, but neighbours.source: world "
+                "gives them every drone's true state (the roster); use neighbours.source: agents"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _unique(self) -> ScenarioConfig:
         for what, items in (("agents", self.agents), ("obstacles", self.obstacles)):
             seen: set[str] = set()
@@ -632,6 +649,21 @@ class ScenarioConfig(_Strict):
                 "neighbours.interest: bundle needs the run's bundle relay (network.topology: star, router or auto), "
                 "not mesh; use interest: cells or all"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _ros2(self) -> ScenarioConfig:
+        """ROS 2 participants join through the run's router; agent ids are ROS name tokens."""
+        if not self.ros2.enabled:
+            return self
+        if self.network.topology not in ("auto", "router"):
+            raise ValueError(
+                f"ros2.enabled: ROS 2 participants join through the run's Zenoh router; network.topology "
+                f"{self.network.topology} has none (use router or auto)"
+            )
+        for i, a in enumerate(self.agents):
+            if not a.id[0].isalpha() or "-" in a.id:
+                raise ValueError(f"agents.{i}.id: {a.id!r} is not a ROS 2 name (a letter first, no '-') for ros2")
         return self
 
     @model_validator(mode="after")
@@ -676,6 +708,8 @@ class ScenarioConfig(_Strict):
         """``network.topology`` with ``auto`` resolved (see :class:`NetworkSettings`)."""
         if self.network.topology != "auto":
             return self.network.topology
+        if self.ros2.enabled:  # ROS 2 participants join through the router
+            return "router"
         loopback = self.network.host in ("localhost", "::1") or self.network.host.startswith("127.")
         if loopback and self._star_blocker() is None:
             return "star"
@@ -737,13 +771,6 @@ def _surface_distance(o: ObstacleConfig, pt: list[float]) -> float:
         ax = ax / np.linalg.norm(ax)
         d = d - (d @ ax) * ax
     return float(np.linalg.norm(d)) - o.radius_m
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:

@@ -17,17 +17,6 @@ STAMP = "kernels.sha1"
 """The file, in the package's ``__pycache__``, that holds the hash of the sources the cache was made from."""
 
 
-def source_dirs(package_dir: Path) -> list[Path]:
-    """The folders whose sources the package's kernels come from: the package itself and,
-    in a source checkout, the process folders installed as ``swarm.world`` and ``swarm.agents``."""
-    out = [package_dir]
-    for name in ("world", "agents"):
-        d = package_dir.parent / name
-        if not (package_dir / name).is_dir() and (d / "__init__.py").is_file():
-            out.append(d)
-    return out
-
-
 def clear_stale(dirs: list[Path]) -> bool:
     """Delete numba's cache files (``__pycache__/*.nbi``, ``*.nbc``) under ``dirs`` if the
     hash of their ``*.py`` files differs from the stamp in ``dirs[0]/__pycache__``, then

@@ -256,15 +256,26 @@ class QuadState:
         return QuadState(self.x_w.copy(), self.v_w.copy(), self.q.copy(), self.Omega_b.copy())
 
 
-def rigid_body_accel(model: QuadModel, state: QuadState, f: FloatArray) -> tuple[FloatArray, FloatArray]:
+def rigid_body_accel(
+    model: QuadModel,
+    state: QuadState,
+    f: FloatArray,
+    force_w: FloatArray | None = None,
+    torque_b: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
     """Linear acceleration (3,) [m/s^2, world] and angular acceleration (3,) [rad/s^2,
-    body] for rotor thrusts ``f`` (4,) [N]."""
+    body] for rotor thrusts ``f`` (4,) [N], plus an extra force ``force_w`` (3,) [N,
+    world] at the centre of mass and torque ``torque_b`` (3,) [N m, body] if given
+    (``swarm.realism.plant``)."""
     p = model.params
     wrench = model.B @ f
     R = quat_to_R(state.q)
     v_dot = -p.g_mps2 * E3 + (wrench[0] / p.mass_kg) * (R @ E3)
+    if force_w is not None:
+        v_dot = v_dot + force_w / p.mass_kg
     Om = state.Omega_b
-    Om_dot = model.J_inv @ (wrench[1:] - np.cross(Om, model.J @ Om))
+    tau = wrench[1:] if torque_b is None else wrench[1:] + torque_b
+    Om_dot = model.J_inv @ (tau - np.cross(Om, model.J @ Om))
     return v_dot, Om_dot
 
 
@@ -288,11 +299,19 @@ def drift_and_input(model: QuadModel, state: QuadState) -> tuple[FloatArray, Flo
     return f, g
 
 
-def step_rk4(model: QuadModel, state: QuadState, f_rotor: FloatArray, dt_s: float) -> QuadState:
-    """One RK4 step of the rigid body with rotor thrusts held constant over ``dt_s``."""
+def step_rk4(
+    model: QuadModel,
+    state: QuadState,
+    f_rotor: FloatArray,
+    dt_s: float,
+    force_w: FloatArray | None = None,
+    torque_b: FloatArray | None = None,
+) -> QuadState:
+    """One RK4 step of the rigid body with rotor thrusts (and the extra force [N, world]
+    and torque [N m, body] of :func:`rigid_body_accel`, if given) held constant over ``dt_s``."""
 
     def deriv(s: QuadState) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        v_dot, Om_dot = rigid_body_accel(model, s, f_rotor)
+        v_dot, Om_dot = rigid_body_accel(model, s, f_rotor, force_w, torque_b)
         return s.v_w, v_dot, quat_derivative(s.q, s.Omega_b), Om_dot
 
     def add(s: QuadState, k: tuple[FloatArray, ...], h: float) -> QuadState:

@@ -39,12 +39,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import zenoh
 
 from swarm.config import ScenarioConfig, load
 from swarm.net import transport as tp
-from swarm.net.messages import decode, encode
+from swarm.net.messages import CommandBody, decode, encode
 from swarm.runs.launch import RunHandle
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,19 +53,7 @@ AGENTS = [
     {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
     {"id": "cf3", "start": [2.0, 2.0, 1.0], "goal": [2.0, -2.0, 1.0], "speed_mps": 0.5},
 ]
-ZERO = dict(
-    level="attitude",
-    u=np.zeros(4),
-    intervention=0.0,
-    status="ok",
-    solve_us=0.0,
-    row_ids=[],
-    h_rows=np.zeros(0),
-    min_h=0.0,
-    infeasible=0,
-    goal_reached=False,
-    dropped=0,
-)
+ZERO = CommandBody.zero().fields()  # motors off, a clean tick
 
 
 def _config(mode: str, **over: Any) -> ScenarioConfig:
@@ -264,7 +251,7 @@ def _attack(out: Path, mode: str, case: str, credentials_of: str | None) -> dict
             s = tp.wait_sample(clock, time.monotonic() + 0.05)
             k = decode(tp.payload(s), h.run, ("clock",), ("done",)).k if s is not None else int(h.progress.t_s / dt)
             heard += s is not None
-            pub.put(encode("command", h.run, "cf1", 10**6 + k, (k + 1) * dt, k + 1, **ZERO))
+            pub.put(encode("command", h.run, "cf1", 10**6 + k, (k + 1) * dt, k + 1, dropped=0, **ZERO))
             sent += 1
 
     th = threading.Thread(target=attack, daemon=True)

@@ -67,7 +67,8 @@ from swarm.offline.scenario import (
     sphere_swap,
     trap,
 )
-from swarm.planning import PlannerSettings, StaticObstacles, path_for, plan
+from swarm.planning import PlannerSettings, StaticObstacles, plan
+from swarm.route import path_for
 
 PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
 

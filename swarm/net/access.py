@@ -22,12 +22,16 @@ import os
 import secrets
 import stat
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarm.errors import SecretsError
 
+if TYPE_CHECKING:
+    from swarm.ros2.topics import Ros2Keys
+
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
 LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
+ROS2_BRIDGE, ROS2 = "ros2-bridge", "ros2"  # the run's ROS 2 bridge; ROS 2 participants (swarm.ros2)
 
 
 def agent_user(agent_id: str) -> str:
@@ -36,7 +40,7 @@ def agent_user(agent_id: str) -> str:
 
 
 def run_users(agent_ids: list[str]) -> list[str]:
-    return [LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER, *(agent_user(a) for a in agent_ids)]
+    return [LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER, ROS2_BRIDGE, ROS2, *(agent_user(a) for a in agent_ids)]
 
 
 def make_secrets(folder: Path, agent_ids: list[str]) -> Path:
@@ -70,7 +74,12 @@ def password(folder: Path, user: str) -> str:
 
 
 def acl(
-    run: str, agent_ids: list[str], flies_commands: bool, identified: bool = False, router: str | None = None
+    run: str,
+    agent_ids: list[str],
+    flies_commands: bool,
+    identified: bool = False,
+    router: str | None = None,
+    ros2: Ros2Keys | None = None,
 ) -> dict[str, Any]:
     """Zenoh's ``access_control`` section of one process of a run. Deny by default; anyone
     linked may subscribe and query in the run; the launcher may publish anywhere in it.
@@ -93,8 +102,17 @@ def acl(
     star's bundle relay, which accepts every link it has, so it knows every sender by its
     user name and accepts from each only its own keys (as ``identified``); ``"client"``
     for every other process of ``network.topology: router``, whose one link is to the
-    router: it accepts everything of the run the router forwards."""
+    router: it accepts everything of the run the router forwards.
+
+    ``ros2`` (``ros2.enabled``, through the router only): the keys of the run's ROS 2 side
+    (``swarm.ros2.topics.ros2_keys``). Anyone linked may subscribe to the domain's data and
+    liveliness; the router accepts from the bridge (``ros2-bridge``) the topics it
+    publishes, its liveliness tokens and its goals for the agents (``ros2/**``), and from
+    a ROS 2 participant (``ros2``) puts on exactly the goal, land and stop topics and
+    liveliness tokens (its nodes, publishers and subscriptions), nothing else: not a
+    drone's pose, not a key of the run. A client accepts what the router forwards."""
     root = f"swarm/{run}"
+    ros_keys = [ros2.data, ros2.graph] if ros2 is not None else []
     listen = [
         "declare_subscriber",
         "declare_liveliness_subscriber",
@@ -111,9 +129,15 @@ def acl(
             "permission": "allow",
             "flows": ["egress"],
             "messages": [*listen, *publish],
-            "key_exprs": [f"{root}/**"],
+            "key_exprs": [f"{root}/**", *ros_keys],
         },
-        {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": listen, "key_exprs": [f"{root}/**"]},
+        {
+            "id": "listen",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": listen,
+            "key_exprs": [f"{root}/**", *ros_keys],
+        },
     ]
     # a subject with no property is any linked session (both ends of every link)
     subjects: list[dict[str, Any]] = [{"id": "anyone"}]
@@ -126,7 +150,7 @@ def acl(
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": publish,
-                "key_exprs": [f"{root}/**"],
+                "key_exprs": [f"{root}/**", *ros_keys],
             }
         )
         policies[0]["rules"].append("shared")
@@ -139,6 +163,19 @@ def acl(
         own |= {
             agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"] for a in agent_ids
         }
+        if ros2 is not None:
+            own[ROS2_BRIDGE] = [f"{root}/ros2/**", f"{root}/alive/ros2", ros2.graph, *ros2.bridge]
+            own[ROS2] = list(ros2.inbound)
+            rules.append(
+                {
+                    "id": "ros2-graph",
+                    "permission": "allow",
+                    "flows": ["ingress"],
+                    "messages": ["liveliness_token"],
+                    "key_exprs": ros_keys,
+                }
+            )
+            policies.append({"rules": ["ros2-graph"], "subjects": [ROS2]})  # (subject ROS2: below)
     else:
         shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*")]
         if not flies_commands:

@@ -12,8 +12,11 @@ When tick k is due:
 
 * lockstep: once every live agent has published its state of tick k (each agent's
   bundle then holds exactly the states of tick k, which its tick k + 1 uses), or
-  ``wait_s`` after the first of them arrived (a stalled agent does not hold the others up;
-  its state is in a later bundle);
+  ``wait_s`` after the first of them arrived (a stalled agent does not hold the others up).
+  When its state of that tick comes after all, that tick's bundles go again at once, with
+  it (the others' tick k + 1 waits for it: else every agent would wait for a state held
+  here until the next tick's bundles, which wait for their tick k + 1, a deadlock until
+  each agent's own deadline);
 * realtime: once every live agent has published a state since the last bundles, or
   ``wait_s`` after the first of those; each bundle holds the newest state of each.
 
@@ -56,6 +59,8 @@ class Bundler:
         self.held = {a: _Held({}) for a in self.ids}
         self.live: set[str] = set()
         self.late: set[str] = set()  # the bundles went out without them; not waited for until heard
+        self.skipped: set[str] = set()  # lockstep: the last bundles went out without their state of that tick
+        self.again = False  # lockstep: the last bundles are due again (a skipped state came)
         self.next_k = 0  # lockstep: the tick whose bundles are due next
         self.first_s: float | None = None  # wall time [s] the first state the next bundles wait for arrived
         self.sent_k = -1  # the newest tick bundled
@@ -74,6 +79,9 @@ class Bundler:
         if len(held.by_k) > self.HISTORY:
             del held.by_k[min(held.by_k)]
         if self.lockstep and k < self.next_k:
+            if k == self.sent_k and agent_id in self.skipped:
+                self.skipped.discard(agent_id)
+                self.again = True
             return
         held.fresh = True
         if self.first_s is None:
@@ -91,6 +99,8 @@ class Bundler:
 
     def due(self, now_s: float) -> bool:
         """Are the next bundles due at wall time ``now_s`` [s]?"""
+        if self.again:
+            return True
         if self.first_s is None:
             return False
         return self.waiting_for() == 0 or now_s - self.first_s >= self.wait_s
@@ -102,9 +112,32 @@ class Bundler:
     def take(self, now_s: float) -> tuple[int, list[tuple[str, list[bytes]]]]:
         """The tick of the due bundles and, per agent that has a state, the records of the
         others within its interest radius (in the order of ``ids``); marks them sent at
-        wall time ``now_s`` [s]."""
+        wall time ``now_s`` [s]. Lockstep: the last tick's bundles again when a state they
+        went without has come since (nothing else changes)."""
+        if self.again:
+            self.again = False
+            return self.sent_k, self._bundles(self.sent_k)
         k = self.next_k if self.lockstep else max(max(h.by_k) for h in self.held.values() if h.fresh)
-        self.late.update(self._missing())  # (due at the deadline: these did not come)
+        missing = self._missing()  # (due at the deadline: these did not come)
+        self.late.update(missing)
+        self.skipped = set(missing) if self.lockstep else set()
+        out = self._bundles(k)
+        for h in self.held.values():
+            h.fresh = False
+        self.sent_k = max(self.sent_k, k)
+        if self.lockstep:
+            self.next_k = k + 1
+            pending = [h for h in self.held.values() if max(h.by_k, default=-1) >= self.next_k]
+            for h in pending:
+                h.fresh = True
+            self.first_s = now_s if pending else None  # (states of the next tick already here)
+        else:
+            self.first_s = None
+        return k, out
+
+    def _bundles(self, k: int) -> list[tuple[str, list[bytes]]]:
+        """Per agent that has a state for tick ``k``, the records of the others within its
+        interest radius (in the order of ``ids``)."""
         names, xs, records = [], [], []
         for a in self.ids:
             got = self._state(a, k)
@@ -121,18 +154,7 @@ class Bundler:
             np.fill_diagonal(near, False)
             for i, a in enumerate(names):
                 out.append((a, [records[j] for j in np.flatnonzero(near[i]).tolist()]))
-        for h in self.held.values():
-            h.fresh = False
-        self.sent_k = max(self.sent_k, k)
-        if self.lockstep:
-            self.next_k = k + 1
-            pending = [h for h in self.held.values() if max(h.by_k, default=-1) >= self.next_k]
-            for h in pending:
-                h.fresh = True
-            self.first_s = now_s if pending else None  # (states of the next tick already here)
-        else:
-            self.first_s = None
-        return k, out
+        return out
 
     def _state(self, agent_id: str, k: int) -> tuple[FloatArray, bytes] | None:
         """``agent_id``'s state for the bundles of tick ``k``: lockstep, its newest of tick

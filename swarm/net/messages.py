@@ -23,13 +23,15 @@ import numpy as np
 from swarm.errors import DecodeError
 from swarm.model import all_finite
 from swarm.net import statewire
+from swarm.realism.sensing import MocapFrame
 
-VERSION = 8  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 9  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
 # 7: the state as a fixed binary record, and the router's bundle of them (swarm.net.statewire)
 # 8: the tick names the agents the world has seen go ("gone")
+# 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -54,13 +56,16 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "infeasible": "i",
         "goal_reached": "b",
         "dropped": "i",
+        # the state the agent acted on (world.realism.sensing: its estimate): centre of mass [m],
+        # its velocity [m/s], world; empty when it acts on the world's measurement
+        "est": "vf",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
     # uses: theirs of tick k-1), the agents whose liveliness the world has seen go (in a star
     # the agents hear no other agent's liveliness), and whether the run is over. Its size does
     # not grow with N (but for the dead).
-    "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "gone": "ls", "done": "b"},
+    "tick": {"x": 3, "v": 3, "q": 4, "w": 3, "near": "ls", "items": "obs", "gone": "ls", "done": "b", "frames": "vf"},
     "clock": {
         "live": "ls",
         "done": "b",
@@ -70,6 +75,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "meas": "vf",
         "items": "obs",
         "solo": "ls",
+        "frames": "vf",
     },
     "status": {
         "rtf": "f",
@@ -89,6 +95,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "collision": {"a": "s", "b": "s", "dead": "b"},
     # a lockstep tick that waited longer than time.stall_warn_s for these agents' commands
     "stall": {"agents": "ls", "wait_s": "f"},
+    # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
+    "goal": {"action": "s", "x": 3},
 }
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
@@ -97,8 +105,15 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 #                    last command not a clean filter solve): the others take all of each pair
 #   meas_ids, meas   per simulated drone its measurement x [m], v [m/s], q (x, y, z, w), w [rad/s]
 #   items            the obstacles at tick k
+#   frames           world.realism.sensing: the motion-capture frames that arrived since the last
+#                    tick, FRAME floats each (FRAME_FIELDS); the tick's own: its drone's alone
 # Real drones' measurements come from the motion-capture relay on their own key.
 CLOCK_XVR, CLOCK_MEAS = 7, 13
+FRAME_FIELDS = ("drone", "seq", "t_arrival", "x", "y", "z", "qx", "qy", "qz", "qw")
+"""A motion-capture frame on the wire: the drone's index in the clock's ``meas_ids`` (0 in its own
+tick), the frame number, its arrival time [s] (its capture time less the latency the agent
+knows), its position [m, world] and attitude (scalar-last), as measured."""
+FRAME = len(FRAME_FIELDS)
 HEADER = ("ver", "kind", "run", "src", "seq", "t", "k")
 _NUMBER = (float, int)
 _F8 = np.dtype("<f8")  # the vectors' wire type
@@ -118,6 +133,67 @@ class Message:
 
     def __getitem__(self, name: str) -> Any:
         return self.body[name]
+
+
+@dataclass(frozen=True)
+class StateBody:
+    """An agent's state message body: what a neighbour needs of it."""
+
+    x_b_w: np.ndarray  # (3,) m, world: body centre
+    v_b_w: np.ndarray  # (3,) m/s, world: its velocity
+    radius_m: float  # bounding radius
+    solo: bool  # not doing its share of a pair's avoidance now (its neighbours take all of it)
+
+    def fields(self) -> dict[str, Any]:
+        return {"x": self.x_b_w, "v": self.v_b_w, "r": self.radius_m, "solo": self.solo}
+
+
+@dataclass(frozen=True)
+class CommandBody:
+    """An agent's command message body: the command of its level, and the filter's report of
+    this tick for the record (schema ``command``)."""
+
+    level: str  # "attitude": u = roll [rad], pitch [rad], yaw rate [rad/s], thrust [N]; "rotors": f (4,) [N]
+    u: np.ndarray  # (4,)
+    status: str  # the filter's status ("ok", "infeasible", "failed"; "ok" when unfiltered)
+    intervention: float = 0.0  # |u - u_ref| in input units
+    solve_us: float = 0.0  # the filter call's time [us]
+    row_ids: tuple[str, ...] = ()  # each row's name
+    h_rows: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (n,) m^2/s: h of each row
+    min_h: float = 1e9  # m^2/s: the smallest exact h so far (1e9: none yet)
+    infeasible: int = 0  # ticks so far that were not a clean solve
+    goal_reached: bool = False
+    est: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (6,) the estimate it acted on, or (0,)
+
+    @staticmethod
+    def zero(level: str = "attitude") -> CommandBody:
+        """Motors off: a zero command of ``level``, a clean tick."""
+        return CommandBody(level, np.zeros(4), "ok")
+
+    def fields(self) -> dict[str, Any]:
+        return {
+            "level": self.level,
+            "u": self.u,
+            "intervention": self.intervention,
+            "status": self.status,
+            "solve_us": self.solve_us,
+            "row_ids": list(self.row_ids),
+            "h_rows": self.h_rows,
+            "min_h": self.min_h,
+            "infeasible": self.infeasible,
+            "goal_reached": self.goal_reached,
+            "est": self.est,
+        }
+
+
+def encode_command(run: str, src: str, seq: int, t: float, k: int, body: CommandBody, dropped: int = 0) -> bytes:
+    """A command message of ``body``, with the sender's count of ``dropped`` messages."""
+    return encode("command", run, src, seq, t, k, dropped=dropped, **body.fields())
+
+
+def encode_state(run: str, src: str, seq: int, t: float, k: int, body: StateBody) -> bytes:
+    """A state message of ``body`` (a fixed binary record: :mod:`swarm.net.statewire`)."""
+    return statewire.encode_state(run, src, seq, t, k, body.x_b_w, body.v_b_w, body.radius_m, body.solo)
 
 
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
@@ -326,12 +402,40 @@ def _measured(meas: Any, i: int) -> dict[str, Any]:
 
 def clock_measurement(clock: Message, agent_id: str) -> Message | None:
     """The measurement of ``agent_id`` that ``clock`` carries, as a measurement message
-    of the clock's tick (None when the clock carries none for it)."""
+    of the clock's tick with its motion-capture frames (None when the clock carries none for it)."""
     try:
         i = clock["meas_ids"].index(agent_id)
     except ValueError:
         return None
-    return Message("measurement", clock.run, clock.src, clock.seq, clock.t, clock.k, _measured(clock["meas"], i))
+    body = _measured(clock["meas"], i)
+    body["frames"] = frames_of(clock["frames"], i)
+    return Message("measurement", clock.run, clock.src, clock.seq, clock.t, clock.k, body)
+
+
+def frames_wire(frames: list[tuple[int, Any]]) -> np.ndarray:
+    """``(drone index, frame)`` pairs (frames: ``swarm.realism.MocapFrame``) as a message's
+    ``frames`` field (:data:`FRAME_FIELDS`)."""
+    out = np.empty((len(frames), FRAME))
+    for row, (i, f) in zip(out, frames, strict=True):
+        row[0], row[1], row[2] = i, f.seq, f.t_arrival_s
+        row[3:6] = f.x_w
+        row[6:10] = f.q
+    return out.ravel()
+
+
+def frames_of(wire: np.ndarray, drone: int) -> list[MocapFrame]:
+    """The frames of ``drone`` (its index in the clock's ``meas_ids``, 0 in its own tick) in a
+    message's ``frames`` field, as the receiving agent knows them: its capture time is not on the
+    wire (the field holds the arrival time too); malformed lengths give none (the message was
+    checked finite)."""
+    if wire.size % FRAME:
+        return []
+    rows = wire.reshape(-1, FRAME)
+    return [
+        MocapFrame(0, int(r[1]), float(r[2]), float(r[2]), r[3:6].copy(), r[6:10].copy())
+        for r in rows
+        if int(r[0]) == drone
+    ]
 
 
 def expand_record(record: dict[str, Any]) -> list[dict[str, Any]]:
@@ -400,6 +504,11 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
+    "action": "goal (fly to x), land or stop (hold where it is)",
+    "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
+    "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",
+    "est": "the state the agent acted on, its estimate with world.realism.sensing: centre of mass [m] and "
+    "velocity [m/s], world (6 floats; none without an estimate)",
 }
 _ITEM_SCHEMA = {
     "type": "object",

@@ -21,8 +21,9 @@ import numpy as np
 from numba import njit
 
 from swarm.net import statewire
+from swarm.realism.comms import LOST, CommsModel, DelayLine, MessageKind
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.safety.obstacles import OBSTACLE, ObstacleArrays
+from swarm.safety.obstacles import OBSTACLE, NamedObstacles, ObstacleArrays
 
 
 @njit(cache=True)
@@ -137,9 +138,10 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
     """The rows of ``slots`` of ``table`` (:meth:`_Slots.fields`) at sim time ``t_now`` [s]
     (see NeighbourTable.arrays) into ``out`` (OBSTACLE); kept[n]: slot n made a row.
     ``lost``: the table's (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep
-    them stopped 0.0). Returns the number of rows."""
+    them stopped 0.0, accel_bound_mps2, velocity_error_mps). Returns the number of rows."""
     sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, _, sl_gone = table
     timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
+    accel, vel_err = lost[4], lost[5]
     m = 0
     for n in range(slots.shape[0]):
         i = slots[n]
@@ -161,7 +163,7 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
             for d in range(3):
                 ob.c[d] = sl_x[i, j, d] + sl_v[i, j, d] * age
                 ob.cd[d] = sl_v[i, j, d]
-            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s)
+            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s) + (0.5 * accel * age + vel_err) * age
             ob.is_nb = not sl_solo[i, j]
         for d in range(3):
             ob.cdd[d] = 0.0
@@ -230,9 +232,25 @@ class NeighbourTable:
         growth_mps: float,
         hard_limit_s: float,
         on_lost: str = "keep_stopped",
+        accel_bound_mps2: float = 0.0,
+        velocity_error_mps: float = 0.0,
     ) -> None:
+        """``accel_bound_mps2``, ``velocity_error_mps``: a row's radius also grows by
+        ``(a / 2 age + e) age`` with its state's age [s], what extrapolating it at constant
+        velocity can miss when the neighbour accelerates at up to ``a`` and its velocity is off by
+        up to ``e`` (``world.realism``: ``swarm.tuning.prediction_bounds``; 0: not at all)."""
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
-        self._lost = np.array([timeout_s, growth_mps, hard_limit_s, 1.0 if on_lost == "drop" else 0.0])
+        self.accel_bound_mps2, self.velocity_error_mps = accel_bound_mps2, velocity_error_mps
+        self._lost = np.array(
+            [
+                timeout_s,
+                growth_mps,
+                hard_limit_s,
+                1.0 if on_lost == "drop" else 0.0,
+                accel_bound_mps2,
+                velocity_error_mps,
+            ]
+        )
         self.slot: dict[str, int] = {}  # name -> slot, in the order first heard
         self.names: list[str] = []  # slot -> name
         self.s = _Slots.empty(0, self.HISTORY)
@@ -243,8 +261,6 @@ class NeighbourTable:
         self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
         self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) and its sequence number
         self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
-        self.late: set[str] = set()  # lockstep: went without at a tick's deadline; not waited for until heard
-        self._asked: dict[str, int] = {}  # name -> the tick waits_for() last said it waits for
 
     @property
     def limits(self) -> statewire.Plausible | None:
@@ -285,18 +301,32 @@ class NeighbourTable:
         return i
 
     def update(
-        self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool = False
+        self,
+        name: str,
+        t_s: float,
+        k: int,
+        x_w: FloatArray,
+        v_w: FloatArray,
+        radius_m: float,
+        solo: bool = False,
+        seq: int | None = None,
     ) -> None:
+        """``name``'s state of tick ``k`` at ``t_s`` [s] (body centre ``x_w`` [m, world], its
+        velocity ``v_w`` [m/s], radius [m]; ``seq``: its sequence number, which tells a copy of
+        the newest state taken, as a relay bundles a late neighbour's state again, from a repeat)."""
         if name in self.gone:
             return
         i = self._slot(name)
         s, j = self.s, k % self.HISTORY
         if self.limits is not None:
+            if t_s == self.last_t[i] and seq is not None and seq == self.last_seq[i]:
+                return  # (the same state again: no offence)
             why = self._why(i, t_s, x_w, v_w, radius_m)
             if why is not None:
                 self._reject(name, why)
                 return
-        self.late.discard(name)
+            if seq is not None and t_s == self.last_t[i]:
+                self.last_seq[i] = seq
         if s.k[i, j] > k:
             return
         s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
@@ -331,8 +361,6 @@ class NeighbourTable:
                     self._reject(self.names[sl[n]], reason)
                 ok = verdict == 0
                 rec, sl = rec[ok], sl[ok]
-        if self.late:
-            self.late.difference_update(self.names[i] for i in sl.tolist())
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
         _store(self.s.fields(), sl, states)
 
@@ -364,16 +392,6 @@ class NeighbourTable:
         i = self.slot.get(name)
         if i is not None:
             self.s.gone[i] = True
-
-    def waits_for(self, name: str, k: int) -> bool:
-        """Lockstep: is there still ``name``'s state of tick ``k`` to wait for? Not once this
-        agent went without its state at a tick's deadline (:meth:`arrays` then finds it
-        missing), until a state of it is taken: a neighbour gone silent or implausible costs
-        one timeout, not one per tick."""
-        if name in self.late or self.latest_k(name) >= k:
-            return False
-        self._asked[name] = k
-        return True
 
     def latest_k(self, name: str) -> int:
         i = self.slot.get(name)
@@ -414,9 +432,6 @@ class NeighbourTable:
         so this agent takes all of the pair. ``names``: only these neighbours (in this
         order), and the gone ones."""
         self.now_s = max(self.now_s, t_now)
-        if k_max is not None and self._asked:  # the tick is flown: whoever it still waited for is late
-            self.late.update(n for n, k in self._asked.items() if k <= k_max and self.latest_k(n) < k)
-            self._asked = {n: k for n, k in self._asked.items() if k > k_max}
         if names is None:
             slots = list(range(len(self.names)))
         else:
@@ -434,3 +449,170 @@ class NeighbourTable:
         if m == 0:
             return ObstacleArrays.empty()
         return ObstacleArrays.of_records(out[:m])
+
+
+HELD_TICKS = 5
+"""Ticks of the world's lists an agent keeps: lockstep acts on tick k while later ones may have
+arrived."""
+
+
+class HeardNeighbours:
+    """The other agents as an agent hears them: their states (:meth:`take`) in a
+    :class:`NeighbourTable`, and per tick the world's list of the agents that tick waits for
+    (:meth:`on_list`). In lockstep tick k uses exactly their states of tick k-1. Pure: the
+    neighbour sources (``swarm.net.sources``) feed it from the wire, ``simulate_swarm`` directly.
+
+    With a ``comms`` model (``world.realism.comms``) a state of tick k reaches the table at tick
+    ``k + max(1, d)`` for its seeded fate ``d`` from its sender to ``agent_id`` (through the relay
+    with ``bundled``: the state's and the bundle's delays added), or never; lockstep still waits
+    for it to arrive on the wire (:attr:`heard`), then holds it until then.
+
+    In lockstep a neighbour this agent went without at a tick's deadline (:meth:`late`) is not
+    waited for again until a newer state of it is received: a neighbour gone silent, or whose
+    every state the table drops (``NeighbourTable.limits``), costs one timeout, not one per tick."""
+
+    def __init__(
+        self, others: set[str], table: NeighbourTable, agent_id: str = "", comms: CommsModel | None = None
+    ) -> None:
+        self.others, self.table = others, table
+        self.lists: dict[int, list[str]] = {}  # tick -> the agents tick k waits for (the world's list)
+        self.missed = 0  # listed neighbours whose state was not there when used
+        self.id, self.comms = agent_id, comms
+        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None]] = DelayLine()
+        self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
+        self.states_lost = 0  # comms: states that never reach this agent
+        self.delay_ticks = 0  # comms: ticks of delay beyond the next tick, summed over the states delivered
+        self.behind: dict[str, int] = {}  # lockstep: neighbour -> its newest tick heard at a deadline without it
+
+    def take(
+        self,
+        name: str,
+        t_s: float,
+        k: int,
+        x_w: FloatArray,
+        v_w: FloatArray,
+        radius_m: float,
+        solo: bool,
+        bundled: bool = False,
+        seq: int | None = None,
+    ) -> None:
+        """A neighbour's state of tick ``k`` at ``t_s`` [s]: body centre ``x_w`` [m, world], its
+        velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share; ``bundled``:
+        it came in the relay's bundle; ``seq``: its sequence number (``NeighbourTable.update``)."""
+        comms = self.comms
+        if comms is None:
+            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo, seq)
+            return
+        self.heard[name] = max(self.heard.get(name, -1), k)
+        d = comms.fate(name, self.id, MessageKind.STATE, k)
+        if bundled and d != LOST:
+            d_bundle = comms.fate("router", self.id, MessageKind.BUNDLE, k)
+            d = LOST if d_bundle == LOST else d + d_bundle
+        if d == LOST:
+            self.states_lost += 1
+            return
+        self.delay_ticks += max(0, d - 1)
+        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo, seq))
+
+    def _deliver(self, k: int) -> None:
+        """The held states due by tick ``k`` into the table (comms)."""
+        if self.comms is not None:
+            for name, t_s, kk, x_w, v_w, radius_m, solo, seq in self.line.due(k):
+                self.table.update(name, t_s, kk, x_w, v_w, radius_m, solo, seq)
+
+    def _latest_k(self, name: str) -> int:
+        """The newest tick of ``name``'s states this agent has received (on the wire)."""
+        return self.heard.get(name, -1) if self.comms is not None else self.table.latest_k(name)
+
+    def on_list(self, k: int, names: list[str]) -> None:
+        """The world's list of the agents tick ``k`` waits for."""
+        self.lists[k] = names
+        while len(self.lists) > HELD_TICKS:
+            del self.lists[next(iter(self.lists))]
+
+    def lost(self, name: str) -> None:
+        """``name`` is gone: kept as a stopped obstacle or dropped (the table's ``on_lost``)."""
+        self.table.mark_gone(name)
+
+    def missing(self, k: int) -> int:
+        """Lockstep: 1 without the world's list of tick k, else how many of the listed (live)
+        agents have no state of tick k-1 yet."""
+        names = self.lists.get(k)
+        if names is None:
+            return 1
+        if k == 0:
+            return 0  # no state before the first tick
+        return len(self._missing(names, k))
+
+    def _missing(self, names: list[str], k: int) -> list[str]:
+        """Of the listed ``names``, the live neighbours without a state of tick k-1 yet that are
+        still waited for (not :attr:`behind` since a deadline without a newer state)."""
+        gone, behind = self.table.gone, self.behind
+        out = []
+        for n in names:
+            if n in self.others and n not in gone:
+                latest = self._latest_k(n)
+                if latest < k - 1 and behind.get(n) != latest:
+                    out.append(n)
+        return out
+
+    def late(self, k: int) -> None:
+        """Lockstep: tick k is acted on at the deadline, incomplete: the neighbours it still
+        waited for are :attr:`behind` until a newer state of theirs is received."""
+        if k > 0 and k in self.lists:
+            for n in self._missing(self.lists[k], k):
+                self.behind[n] = self._latest_k(n)
+
+    def at(self, t_s: float) -> None:
+        """This agent has heard of sim time ``t_s`` [s] (a measurement): no neighbour's state is
+        much newer (``NeighbourTable.at``)."""
+        self.table.at(t_s)
+
+    @property
+    def rejected(self) -> dict[str, dict[str, int]]:
+        """The neighbours' states the table dropped, per sender and reason."""
+        return self.table.rejected
+
+    def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
+        """Every heard neighbour's row at ``t_s`` [s] (lockstep: from its state of tick k-1)."""
+        self._deliver(k)
+        arr = self.table.arrays(t_s, k - 1 if lockstep else None)
+        return NamedObstacles(arr, self.table.row_names[: len(arr)])
+
+
+class NearNeighbours(HeardNeighbours):
+    """:class:`HeardNeighbours` of which the world names, with each agent's tick, the live ones
+    near it (within its sensing radius and half the margin): lockstep uses exactly their states
+    of tick k-1. In realtime the neighbours last heard beyond ``forget_m`` [m] and silent past the
+    timeout are forgotten (they left), and a near one not heard within the timeout is counted
+    missed."""
+
+    def __init__(
+        self,
+        others: set[str],
+        table: NeighbourTable,
+        forget_m: float,
+        agent_id: str = "",
+        comms: CommsModel | None = None,
+    ) -> None:
+        super().__init__(others, table, agent_id, comms)
+        self.forget_m = forget_m
+
+    def late(self, k: int) -> None:
+        if k in self.lists:
+            self.missed += self.missing(k)
+        super().late(k)
+
+    def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
+        table = self.table
+        near = self.lists.get(k, [])
+        self._deliver(k)
+        if lockstep:
+            arr = table.arrays(t_s, k - 1, sorted(near))
+        else:
+            table.forget_far(x_b_w, self.forget_m, t_s)
+            if t_s > table.timeout_s:  # (before that, no neighbour can have been heard for long)
+                timeout_s = table.timeout_s
+                self.missed += sum(1 for n in near if (s := table.state(n)) is None or t_s - s.t_s > timeout_s)
+            arr = table.arrays(t_s)
+        return NamedObstacles(arr, table.row_names[: len(arr)])

@@ -239,7 +239,9 @@ class Plausible:
     has; none is a second ahead of the world). ``behind_s``: how much older than the newest
     state taken from its sender a state may come and still be taken (it fills a receiver's
     history by tick, never replaces a newer state): :data:`REORDER_TICKS` ticks, as the links of
-    a mesh now and then hand a receiver a sender's state after its next one; older is dropped."""
+    a mesh now and then hand a receiver a sender's state after its next one, plus the jitter of
+    the states' and bundles' delays in ``world.realism.comms`` (a state delayed more reaches
+    the table after a newer one); older is dropped."""
 
     lo_w: tuple[float, float, float]
     hi_w: tuple[float, float, float]
@@ -260,7 +262,9 @@ class Plausible:
         r_max = max(p.body_radius_m for p in params)
         ahead_s = 2.0 / cfg.time.control_hz if cfg.time.mode.value == "lockstep" else 1.0
         lo_w, hi_w = (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
-        return cls(lo_w, hi_w, v_max, r_max, ahead_s, REORDER_TICKS / cfg.time.control_hz)
+        comms = cfg.world.realism.comms
+        behind_s = REORDER_TICKS / cfg.time.control_hz + comms.state.jitter_s + comms.bundle.jitter_s
+        return cls(lo_w, hi_w, v_max, r_max, ahead_s, behind_s)
 
     def reason(self, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> str | None:
         """Why a finite state (body centre ``x_w`` [m, world], velocity ``v_w`` [m/s],

@@ -85,6 +85,11 @@ class Keys:
         """An agent's state, published under the cell of its body centre (swarm.net.cells)."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/{agent_id}"
 
+    @property
+    def cell_prefix(self) -> str:
+        """The start of every cell key (swarm.net.cells)."""
+        return f"{self.root}/cell/"
+
     def cell(self, cell: tuple[int, int, int]) -> str:
         """Every state published in ``cell``."""
         return f"{self.root}/cell/{cell[0]}/{cell[1]}/{cell[2]}/*"
@@ -102,6 +107,15 @@ class Keys:
     @property
     def all_alive(self) -> str:
         return f"{self.root}/alive/*"
+
+    def ros2_goal(self, agent_id: str) -> str:
+        """The ROS 2 bridge -> one agent: a new goal from ROS 2 (``swarm.ros2.goals``)."""
+        return f"{self.root}/ros2/goal/{agent_id}"
+
+    @property
+    def ros2_all(self) -> str:
+        """The ROS 2 bridge -> every agent: land, or stop where it is."""
+        return f"{self.root}/ros2/all"
 
     @property
     def everything(self) -> str:
@@ -178,6 +192,7 @@ class Role(StrEnum):
     AGENT = "agent"
     OBSERVER = "observer"  # anything else that joins a run (a test, a user's tool)
     ROUTER = "router"  # the Zenoh router of network.topology: router
+    ROS2 = "ros2-bridge"  # the run's ROS 2 bridge (swarm.ros2.bridge)
 
 
 ROUTER_WAIT_S = 20.0  # how long a client tries to reach the router before its session fails to open
@@ -232,8 +247,18 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         router = "router"
     elif cfg.topology == "router":
         router = "client"
+    ros2 = None
+    if cfg.ros2.enabled:
+        from swarm.ros2.topics import ros2_keys
+
+        ros2 = ros2_keys(cfg.ros2.domain_id, cfg.ros2.namespace, list(acc.agent_ids))
     rules = access.acl(
-        acc.run, list(acc.agent_ids), flies_commands=acc.user == access.WORLD, identified=identified, router=router
+        acc.run,
+        list(acc.agent_ids),
+        flies_commands=acc.user == access.WORLD,
+        identified=identified,
+        router=router,
+        ros2=ros2,
     )
     conf.insert_json5("access_control", json.dumps(rules))
 

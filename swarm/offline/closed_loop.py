@@ -1,6 +1,8 @@
-"""In-process closed loop: one quadrotor, the reference controller, the safety filter
-and RK4 rigid-body physics, with obstacles moving at constant acceleration. No I/O; the
-runtime's world process does the same with PyBullet. Used by tests and quick studies."""
+"""In-process closed loops: one agent (:func:`simulate`) or a swarm (:func:`simulate_swarm`),
+each agent's control step the one the agent process runs (:class:`swarm.step.AgentStep`), its
+command flown as the world process flies it, with RK4 rigid-body physics and obstacles moving
+at constant acceleration. No I/O; the runtime's world process does the same with PyBullet.
+Used by tests, the liveness benchmark and quick studies."""
 
 from __future__ import annotations
 
@@ -9,22 +11,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm.config import ScenarioConfig
-from swarm.control import (
-    AttitudeController,
-    OnboardController,
-    PathTracker,
-    reference_thrust,
-    setpoint_from_thrust_vector,
-    yaw_of,
-)
+from swarm.config import FailureSettings, NeighbourSettings, ScenarioConfig
+from swarm.control import AttitudeSetpoint, OnboardController, PathTracker, yaw_of
 from swarm.errors import InputError
-from swarm.model import CommandLevel, QuadModel, QuadState, step_rk4
-from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
-from swarm.planning import Route, StaticObstacles, corner_cut_m, filter_config_for, follows, path_for
+from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, step_rk4
+from swarm.net.cells import near_lists
+from swarm.net.neighbours import NearNeighbours, NeighbourTable
+from swarm.planning import StaticObstacles
+from swarm.realism.comms import CommsModel, DelayLine, MessageKind
+from swarm.realism.plant import Plant
+from swarm.realism.sensing import MocapFrame, MocapSensor
+from swarm.realism.settings import RealismSettings
 from swarm.rotation import FloatArray, quat_to_R
-from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
-from swarm.safety.obstacles import ObstacleArrays
+from swarm.route import Route, corner_cut_m, path_for
+from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
+from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
+from swarm.step import AgentStep
+from swarm.tuning import filter_config_for, prediction_bounds
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -65,38 +69,128 @@ def simulate(
     physics_hz: float = 500.0,
     filter_on: bool = True,
 ) -> ClosedLoopLog:
-    """Fly ``duration_s`` seconds; the command is held between control ticks."""
-    filt = SafetyFilter(model, config)
-    att = AttitudeController(model)
-    onboard = OnboardController(model, yaw_of(state0))
-    n_sub = max(1, round(physics_hz / control_hz))
-    dt = 1.0 / (control_hz * n_sub)
-    state = state0.copy()
+    """Fly one agent's control step (:class:`swarm.step.AgentStep`) for ``duration_s``
+    seconds among ``obstacles`` moving with their constant acceleration; the command is held
+    between control ticks (at the attitude level flown by the firmware's attitude loop)."""
+    step = AgentStep(model, config, tracker, filtered=filter_on)
+    plant = _Plant(model, config.level, [state0.copy()], [yaw_of(state0)], physics_hz, control_hz)
     log = ClosedLoopLog()
-    l_m = model.params.l_m
+    ids = [f"obstacle-{i}" for i in range(len(obstacles))]
+    none = NamedObstacles.none()
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
         obs = obstacles_at(obstacles, t)
-        F_ref = tracker.thrust_vector(model, state.x_w, state.v_w)
-        if config.level is CommandLevel.ROTORS:
-            u_ref = att.from_thrust_vector(state, F_ref)
-        else:
-            u_ref = F_ref
-        res = filt.filter(state, u_ref, obs) if filter_on else None
-        u = res.u if res is not None else u_ref
-        x_b = state.x_w + l_m * quat_to_R(state.q)[:, 2]
+        state = plant.states[0]
+        res = step(t, state, NamedObstacles(obs, ids), none)
         log.t_s.append(t)
         log.x_w.append(state.x_w.copy())
-        log.x_b_w.append(x_b)
+        log.x_b_w.append(res.x_b_w)
         log.v_w.append(state.v_w.copy())
-        log.clearance_m.append(surface_clearance(x_b[None, :], obs)[0])
-        if res is not None:
-            log.results.append(res)
-        sp = setpoint_from_thrust_vector(u, yaw_of(state)) if config.level is CommandLevel.ATTITUDE else None
-        for _ in range(n_sub):
-            f = onboard.rotor_thrusts(state, sp, dt) if sp is not None else u
-            state = step_rk4(model, state, f, dt)
+        log.clearance_m.append(surface_clearance(res.x_b_w[None, :], obs)[0])
+        if res.filter is not None:
+            log.results.append(res.filter)
+        plant.send(0, res.command, k)
+        plant.fly(k)
     return log
+
+
+class _Plant:
+    """The offline world's drones, as the world process flies them: each holds its agent's
+    newest command (at the attitude level the firmware's attitude loop flies the setpoint,
+    integrating its yaw rate; at the rotor level the thrusts, clipped to the rotor limits) over
+    ``physics_hz / control_hz`` RK4 substeps a control tick. With ``realism``
+    (``world.realism``; ``swarm.realism``) the drones are the plant's airframes, their rotors make
+    the plant's thrusts and its downwash, drag, ground effect and wind act on them; motion
+    capture sees them every substep (:meth:`frames`); a command reaches its drone after its
+    seeded delay, or never."""
+
+    def __init__(
+        self,
+        model: QuadModel,
+        level: CommandLevel,
+        states: list[QuadState],
+        yaw0_rad: list[float],
+        physics_hz: float,
+        control_hz: float,
+        realism: RealismSettings | None = None,
+        seed: int = 0,
+        ids: list[str] | None = None,
+    ) -> None:
+        self.model, self.level, self.states = model, level, states
+        n = len(states)
+        self.onboard = [OnboardController(model, y) for y in yaw0_rad]
+        self.n_sub = max(1, round(physics_hz / control_hz))
+        self.dt_s = 1.0 / (control_hz * self.n_sub)
+        self.ids = ids or [f"agent-{i}" for i in range(n)]
+        self.commands: list[FloatArray | None] = [None] * n
+        self.plant: Plant | None = None
+        self.bodies = [model] * n  # the rigid bodies (the plant's airframes)
+        self.mocap: MocapSensor | None = None
+        self.comms: CommsModel | None = None
+        self.in_flight: DelayLine[tuple[int, FloatArray]] = DelayLine()
+        self.commands_lost = 0
+        self.seen: list[list[MocapFrame]] = [[] for _ in range(n)]
+        self.t_s = 0.0
+        if realism is not None:
+            plant = realism.plant([model.params] * n, self.dt_s, seed)
+            if not plant.p.ideal:
+                self.plant = plant
+                self.bodies = [QuadModel(a) for a in plant.airframes]
+            if realism.sensing.enabled:
+                self.mocap = realism.mocap(n, seed)
+            if not realism.comms.params().perfect:
+                self.comms = realism.comms_model(seed, 1.0 / control_hz)
+
+    def send(self, i: int, command: FloatArray, k: int) -> None:
+        """Drone ``i``'s command answering tick ``k``: flown from this tick, or after its fate's delay."""
+        if self.comms is None:
+            self.commands[i] = command
+        elif not self.in_flight.put(k, self.comms.fate(self.ids[i], "world", MessageKind.COMMAND, k), (i, command)):
+            self.commands_lost += 1
+
+    def _capture(self) -> None:
+        if self.mocap is not None:
+            x = np.array([s.x_w for s in self.states])
+            q = np.array([s.q for s in self.states])
+            for f in self.mocap.step(self.t_s, x, q):
+                self.seen[f.drone].append(f)
+
+    def frames(self, i: int) -> list[MocapFrame]:
+        """Drone ``i``'s motion-capture frames that arrived since the last call (none without sensing)."""
+        self._capture()
+        out, self.seen[i] = self.seen[i], []
+        return out
+
+    def fly(self, k: int) -> None:
+        """Control tick ``k``: the commands due by now, then the substeps of every drone."""
+        for i, command in self.in_flight.due(k):
+            self.commands[i] = command
+        n, dt = len(self.states), self.dt_s
+        for j in range(self.n_sub):
+            if j:
+                self._capture()
+            f = np.zeros((n, 4))
+            for i, cmd in enumerate(self.commands):
+                if cmd is None:
+                    sp = AttitudeSetpoint(0.0, 0.0, 0.0, self.model.params.weight_N)
+                    f[i] = self.onboard[i].rotor_thrusts(self.states[i], sp, dt)
+                elif self.level is CommandLevel.ATTITUDE:
+                    f[i] = self.onboard[i].rotor_thrusts(self.states[i], AttitudeSetpoint(*cmd.tolist()), dt)
+                else:
+                    f[i] = np.clip(cmd, 0.0, self.model.params.f_max_N)
+            if self.plant is None:
+                for i in range(n):
+                    self.states[i] = step_rk4(self.bodies[i], self.states[i], f[i], dt)
+            else:
+                x = np.array([s.x_w for s in self.states])
+                v = np.array([s.v_w for s in self.states])
+                R = np.array([quat_to_R(s.q) for s in self.states])
+                out = self.plant.step(x, v, R, f)
+                for i in range(n):
+                    self.states[i] = step_rk4(
+                        self.bodies[i], self.states[i], out.f_N[i], dt, out.force_w[i], out.torque_b[i]
+                    )
+            self.t_s += dt
 
 
 @dataclass
@@ -111,6 +205,7 @@ class SwarmAgent:
     tiebreak: tuple[float, float] | None = None  # right-hand tie-break (trigger [m], speed [m/s]), or None
     filtered: bool = True  # False: flies its reference unfiltered (and so takes no share of any pair)
     route: Route | None = None  # replans path_w when the agent stalls (swarm.planning), or None
+    id: str = ""  # its name (the seeded imperfections of world.realism depend on it); "" : agent-<index>
 
     @property
     def goal_w(self) -> FloatArray:
@@ -130,6 +225,10 @@ class SwarmLog:
     time_to_goal_s: list[float | None]  # per agent: first time within the tolerance of the goal
     x_w: FloatArray | None = None  # (T, N, 3) m, world: centres of mass, at the tick (None: not logged)
     v_b_w: FloatArray | None = None  # (T, N, 3) m/s, world: body-centre velocities, at the tick
+    estimate_error_m: FloatArray | None = None  # (T, N) m: |estimated - true centre of mass| (None: no estimator)
+    states_lost: int = 0  # world.realism.comms: neighbour states that never arrived
+    commands_lost: int = 0  # world.realism.comms: commands that never reached their drone
+    frames_dropped: int = 0  # world.realism.sensing: motion-capture frames dropped
 
     @property
     def infeasible_ticks(self) -> int:
@@ -143,8 +242,6 @@ class SwarmLog:
 
 
 def _body_rows(states: list[QuadState], l_m: float) -> tuple[FloatArray, FloatArray]:
-    from swarm.model import body_centre
-
     xb = np.empty((len(states), 3))
     vb = np.empty((len(states), 3))
     for i, s in enumerate(states):
@@ -152,30 +249,8 @@ def _body_rows(states: list[QuadState], l_m: float) -> tuple[FloatArray, FloatAr
     return xb, vb
 
 
-def _gives_way(
-    agent: SwarmAgent,
-    trackers: list[PathTracker],
-    i: int,
-    t_s: float,
-    state: QuadState,
-    goal_w: FloatArray,
-    others_x_w: FloatArray,
-    others_v_w: FloatArray,
-) -> FloatArray | None:
-    """The agent's route at this tick, as the agent process runs it: a new path if it has
-    stalled (``trackers[i]`` replaced), then the velocity it holds in place of its path
-    to give way at a narrow passage (swarm.planning.Route.hold) or to brake before it turns
-    away from a wall (Route.turns), or None."""
-    route = agent.route
-    if route is None:
-        return None
-    remaining = trackers[i].reference(state.x_w)[2]
-    new = route.update(t_s, state.x_w, goal_w, remaining)
-    if new is not None:
-        trackers[i] = PathTracker(new.waypoints_w, agent.speed_mps, cut_m=route.cut_m)
-        remaining = trackers[i].reference(state.x_w)[2]
-    v_path = trackers[i].command(state.x_w)[0]
-    return route.hold(t_s, remaining, state.x_w, others_x_w, others_v_w, state.v_w, v_path)
+_FAILURE = FailureSettings()
+_NEAR_MARGIN_M = NeighbourSettings().margin_m / 2
 
 
 def simulate_swarm(
@@ -187,76 +262,91 @@ def simulate_swarm(
     control_hz: float = 100.0,
     physics_hz: float = 300.0,
     goal_tolerance_m: float = 0.15,
+    realism: RealismSettings | None = None,
+    seed: int = 0,
 ) -> SwarmLog:
-    """Fly a swarm in one process, as a lockstep run with the world's roster does: at
-    every tick each agent filters its tracker's thrust vector (attitude level) against
-    the obstacles and every other agent's body centre and velocity of that tick (no
-    acceleration, as a roster gives; an agent whose last filter call was not a clean
-    solve is an obstacle row, as the roster's ``solo`` makes it), then the firmware's attitude loop and RK4 physics
-    run ``physics_hz / control_hz`` steps. Ends early once every agent has been within
-    ``goal_tolerance_m`` of its goal. No I/O; the benchmark and tests use it."""
+    """Fly a swarm in one process, as a lockstep run of the agent processes with neighbours by
+    bundles does: at every tick each agent's control step (:class:`swarm.step.AgentStep`, the
+    attitude level) filters against the obstacles and the states its neighbours published at
+    tick k-1 (body centre, velocity, whether they did their share), extrapolated to the tick by
+    the same neighbour view the agents keep (``swarm.net.neighbours.NearNeighbours``), of the
+    agents the world names near it (within its sensing radius and half the default margin);
+    then the firmware's attitude loop and RK4 physics run ``physics_hz / control_hz`` steps.
+    Ends early once every agent has been within ``goal_tolerance_m`` of its goal. With
+    ``realism`` (``world.realism``, seeded by ``seed``) the world is as imperfect as the world
+    process makes it (the plant, motion capture and each agent's estimator, the delay and loss of
+    states and commands: :class:`_Plant`, ``swarm.net.neighbours.HeardNeighbours``). No I/O; the
+    benchmark and tests use it."""
     for i, a in enumerate(agents):
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
     n = len(agents)
-    trackers = [PathTracker(np.vstack([a.start_w, a.path_w]), a.speed_mps, cut_m=corner_cut_m(a.route)) for a in agents]
-    filters = [SafetyFilter(model, a.config) for a in agents]
+    names = [a.id or f"agent-{i}" for i, a in enumerate(agents)]
+    r = realism if realism is not None and not realism.ideal else None
+    sensing = r is not None and r.sensing.enabled
+    comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
+    steps = [
+        AgentStep(
+            model,
+            a.config,
+            PathTracker(np.vstack([a.start_w, a.path_w]), a.speed_mps, cut_m=corner_cut_m(a.route)),
+            goal_w=a.goal_w,
+            route=a.route,
+            tiebreak=a.tiebreak,
+            filtered=a.filtered,
+            goal_tolerance_m=goal_tolerance_m,
+            estimator=r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0])) if r is not None and sensing else None,
+        )
+        for a in agents
+    ]
+    f = _FAILURE
+    accel, vel_err = prediction_bounds(model.params, r)
+    heard = [
+        NearNeighbours(
+            set(names) - {names[i]},
+            NeighbourTable(
+                f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
+            ),
+            math.inf,
+            names[i],
+            comms,
+        )
+        for i in range(n)
+    ]
+    near_m = np.array([a.config.sensing_radius_m + _NEAR_MARGIN_M for a in agents])
     states = [QuadState.hover(a.start_w) for a in agents]
     for s, a in zip(states, agents, strict=True):
         if a.start_velocity_w is not None:
             s.v_w = np.asarray(a.start_velocity_w, dtype=float).copy()
-    onboard = [OnboardController(model, 0.0) for _ in agents]
-    n_sub = max(1, round(physics_hz / control_hz))
-    dt = 1.0 / (control_hz * n_sub)
+    plant = _Plant(model, CommandLevel.ATTITUDE, states, [0.0] * n, physics_hz, control_hz, r, seed, names)
     p = model.params
-    r_nb = np.full(n, p.body_radius_m)
-    others = [np.array([j for j in range(n) if j != i], dtype=np.intp) for i in range(n)]
-    zeros = np.zeros((max(n - 1, 0), 3))
-    ok = np.ones(n, dtype=bool)  # each agent's last filter call was a clean solve (it does its share)
+    everyone = np.ones(n, dtype=bool)
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
-    log_t, log_x, log_v, log_s, log_com, log_vb = [], [], [], [], [], []
+    log_t, log_x, log_v, log_s, log_com, log_vb, log_err = [], [], [], [], [], [], []
     min_sep, min_clear = math.inf, math.inf
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
-        obs = obstacles_at(obstacles, t)
+        obs = NamedObstacles(obstacles_at(obstacles, t), [f"obstacle-{j}" for j in range(len(obstacles))])
         xb, vb = _body_rows(states, p.l_m)
         x_com = np.array([s.x_w for s in states])
         if n > 1:
             min_sep = min(min_sep, min_pair_distance(xb))
         if len(obs):
-            min_clear = min(min_clear, float(surface_clearance(xb, obs).min()))
-        statuses = []
-        setpoints = []
+            min_clear = min(min_clear, float(surface_clearance(xb, obs.arrays).min()))
+        near = near_lists(xb, everyone, near_m)
+        results = []
         for i in range(n):
-            nb = ObstacleArrays(xb[others[i]], vb[others[i]], zeros, r_nb[others[i]], zeros, ok[others[i]])
-            held = _gives_way(agents[i], trackers, i, t, states[i], goals[i], xb[others[i]], vb[others[i]])
-            if held is not None:  # giving way: hover, or back out of a passage
-                F_ref = trackers[i].thrust_vector(model, states[i].x_w, states[i].v_w, held)
-            else:
-                F_ref = reference_thrust(
-                    model,
-                    trackers[i],
-                    states[i].x_w,
-                    states[i].v_w,
-                    xb[i],
-                    xb[others[i]],
-                    agents[i].tiebreak,
-                    vb[others[i]] if follows(agents[i].route) else None,
-                )
-            if agents[i].filtered:
-                res = filters[i].filter(states[i], F_ref, ObstacleArrays.concat([obs, nb]))
-                u, status = res.u, res.status
-            else:
-                u, status = F_ref, FilterStatus.OK
-            statuses.append(status)
-            setpoints.append(setpoint_from_thrust_vector(u, yaw_of(states[i])))
-        ok = np.array(
-            [st is FilterStatus.OK and a.filtered for st, a in zip(statuses, agents, strict=True)]
-        )  # the next tick's shares, as the roster gives them
-        for i in range(n):
-            for _ in range(n_sub):
-                states[i] = step_rk4(model, states[i], onboard[i].rotor_thrusts(states[i], setpoints[i], dt), dt)
+            heard[i].on_list(k, [names[j] for j in near[i]])
+            frames = plant.frames(i) if sensing else None
+            results.append(steps[i](t, states[i], obs, heard[i].rows(t, k, xb[i], lockstep=True), frames=frames))
+        for i, res in enumerate(results):  # this tick's states, which the next tick uses
+            for j in range(n):
+                if j != i:
+                    heard[j].take(names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True)
+        for i, res in enumerate(results):
+            plant.send(i, res.command, k)
+        plant.fly(k)
         x_now = np.array([s.x_w for s in states])
         for i in np.flatnonzero(np.linalg.norm(x_now - goals, axis=1) <= goal_tolerance_m).tolist():
             if t_goal[i] is None:
@@ -266,7 +356,9 @@ def simulate_swarm(
         log_vb.append(vb)
         log_com.append(x_com)
         log_v.append(np.array([s.v_w for s in states]))
-        log_s.append(statuses)
+        log_s.append([res.status for res in results])
+        if sensing:
+            log_err.append(np.linalg.norm(np.array([res.est[:3] for res in results]) - x_com, axis=1))
         if all(tg is not None for tg in t_goal):
             break
     return SwarmLog(
@@ -279,6 +371,10 @@ def simulate_swarm(
         t_goal,
         np.array(log_com),
         np.array(log_vb),
+        np.array(log_err) if sensing else None,
+        sum(h.states_lost for h in heard),
+        plant.commands_lost,
+        plant.mocap.dropped if plant.mocap is not None else 0,
     )
 
 
@@ -294,11 +390,12 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                filter_config_for(a, still, CommandLevel.ATTITUDE, route),
+                filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism),
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,
                 route,
+                a.id,
             )
         )
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

@@ -11,7 +11,7 @@ Safety figures, all from the measured (ground-truth) states:
 * ``min_h``: the exact C3BF barrier (:func:`swarm.safety.barriers.cone_h`) of every pair and
   agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
   sensing radius), plus the horizon allowance where the agent's rows of that kind have one
-  (``filter.horizon_s``; for obstacles ``swarm.planning.obstacle_horizon_s``: on a path
+  (``filter.horizon_s``; for obstacles ``swarm.tuning.obstacle_horizon_s``: on a path
   planned round walls the row keeps ``h_tau``, not the cone), its smallest value and the
   ticks it was negative; the ticks a
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
@@ -32,13 +32,15 @@ from typing import Any
 import numpy as np
 
 from swarm.config import ScenarioConfig
+from swarm.geometry import items_to_arrays, min_pair_distance, surface_clearance
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
-from swarm.offline.ledger import Ledger, sent_counts
-from swarm.offline.scenario import items_to_arrays, min_pair_distance, surface_clearance
-from swarm.planning import StaticObstacles, obstacle_horizon_s
+from swarm.planning import StaticObstacles
+from swarm.realism.comms import LOST, MessageKind
+from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance
 from swarm.safety.obstacles import ObstacleArrays
+from swarm.tuning import obstacle_horizon_s
 
 SUMMARY_KEYS = (
     "collisions",
@@ -220,7 +222,7 @@ def compute(
     said: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
-    ``said``: each process's summary line (:func:`swarm.offline.ledger.summaries`): what it
+    ``said``: each process's summary line (:func:`swarm.runs.ledger.summaries`): what it
     sent, to find what the recording lacks at the end of a stream, and what it dropped from
     whom, to name the offenders."""
     ledger = Ledger.of(cfg)
@@ -232,6 +234,7 @@ def compute(
     last_report: dict[str, dict[str, Any]] = {}
     min_row_h: dict[str, float] = defaultdict(lambda: math.inf)
     solve_us: dict[str, list[float]] = defaultdict(list)
+    estimates: dict[str, list[tuple[int, np.ndarray]]] = defaultdict(list)  # world.realism.sensing
     statuses: list[dict[str, Any]] = []
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
     dead_contacts: list[dict[str, Any]] = []  # of a dead agent's drone
@@ -254,6 +257,8 @@ def compute(
             last_report[r["src"]] = r
             min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
+            if len(r.get("est", ())) == 6:
+                estimates[r["src"]].append((r["k"], np.asarray(r["est"][:3], dtype=float)))
         elif kind == "status":
             statuses.append(r)
         elif kind == "collision":
@@ -292,6 +297,8 @@ def compute(
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
         st = last_report.get(a.id, {})
+        truth = {e[1]: e[2] for e in m}
+        est_err = np.array([float(np.linalg.norm(x - truth[k])) for k, x in estimates.get(a.id, ()) if k in truth])
         agents[a.id] = {
             "reached_goal": bool(hit.size),
             "time_to_goal_s": float(m[hit[0]][0]) if hit.size else None,
@@ -307,6 +314,9 @@ def compute(
             "longest_silence_s": quiet.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
             "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
+            # world.realism.sensing: |estimate - true centre of mass| at the ticks it acted on [m]
+            "estimate_error_p95_m": float(np.percentile(est_err, 95)) if est_err.size else None,
+            "estimate_error_max_m": float(est_err.max()) if est_err.size else None,
             **motion,
         }
     final = statuses[-1] if statuses else {}
@@ -344,6 +354,10 @@ def compute(
         "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
         "lost_messages": sum(g.messages for g in gaps),
         "offenders": offenders(said or {}, quiet, cfg.failure.neighbour_hard_limit_s),
+        "realism": _realism_applied(cfg, last_report),
+        "estimate_error_max_m": max(
+            (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
+        ),
         "agents": agents,
     }
 
@@ -397,6 +411,39 @@ def offenders(
             o = out.setdefault(agent, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
             o["longest_silence_s"] = quiet
     return dict(sorted(out.items()))
+
+
+def _realism_applied(cfg: ScenarioConfig, last_report: dict[str, dict[str, Any]]) -> dict[str, Any] | None:
+    """What ``world.realism`` did to this run's messages, from the seeded fates (a pure function of
+    seed, sender, receiver and tick: ``swarm.realism.comms``) of the ticks the agents answered:
+    commands lost and their mean delay [ticks], and the same for the states between every pair of
+    agents. None in the ideal world."""
+    r = cfg.world.realism
+    if r.ideal:
+        return None
+    comms = r.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)
+    ids = [a.id for a in cfg.agents]
+    last = max((int(rep.get("k", -1)) for rep in last_report.values()), default=-1)
+    cmd, st = [], []
+    for k in range(last + 1):
+        cmd += [comms.fate(a, "world", MessageKind.COMMAND, k) for a in ids]
+        st += comms.fate_matrix(ids, MessageKind.STATE, k)[~np.eye(len(ids), dtype=bool)].tolist()
+
+    def applied(fates: list[int]) -> dict[str, Any]:
+        f = np.asarray(fates)
+        kept = f[f != LOST]
+        return {
+            "sent": int(f.size),
+            "lost": int((f == LOST).sum()),
+            "mean_delay_ticks": float(kept.mean()) if kept.size else None,
+        }
+
+    return {
+        "preset": r.preset,
+        "sensing": r.sensing.enabled,
+        "commands": applied(cmd),
+        "states": applied(st),
+    }
 
 
 def _motion(t_s: np.ndarray, v_w: np.ndarray, path_w: np.ndarray) -> dict[str, Any]:

@@ -16,7 +16,7 @@ from typing import Any
 
 from swarm.config import ScenarioConfig
 from swarm.runs.launch import RunHandle
-from swarm.runs.sweep import summarise
+from swarm.runs.point import summarise
 from swarm.safety.barriers import BarrierKind
 
 COLUMNS = (
@@ -47,7 +47,7 @@ def with_filter(cfg: ScenarioConfig, name: str) -> ScenarioConfig:
 
 
 def row(name: str, metrics: dict[str, Any]) -> dict[str, Any]:
-    """One table row: the sweep's summary of the run (``swarm.runs.sweep.summarise``)."""
+    """One table row: the sweep's summary of the run (``swarm.runs.point.summarise``)."""
     return {"filter": name, **summarise(metrics)}
 
 

@@ -28,7 +28,7 @@ from swarm.config import ScenarioConfig, dump
 from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode
-from swarm.runs.layout import run_layout_json
+from swarm.runs.foxglove_layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
 
 EPHEMERAL_PORTS = Path("/proc/sys/net/ipv4/ip_local_port_range")
@@ -207,11 +207,18 @@ class RunHandle:
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
             h._start_sitl()
+        expect = ["--expect", "recorder"]
+        if cfg.ros2.enabled:  # the ROS 2 bridge (swarm.ros2.bridge), and what a ROS 2 participant needs to join
+            from swarm.ros2.participant import write_env
+
+            write_env(cfg, h.secrets or out / "secrets", h.secrets)
+            h._spawn("ros2", ["-m", "swarm.cli", "ros2-bridge", *common], cpus.get("recorder"))
+            expect += ["--expect", "ros2"]
         live = ["--live", str(live_port)] if live_port is not None else []
         h._spawn("recorder", ["-m", "swarm.cli", "record", *common, "--out", str(out), *live], cpus.get("recorder"))
         h._spawn(
             "world",
-            ["-m", "swarm.cli", "world", *common, "--expect", "recorder", *(["--gui"] if gui else [])],
+            ["-m", "swarm.cli", "world", *common, *expect, *(["--gui"] if gui else [])],
             cpus.get("world"),
         )
         try:
@@ -355,6 +362,8 @@ class RunHandle:
             routed = self.cfg.topology == "router"
             what = "every link of the run went through it" if routed else "it bundled the neighbours"
             return self._cause("router", ex["router"]) + f" ({what})"
+        if ex.get("ros2", 0) != 0:
+            return self._cause("ros2", ex["ros2"]) + " (the ROS 2 bridge)"
         if "world" in ex:
             return "completed" if ex["world"] == 0 else self._cause("world", ex["world"])
         if "recorder" in ex:
@@ -437,7 +446,18 @@ class RunHandle:
         self._stop_all()
         self.reason = reason
         self.result = self.metrics()
+        if self.cfg.ros2.bag:
+            self.ros2_bag()
         return reason
+
+    def ros2_bag(self) -> None:
+        """The run as a ROS 2 bag in ``ros2_bag/`` (``ros2.bag``; swarm.ros2.bag)."""
+        from swarm.ros2.bag import write_bag
+
+        try:
+            write_bag(self.out)
+        except Exception as exc:  # a recording it cannot read: the run's results stand, say why
+            print(f"ros2 bag not written: {type(exc).__name__}: {exc}", file=sys.stderr)
 
     def _stop_all(self) -> None:
         """SIGTERM to every child's group, SIGKILL after a grace period, and then to each

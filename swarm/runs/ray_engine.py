@@ -31,10 +31,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from swarm.errors import InputError
+from swarm.runs.point import Job, fly
 
 if TYPE_CHECKING:
     from swarm.config import ScenarioConfig
-    from swarm.runs.sweep import Job
 
 ATTEMPT_FILE = "attempt"
 """In a run folder: which attempt of its point made it (1, or 2 after a worker died)."""
@@ -60,8 +60,6 @@ def cpus_needed(cfg: ScenarioConfig) -> int:
 
 def fly_task(job: Job) -> dict[str, Any]:
     """One point, inside a Ray worker: the reaper first, then the run."""
-    from swarm.runs.sweep import fly
-
     folder = job.folder
     attempt = 1
     if (folder / ATTEMPT_FILE).exists():  # a worker died flying it: keep what it left, fly it again

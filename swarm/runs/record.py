@@ -6,7 +6,7 @@ Messages are decoded (checked) and written as JSON, one MCAP channel per key exp
 (less its ``swarm/<run>/`` prefix, so that a layout fits every run: ``/agent/cf1/command``),
 each with its kind's JSON schema (``swarm.net.messages.json_schema``: every field with its
 unit), so Foxglove lists and plots the fields by name; orjson writes them. Next to them go
-the run's 3-D scene and its log (``swarm.runs.scene``: ``/tf`` ``foxglove.FrameTransforms``,
+the run's 3-D scene and its log (``swarm.runs.foxglove_scene``: ``/tf`` ``foxglove.FrameTransforms``,
 ``/scene`` ``foxglove.SceneUpdate``, ``/log`` ``foxglove.Log``, schemas from foxglove-sdk).
 The log lines are the processes' own, read from ``DIR/logs`` as they are written (stamped
 with the sim time at which the recorder read them). Undecodable messages are counted and
@@ -17,7 +17,7 @@ It never stops while a process of the run may still have something for it: it en
 the world has reported done (or is gone), every agent's liveliness is gone (each sends its
 last command before it goes, on the same link) and nothing has arrived for ``TAIL_S``; or
 ``tp.SEND_DRAIN_S`` after the world, if an agent hangs on. Every stream is checked for holes
-as it is written (:class:`swarm.offline.ledger.Ledger`); ``recorder.json`` lists them.
+as it is written (:class:`swarm.runs.ledger.Ledger`); ``recorder.json`` lists them.
 
 With ``live_port`` the same channels also go to Foxglove's WebSocket server
 (foxglove-sdk's, on 127.0.0.1): Foxglove's "Open connection" shows the run as it goes.
@@ -37,9 +37,9 @@ from mcap.writer import CompressionType, Writer
 
 from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode, json_schema, record_of
-from swarm.offline.ledger import Ledger
-from swarm.runs.scene import SCHEMAS as SCENE_SCHEMAS
-from swarm.runs.scene import Scene
+from swarm.runs.foxglove_scene import SCHEMAS as SCENE_SCHEMAS
+from swarm.runs.foxglove_scene import Scene
+from swarm.runs.ledger import Ledger
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5

@@ -22,9 +22,9 @@ import numpy as np
 from matplotlib.patches import Circle, Polygon
 
 from swarm.config import ScenarioConfig
+from swarm.geometry import items_to_arrays, surface_clearance
 from swarm.net.messages import measurement_agent
 from swarm.offline.metrics import SUMMARY_KEYS
-from swarm.offline.scenario import items_to_arrays, surface_clearance
 from swarm.rotation import quat_to_R
 from swarm.runs.runfiles import read_config, read_records, write_metrics
 

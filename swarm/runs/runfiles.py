@@ -14,8 +14,8 @@ from mcap.stream_reader import StreamReader
 
 from swarm.config import ScenarioConfig, load
 from swarm.net.messages import expand_record
-from swarm.offline.ledger import summaries
 from swarm.offline.metrics import compute
+from swarm.runs.ledger import summaries
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ def read_recording(path: Path) -> Recording:
         try:
             for record in reader.records:
                 if isinstance(record, Channel):
-                    # the swarm's JSON messages; not the scene's protobuf channels (swarm.runs.scene)
+                    # the swarm's JSON messages; not the scene's protobuf channels (swarm.runs.foxglove_scene)
                     topics[record.id] = record.topic if record.message_encoding == "json" else "/dropped"
                 elif isinstance(record, Message) and topics.get(record.channel_id, "/dropped") != "/dropped":
                     rec = json.loads(record.data)

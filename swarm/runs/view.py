@@ -27,8 +27,8 @@ import numpy as np
 import rerun as rr
 
 from swarm.net.messages import CLOCK_XVR
+from swarm.runs.foxglove_scene import CYLINDER_LENGTH_M, quat_z_to
 from swarm.runs.runfiles import read_records
-from swarm.runs.scene import CYLINDER_LENGTH_M, quat_z_to
 
 TRAIL_S = 5.0  # s of trail per drone
 VIEW_HZ = 25.0  # clocks drawn per second of sim time (the recorded rate is the control rate)

@@ -112,7 +112,7 @@ off the collision course rather than to brake.
 
 Obstacle rows alone may have their own horizon (``filter.obstacle_horizon_s``), and an agent
 flying a path planned round walls, at a gain that covers it, has one by default
-(``swarm.planning.obstacle_horizon_s``, 3 s): in a corridor or a doorway's line of sight the
+(``swarm.tuning.obstacle_horizon_s``, 3 s): in a corridor or a doorway's line of sight the
 cones of pillars far along the way leave the velocity a slit a few degrees wide, which the
 velocity buffer can only widen by speeding up (agents flew 2.5 to 3 m/s through a corridor at
 0.8 m/s, and one parked by a mouth was thrown back through it); their allowance opens the slit

@@ -307,7 +307,7 @@ class FilterConfig:
     obstacle_horizon_s: float | None = None
     """Live obstacle rows (not other agents): their own time horizon [s] of the horizon
     allowance, or None: ``horizon_s``. An agent flying a path planned round walls gets its
-    planner's (``swarm.planning.filter_config_for``; where its gain covers it): the path
+    planner's (``swarm.tuning.filter_config_for``; where its gain covers it): the path
     takes it round the walls, and the cones of pillars far along it no longer hold its
     velocity to a slit. Neighbours not doing their share get obstacle rows, and this too."""
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from swarm.errors import InputError
@@ -157,3 +159,19 @@ class ObstacleArrays:
 
 
 _EMPTY = ObstacleArrays.of_records(np.zeros(0, dtype=OBSTACLE))
+
+
+@dataclass(frozen=True)
+class NamedObstacles:
+    """Rows with their names: ``arrays`` (n rows) and ``ids`` (n,) (an obstacle's id, or the
+    neighbour agent's), in the same order."""
+
+    arrays: ObstacleArrays
+    ids: list[str]
+
+    @staticmethod
+    def none() -> NamedObstacles:
+        return NamedObstacles(_EMPTY, [])
+
+    def __len__(self) -> int:
+        return len(self.ids)

@@ -1,4 +1,4 @@
-"""An agent pays for its compiled code before the world can see it (``Agent.__init__``):
+"""An agent pays for its compiled code before the world can see it (``AgentProcess.__init__``):
 a kernel that the first tick of a bundled agent calls with argument types the warm-up did
 not use gets a new compiled signature then, which stalls that tick (7 ms on an idle
 machine for the table's store of a bundle; the first msgpack vector once cost 250 ms of
@@ -9,46 +9,54 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 PROBE = """
-import json
+import json, sys
 import numpy as np
 from swarm.net import statewire, transport as tp
-from swarm.agents.agent import Agent
+from swarm.agents.agent import AgentProcess
 from swarm.config import resolve
 from swarm.net.messages import decode, encode
 from swarm.net.neighbours import _rows, _store, _newest
 from swarm.model import all_finite
 from swarm.offline.scenario import SwapSettings, circle_swap
 
-cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents"), name="warm"), "warm")
+cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents", realism=sys.argv[1]), name="warm"), "warm")
 kernels = (all_finite, statewire._verdicts, _store, _rows, _newest)
-agent = Agent(cfg, "cf1")
-before = {k.__name__: len(k.signatures) for k in kernels}
 run = "warm-run"
+agent = AgentProcess(cfg, "cf1", run)  # (built and warmed up; no session opened)
+before = {k.__name__: len(k.signatures) for k in kernels}
 for k in (1, 2):
     states = [statewire.encode_state(run, a, k, 0.2 * k, k - 1, np.array([i, 0.0, 1.0]), np.zeros(3), 0.1)
               for i, a in enumerate(("cf2", "cf3", "cf4"))]
     bundle = statewire.read_bundle(statewire.encode_bundle(run, "cf1", k, 0.2 * k, k - 1, states), run)
-    agent.table.update_records(bundle.states.records, agent.others, tp.Counter())
+    agent.source.table.update_records(bundle.states.records, agent.others, tp.Counter())
     body = dict(x=np.array([-1.0, 0, 1]), v=np.zeros(3), q=np.array([0, 0, 0, 1.0]), w=np.zeros(3))
     tick = decode(encode("tick", run, "world", k, 0.2 * k, k, near=["cf2", "cf3"], items=[], gone=[], done=False,
-                         **body), run)
-    measurement, _ = agent.on_tick(tick)
-    ready = agent.ready(k)  # (the states of tick k - 1 of the two the world names)
-    state, command = agent.tick(measurement, lockstep=k == 1)  # realtime at 0.4 s: ages checked
+                         frames=[], **body), run)
+    measurement = agent.on_tick(tick)
+    ready = agent.source.missing(k) == 0  # (the states of tick k - 1 of the two the world names)
+    agent.lockstep = k == 1  # then realtime at 0.4 s: ages checked
+    result = agent.tick(measurement)
 print(json.dumps(dict(
     before=before,
     after={k.__name__: len(k.signatures) for k in kernels},
-    rows=len(agent.table.row_names),
+    rows=len(agent.source.table.row_names),
     ready=ready,
-    finite=bool(np.isfinite(command["u"]).all()),
+    finite=bool(np.isfinite(result.command).all()),
 )))
 """
 
 
-def test_after_the_warm_up_a_bundled_tick_compiles_nothing():
-    out = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, timeout=300, check=True)
+@pytest.mark.parametrize("realism", ["ideal", "crazyflie_lab"])
+def test_after_the_warm_up_a_bundled_tick_compiles_nothing(realism):
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, realism], capture_output=True, text=True, timeout=300, check=True
+    )
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["rows"] == 3 and got["finite"] and got["ready"], got  # the realtime tick used all three neighbours
+    assert got["rows"] == 3 and got["finite"], got  # the realtime tick used all three neighbours
+    # (in the lab a state is usable only at its link's fate, so lockstep may still wait for one)
+    assert got["ready"] or realism != "ideal", got
     assert all(n >= 1 for n in got["before"].values()), got  # each kernel loaded or compiled by the warm-up
     assert got["after"] == got["before"], got  # and no tick needed another signature

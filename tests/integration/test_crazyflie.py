@@ -93,6 +93,7 @@ class FakeWorld:
                     meas=[],
                     items=[],
                     solo=[],
+                    frames=[],
                 )
             )
             if self.measuring.is_set():

@@ -19,30 +19,17 @@ import re
 import threading
 import time
 
-import numpy as np
 import pytest
 import zenoh
 
 from swarm.net import transport as tp
 from swarm.net.cells import cell_of
-from swarm.net.messages import decode, encode
+from swarm.net.messages import CommandBody, decode, encode
 from swarm.runs.launch import RunHandle
 
 from .conftest import scenario, wait_linked
 
-ZERO_THRUST = dict(
-    level="attitude",
-    u=np.array([0.0, 0.0, 0.0, 0.0]),
-    intervention=0.0,
-    status="ok",
-    solve_us=0.0,
-    row_ids=[],
-    h_rows=np.zeros(0),
-    min_h=0.0,
-    infeasible=0,
-    goal_reached=False,
-    dropped=0,
-)
+ZERO_THRUST = {**CommandBody.zero().fields(), "dropped": 0}  # motors off, a clean tick
 
 
 def test_forged_commands_are_dropped_and_the_victim_flies_on(start_run):

@@ -1,4 +1,4 @@
-"""The world pays for its compiled code before the realtime clock starts (world/main.py,
+"""The world pays for its compiled code before the realtime clock starts (swarm/world/main.py,
 ``World.warm_up``). With a cold kernel cache (the first run after an install or an edit)
 the first tick used to compile the stacked onboard controller, the frame conversion of the
 drone states and the closest-pair kernel: 1.5 to 2.5 s in which a real drone's
@@ -17,7 +17,7 @@ import json
 import numpy as np
 from swarm.config import load
 from swarm.control import onboard_rotor_thrusts
-from swarm.offline.scenario import _min_pair_d2
+from swarm.geometry import _min_pair_d2
 from swarm.world.main import World
 from swarm.world.physics import _frames
 
@@ -26,7 +26,7 @@ world = World(load("configs/mixed_sitl.yaml"), "warm-up-test")  # real and simul
 world.warm_up()
 before = {k.__name__: len(k.signatures) for k in kernels}
 world.measure(0, 0.0)  # the first tick's measurement and metrics
-thrusts = world._rotor_thrusts(world.sim.read_states(world.flown), set(), True)  # its first substep
+thrusts = world.physics.rotor_thrusts(world.physics.read(world.flown), set(), True)  # its first substep
 print(json.dumps(dict(
     before=before,
     after={k.__name__: len(k.signatures) for k in kernels},

@@ -14,8 +14,9 @@ from swarm.config import load
 from swarm.net import statewire
 from swarm.net import transport as tp
 from swarm.net.bundle import Bundler, Intake
-from swarm.net.neighbours import NeighbourTable
+from swarm.net.neighbours import HeardNeighbours, NeighbourTable
 from swarm.offline.metrics import Silence, offenders
+from swarm.realism.settings import RealismSettings
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 RUN = "r1"
@@ -152,15 +153,43 @@ def test_a_state_a_tick_late_fills_the_history_and_is_no_offence():
     assert t.rejected == {} and t.state("cf2", 1).k == 1
 
 
+def test_a_relays_copy_of_a_state_is_no_offence_through_every_intake():
+    t = _table()
+    z = np.zeros(3)
+    t.update("cf3", 0.0, 0, z, z, 0.07, seq=5)
+    t.update("cf3", 0.0, 0, z, z, 0.07, seq=5)  # bundled again (a late neighbour's newest state)
+    assert t.rejected == {}
+    t.update("cf3", 0.0, 0, z, z, 0.07, seq=6)  # another state of the same tick: a repeat
+    assert t.rejected == {"cf3": {statewire.REPEATED: 1}}
+    # with world.realism.comms each bundled state takes its own way to the table: the copy too
+    lab = RealismSettings.model_validate({"preset": "ideal", "comms": {"state": {"delay_s": 0.015}}})
+    heard = HeardNeighbours({"cf3"}, _table(), "cf1", lab.comms_model(seed=1, tick_s=0.01))
+    for _ in range(2):
+        heard.take("cf3", 0.0, 0, z, z, 0.07, False, bundled=True, seq=5)
+    heard.rows(0.05, 5, z, lockstep=True)
+    assert heard.table.latest_k("cf3") == 0 and heard.table.rejected == {}
+
+
 def test_an_agent_waits_once_for_a_neighbour_whose_states_stop():
     t, counter = _table(), tp.Counter()
+    heard = HeardNeighbours({"cf3"}, t, "cf1")
     for k in range(3):
         t.update_records(_bundle([_state(1 + k, k)]), {"cf3"}, counter)
-    assert not t.waits_for("cf3", 2) and t.waits_for("cf3", 3)  # tick 4 needs its state of 3: wait
-    t.arrays(0.04, 3)  # the deadline passed: tick 4 flown without it
-    assert not t.waits_for("cf3", 4) and not t.waits_for("cf3", 50)  # not waited for again ...
+    heard.on_list(3, ["cf3"])
+    heard.on_list(4, ["cf3"])
+    assert heard.missing(3) == 0 and heard.missing(4) == 1  # tick 4 needs its state of 3: wait
+    heard.late(4)  # the deadline passed: tick 4 flown without it
+    for k in (5, 6, 50):  # not waited for again ...
+        heard.on_list(k, ["cf3"])
+        assert heard.missing(k) == 0
+    heard.at(0.05)
     t.update_records(_bundle([_state(9, 5)]), {"cf3"}, counter)
-    assert t.waits_for("cf3", 6)  # ... until a state of it is taken
+    heard.on_list(7, ["cf3"])
+    assert heard.missing(7) == 1  # ... until a newer state of it is taken
+    heard.late(7)
+    t.update_records(_bundle([_state(10, 6, x=(0.0, 1000.0, 1.0))]), {"cf3"}, counter)  # dropped: not heard
+    heard.on_list(8, ["cf3"])
+    assert heard.missing(8) == 0 and t.rejected["cf3"] == {statewire.OUTSIDE: 1}
 
 
 def test_a_flood_of_one_tick_keeps_one_state():

@@ -29,6 +29,7 @@ def test_messages_round_trip():
         dropped=0,
         row_ids=["ball"],
         h_rows=[0.5],
+        est=[],
     )
     m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
     assert m["goal_reached"] is True and m["infeasible"] == 2 and m["u"].tolist() == [0.1] * 4
@@ -51,6 +52,7 @@ def test_a_partial_decode_checks_the_fields_it_keeps_and_only_those():
         dropped=0,
         row_ids=["ball", 3],
         h_rows=[0.5, float("nan")],
+        est=[],
     )
     with pytest.raises(DecodeError):
         decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
@@ -78,6 +80,7 @@ def _clock(**over):
         meas=np.arange(13.0),
         items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}],
         solo=[],
+        frames=[],
     )
     return encode("clock", "r", "world", 4, 0.5, 50, **{**body, **over})
 

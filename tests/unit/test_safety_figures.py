@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from swarm.config import resolve
 from swarm.errors import ConfigError
+from swarm.geometry import items_to_arrays, obstacle_items
 from swarm.offline.metrics import compute, deadlock_at
-from swarm.offline.scenario import items_to_arrays, obstacle_items
 from swarm.safety.barriers import cone_h
 
 vec = st.lists(st.floats(-3, 3, allow_nan=False), min_size=3, max_size=3).map(np.array)

@@ -11,8 +11,8 @@ from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
 from swarm.net.messages import SCHEMAS, json_schema
-from swarm.runs.layout import run_layout_json
-from swarm.runs.scene import CYLINDER_LENGTH_M, LOG_TOPIC, SCENE_TOPIC, TF_TOPIC, Scene
+from swarm.runs.foxglove_layout import run_layout_json
+from swarm.runs.foxglove_scene import CYLINDER_LENGTH_M, LOG_TOPIC, SCENE_TOPIC, TF_TOPIC, Scene
 
 ROOT = Path(__file__).resolve().parents[2]
 

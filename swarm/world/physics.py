@@ -216,6 +216,25 @@ class PhysicsWorld:
             pb.applyExternalForce(uid, -1, F, x, pb.WORLD_FRAME, physicsClientId=self.client)
             pb.applyExternalTorque(uid, -1, tau, pb.WORLD_FRAME, physicsClientId=self.client)
 
+    def apply_external_all(
+        self, names: list[str], force_w: FloatArray, torque_b: FloatArray, states: DroneStates
+    ) -> None:
+        """Extra forces ``force_w`` (n, 3) [N, world] at the drones' centres of mass and
+        torques ``torque_b`` (n, 3) [N m, body] for the next step (the plant's downwash,
+        drag, ground effect: ``swarm.realism.plant``), at ``states`` (in the order of ``names``).
+
+        Applied as :meth:`apply_rotors_all` applies the rotors' wrench: the force at the
+        base position in ``WORLD_FRAME``, the torque turned into the world frame (``R tau``)
+        in ``WORLD_FRAME``; PyBullet adds them to the rotors' and clears all after the step."""
+        if not names:
+            return
+        torque_w = np.einsum("nij,nj->ni", states.R, torque_b)
+        rows = zip(names, np.asarray(force_w, float).tolist(), states.x_w.tolist(), torque_w.tolist(), strict=True)
+        for name, F, x, tau in rows:
+            uid = self.drones[name]
+            pb.applyExternalForce(uid, -1, F, x, pb.WORLD_FRAME, physicsClientId=self.client)
+            pb.applyExternalTorque(uid, -1, tau, pb.WORLD_FRAME, physicsClientId=self.client)
+
     def step(self) -> list[tuple[str, str]]:
         """Advance one physics step; returns the pairs of bodies in contact (ground
         excluded for drones resting on it is the caller's choice: all pairs are given)."""

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import foxglove.layouts as fl
 
-from swarm.runs.scene import LOG_TOPIC, SCENE_TOPIC, WORLD_FRAME
+from swarm.runs.foxglove_scene import LOG_TOPIC, SCENE_TOPIC, WORLD_FRAME
 
 
 def _plot(title: str, field: str, agent_ids: Sequence[str], unit: str) -> fl.PlotPanel:

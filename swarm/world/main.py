@@ -1,4 +1,5 @@
-"""The world process: PyBullet physics, measurements out, commands in.
+"""The world process: the physics (``swarm.world.stepper``) wired to Zenoh, measurements out,
+commands in.
 
     swarm world CONFIG [--run RUN] [--port P] [--gui]
 
@@ -13,7 +14,7 @@ levels out and brakes). Agents with ``neighbours.source: world`` take their neig
 from the clock's roster.
 
 Real drones (``backend: crazyflie``, realtime only) are not simulated: the motion-capture
-relay (``world/mocap.py``) publishes their measurements at the capture rate from its own
+relay (``swarm.world.mocap``) publishes their measurements at the capture rate from its own
 thread, PyBullet holds them as kinematic bodies at their measured poses (so contacts are
 still detected), their commands are recorded but not flown (they went to the drones by
 radio), and after the end the relay keeps going until they have landed or
@@ -33,91 +34,38 @@ from typing import Any
 import numpy as np
 
 from swarm.config import ScenarioConfig, TimeMode
-from swarm.control import (
-    AttitudeController,
-    AttitudeSetpoint,
-    OnboardController,
-    OnboardGains,
-    onboard_rotor_thrusts,
-)
-from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
-from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
-from swarm.net.messages import encode, warm_up
-from swarm.offline.scenario import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.net.messages import encode, frames_wire, warm_up
 from swarm.rotation import quat_to_R
 from swarm.shutdown import StopFlag
 from swarm.world.mocap import BodyEstimate, MocapRelay, connect
-from swarm.world.physics import PhysicsWorld
+from swarm.world.physics import DroneStates
+from swarm.world.stepper import Stepper
 
 
 @dataclass
-class DroneSlot:
-    """What the world holds for one agent's drone."""
+class AgentSlot:
+    """What the world holds for one agent: its liveliness, the ticks it was sent and how it
+    answered them, what its commands reported."""
 
-    model: QuadModel
-    level: CommandLevel
-    onboard: OnboardController
-    att: AttitudeController
-    goal: np.ndarray
+    goal: np.ndarray  # (3,) m, world
     alive: bool = False
     dead: bool = False
-    command: np.ndarray | None = None  # rotors: f (4,) N; attitude: roll, pitch, yaw rate, thrust
-    command_k: int = -1
-    command_t_s: float = 0.0  # sim time of the tick the held command answered
-    braking_ticks: int = 0  # realtime: ticks flown on the braking fallback (command too old)
+    command_k: int = -1  # the newest tick it answered
     sent_at: dict[int, float] = field(default_factory=dict)  # tick -> wall time published
     latencies_s: list[float] = field(default_factory=list)
     on_time: int = 0
     answered: int = 0
     reached_at_s: float | None = None
-    yaw_sp_rad: float = 0.0  # the onboard controller's integrated yaw setpoint
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
     behind: bool = False  # lockstep: let a tick time out; not waited for until it answers again
 
 
-GROUND_IMPACT_MPS = 0.5
-"""A drone touching the ground slower than this [m/s] stands, takes off or lands on it:
-not a collision (a real drone takes off from the ground and lands on it)."""
-
-
-def _impact(pair: tuple[str, str], index: dict[str, int], v_w: np.ndarray) -> bool:
-    """A ground contact of ``pair``'s drone at ``GROUND_IMPACT_MPS`` or faster."""
-    drone = pair[0] if pair[1] == "ground" else pair[1]
-    i = index.get(drone)
-    return i is None or float(np.linalg.norm(v_w[i])) >= GROUND_IMPACT_MPS
-
-
-def _setpoint(slot: DroneSlot, t_s: float) -> tuple[float, ...] | np.ndarray:
-    """Roll, pitch [rad], yaw rate [rad/s], thrust [N] at sim time ``t_s``: level hover
-    before the agent's first command, then its newest command as the Crazyflie firmware
-    flies it (swarm.crazyflie_fw): as it is while younger than 500 ms, levelled out with
-    its thrust until 2 s, then motors off."""
-    if slot.command is None:
-        return (0.0, 0.0, 0.0, slot.model.params.weight_N)
-    age = t_s - slot.command_t_s
-    if age > WDT_SHUTDOWN_S:
-        return (0.0, 0.0, 0.0, 0.0)
-    if age > WDT_STABILIZE_S:
-        return (0.0, 0.0, 0.0, float(slot.command[3]))
-    return slot.command
-
-
 STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
 COMMAND_FIELDS = ("level", "u", "status")  # what the world reads of a command (the report is the recorder's)
-_STOP = np.zeros(3)
-_DESCEND = np.array([0.0, 0.0, -0.3])  # m/s, landing
-
-
-def _velocity_hold(slot: DroneSlot, state: QuadState, v_des_w: np.ndarray) -> np.ndarray:
-    """The world's own fallback: fly level at ``v_des_w`` [m/s, world] with the thrust
-    vector ``m (g e3 + 2 (v_des - v))``. Braking (a command too old, as the firmware's
-    setpoint timeout) holds zero velocity; landing (a dead agent) descends."""
-    p = slot.model.params
-    F = p.mass_kg * (np.array([0.0, 0.0, p.g_mps2]) + 2.0 * (v_des_w - state.v_w))
-    return slot.att.from_thrust_vector(state, F)
 
 
 @dataclass
@@ -125,13 +73,14 @@ class TickView:
     """What the world measured at the start of tick k (ground truth; motion capture for
     real drones), in ``World.names`` order."""
 
-    ds: Any  # PhysicsWorld states: x_w (n, 3) m, v_w (n, 3) m/s, q (n, 4), Omega_b (n, 3) rad/s, R (n, 3, 3)
+    ds: DroneStates  # x_w (n, 3) m, v_w (n, 3) m/s, q (n, 4), Omega_b (n, 3) rad/s, R (n, 3, 3)
     items: list[dict]  # the obstacles at tick k
     live: list[str]  # agents the world expects answers from
     x_b: np.ndarray  # (n, 3) m, world: body centres
     roster: np.ndarray  # (n * 7,): per drone body centre [m], its velocity [m/s], radius [m]
     measured: list[str]  # simulated drones of live agents, measured in the clock
     meas: np.ndarray  # (len(measured) * 13,): x, v, q, w of each
+    frames: dict[str, list]  # measured drone -> its motion-capture frames since the last tick (world.realism)
 
 
 @dataclass
@@ -154,40 +103,11 @@ class World:
 
     def __init__(self, cfg: ScenarioConfig, run: str, gui: bool = False) -> None:
         self.cfg, self.run_id, self.keys = cfg, run, tp.Keys(run)
-        self.sim = PhysicsWorld(cfg.time.physics_hz, gui=gui or cfg.gui)
-        self.slots: dict[str, DroneSlot] = {}
-        self.real = {a.id for a in cfg.agents if a.backend == "crazyflie"}  # placed from motion capture
+        self.physics = physics = Stepper(cfg, gui)
+        self.slots = {a.id: AgentSlot(np.asarray(a.final_goal, float)) for a in cfg.agents}
+        self.real, self.names, self.flown, self.index = physics.real, physics.names, physics.flown, physics.index
         self.unfiltered = {a.id for a in cfg.agents if not a.filter.enabled}  # they take no share of a pair
-        self.firmware_death = cfg.failure.on_agent_death == "firmware"  # a dead agent's drone: the firmware's watchdog
-        for a in cfg.agents:
-            model = QuadModel(a.quad_params())
-            self.sim.add_drone(
-                a.id,
-                model,
-                np.asarray(a.start, float),
-                a.yaw_rad,
-                np.asarray(a.start_velocity, float),
-                kinematic=a.id in self.real,
-            )
-            self.slots[a.id] = DroneSlot(
-                model,
-                a.command_level,
-                OnboardController(model, a.yaw_rad),
-                AttitudeController(model),
-                np.asarray(a.final_goal),
-            )
-        for o in cfg.obstacles:
-            if o.shape == "sphere":
-                self.sim.add_sphere(o.id, np.asarray(o.center), o.radius_m, np.asarray(o.velocity))
-            else:
-                self.sim.add_cylinder(
-                    o.id, np.asarray(o.center), np.asarray(o.axis), o.radius_m, o.length_m, np.asarray(o.velocity)
-                )
-        self.names = list(self.slots)
-        self.flown = [a for a in self.names if a not in self.real]  # simulated drones: PyBullet flies them
-        self.index = {a: i for i, a in enumerate(self.names)}
-        self.l_m = np.array([self.slots[a].model.params.l_m for a in self.names])  # body-centre offsets [m]
-        self.radius_m = np.array([self.slots[a].model.params.body_radius_m for a in self.names])  # bounding radii [m]
+        self.l_m, self.radius_m = physics.l_m, physics.radius_m  # body-centre offsets, bounding radii [m]
         self.goals = np.array([self.slots[a].goal for a in self.names])  # (n, 3) m, world
         self.cells = cfg.uses_ticks  # each simulated agent gets its own tick message (swarm.net.cells)
         self.near_m = np.array([cfg.near_radius_m(a) for a in self.names]) if self.cells else np.zeros(0)  # m
@@ -198,7 +118,6 @@ class World:
         self.counter = tp.Counter()
         self.seq = 0
         self.others_alive: set[str] = set()
-        self.onboard_gains: dict[tuple[str, ...], OnboardGains] = {}  # drones -> their stacked gains
         self.phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
         self.relay: MocapRelay | None = None
         self.running = threading.Event()  # the relay publishes only while the run is on
@@ -267,6 +186,7 @@ class World:
                     slot.alive = True
                 elif slot.alive:
                     slot.alive, slot.dead = False, True
+                    self.physics.drones[name].dead = True
                     print(
                         f"world: agent {name} gone at wall {time.time():.4f}: {self.cfg.failure.on_agent_death}",
                         file=sys.stderr,
@@ -305,13 +225,14 @@ class World:
             slot.command_k = max(slot.command_k, m.k)
             return
         u = m["u"]
-        if u.shape != (4,) or m["level"] != slot.level.value:
+        if u.shape != (4,) or m["level"] != self.physics.drones[m.src].level.value:
             counter.drop("command of wrong level or size")
             return
         if m.k < slot.command_k:
             return  # older than what we hold
-        slot.command, slot.command_k, slot.command_t_s = u, m.k, m.t
+        slot.command_k = m.k
         slot.behind = False  # it answers again (a backlog's oldest tick first): waited for again
+        self.physics.send(m.src, u, m.t, m.k)
         sent = slot.sent_at.pop(m.k, None)
         if sent is not None:
             slot.answered += 1
@@ -324,19 +245,10 @@ class World:
         the kernel cache is cold (the first run after an install or an edit: seconds). Do
         both before any tick, with the argument types the ticks use, or a realtime world
         starts behind the wall clock: a real drone's motion-capture frames, stamped on that
-        clock, then meet simulated drones from the past (measured on
-        ``configs/mixed_sitl.yaml`` with a cold cache: tick 0 took 1.5 to 2.5 s, and the real
-        drones' rows went down to h = -0.09)."""
-        for sl in self.slots.values():
-            st0 = QuadState.hover()
-            sl.onboard.rotor_thrusts(st0, AttitudeSetpoint(0.0, 0.0, 0.0, sl.model.params.weight_N), self.sim.dt_s)
-            sl.att.from_thrust_vector(st0, np.array([0.0, 0.0, sl.model.params.weight_N]))
-            sl.onboard.yaw_sp_rad = sl.yaw_sp_rad
+        clock, then meet simulated drones from the past
+        (``tests/integration/test_world_warm_up.py``)."""
+        self.physics.warm_up()
         min_pair_distance(np.zeros((2, 3)))  # (measure: the closest pair)
-        fs = self.sim.read_states(self.flown)  # reading only: the drones do not move
-        if self.flown:  # _onboard_thrusts' call, with its argument layouts, changing no slot
-            n = len(self.flown)
-            self._onboard_call(fs, list(range(n)), tuple(self.flown), np.zeros((n, 4)), np.zeros(n))
         warm_up()
 
     def wait_for_everyone(self, expect: tuple[str, ...]) -> bool:
@@ -365,7 +277,7 @@ class World:
         """Ground truth for metrics and measurements (motion capture for real drones), and
         the running metrics it updates."""
         names, slots, relay, c = self.names, self.slots, self.relay, self.counts
-        ds = self.sim.read_states(names)
+        ds = self.physics.read()
         for i, a in enumerate(names):
             est = relay.latest(a) if relay and a in self.real else None
             if est is not None:
@@ -381,6 +293,11 @@ class World:
         measured = [a for a in self.flown if slots[a].alive]  # a dead agent's drone is no longer measured
         rows = [self.index[a] for a in measured]
         meas = np.hstack([ds.x_w[rows], ds.v_w[rows], ds.q[rows], ds.Omega_b[rows]]).ravel()
+        frames: dict[str, list] = {}
+        if self.physics.mocap is not None:  # world.realism.sensing: what motion capture saw by now
+            f_rows = [self.index[a] for a in self.flown]
+            self.physics.capture(t, DroneStates(*(a[f_rows] for a in (ds.x_w, ds.v_w, ds.q, ds.Omega_b, ds.R))))
+            frames = {a: self.physics.frames_of(a) for a in measured}
         flying = x_b[[not slots[a].dead for a in names]]
         if len(flying) >= 2:
             c.min_sep = min(c.min_sep, min_pair_distance(flying))
@@ -390,7 +307,7 @@ class World:
         for a, there in zip(names, at_goal.tolist(), strict=True):
             if there and slots[a].reached_at_s is None:
                 slots[a].reached_at_s = t
-        return TickView(ds, items, live, x_b, roster, measured, meas)
+        return TickView(ds, items, live, x_b, roster, measured, meas, frames)
 
     def is_done(self, k: int, view: TickView) -> bool:
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
@@ -438,6 +355,7 @@ class World:
             meas=view.meas,
             items=view.items,
             solo=solo,
+            frames=frames_wire([(j, f) for j, a in enumerate(view.measured) for f in view.frames.get(a, ())]),
         )
         if self.cells:  # each agent's own tick: its measurement and the live agents near it
             expected = np.array([slots[a].alive and not slots[a].dead for a in names])
@@ -459,6 +377,7 @@ class World:
                     items=view.items,
                     gone=gone,
                     done=done,
+                    frames=frames_wire([(0, f) for f in view.frames.get(aid, ())]),
                 )
 
     def collect(self, k: int, t: float, live: list[str]) -> None:
@@ -470,6 +389,8 @@ class World:
         wait_until = wait_from + cfg.time.lockstep_timeout_s
         stall_warn_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s
         held: list[str] = []  # the agents still missing when the wait became a stall
+        if any(slots[a].behind for a in live):
+            self.poll_commands(k)  # (an answer from one behind: waited for again, even when no one else is)
         while True:
             self.poll_liveliness()
             waiting = [a for a in live if slots[a].alive and slots[a].command_k < k and not slots[a].behind]
@@ -502,8 +423,8 @@ class World:
 
     def step_physics(self, k: int, view: TickView) -> None:
         """The substeps of tick k: realtime follows the wall clock and takes the commands
-        that came meanwhile; each substep flies every drone's rotor thrusts and notes the
-        contacts."""
+        that came meanwhile; each substep places the real drones where motion capture saw
+        them last, flies every simulated drone's command and notes the contacts."""
         sub = self.cfg.time.substeps
         for j in range(sub):
             if not self.lockstep:
@@ -511,14 +432,14 @@ class World:
                 # the CPU from the agents computing them)
                 time.sleep(max(0.0, self.wall0 + (k + j / sub) * self.dt_ctrl - time.monotonic()))
                 self.poll_commands(k)
-            fs = view.ds if j == 0 and not self.real else self.sim.read_states(self.flown)  # `flown` order
+            self.physics.deliver(k)  # (world.realism.comms: the commands that reach their drones by now)
+            poses = {}
             for a in self.real:  # real drones: where motion capture saw them last
                 est = self.relay.latest(a) if self.relay else None
                 if est is not None:
-                    self.sim.set_pose(a, est.x_w, est.q)
-            self.sim.apply_rotors_all(self.flown, self._rotor_thrusts(fs, self._stale(), j == 0), fs)
-            pairs = {p for p in self.sim.step() if "ground" not in p or _impact(p, self.index, view.ds.v_w)}
-            self._contacts(pairs, k)
+                    poses[a] = (est.x_w, est.q)
+            fs = view.ds if j == 0 and not self.real else None  # (`flown` order: every drone is flown)
+            self._contacts(self.physics.substep(fs, j == 0, poses, view.ds.v_w), k)
         if not self.lockstep:
             for a in view.live:
                 sl = self.slots[a]
@@ -526,74 +447,6 @@ class World:
                 self.counts.late += len(stale)
                 for kk in stale:
                     sl.sent_at.pop(kk)
-
-    def _stale(self) -> set[str]:
-        """Realtime: the drones whose held command is older than the timeout (a rotor
-        command, or any with ``late_command: brake``): not flown."""
-        if self.lockstep:
-            return set()
-        cfg, slots, t_s = self.cfg, self.slots, self.sim.t_s
-        return {
-            a
-            for a in self.names
-            if not slots[a].dead
-            and slots[a].command is not None
-            and (slots[a].level is CommandLevel.ROTORS or cfg.time.late_command == "brake")
-            and t_s - slots[a].command_t_s > cfg.time.command_timeout_s
-        }
-
-    def _rotor_thrusts(self, fs: Any, stale: set[str], first_substep: bool) -> np.ndarray:
-        """Rotor thrusts [N] (len(flown), 4): the onboard controller for attitude commands
-        (and before the first command), the agent's thrusts for rotor commands, the world's
-        own fallbacks for dead agents and stale commands."""
-        slots, flown = self.slots, self.flown
-        f_all = np.zeros((len(flown), 4))
-        att = [
-            i
-            for i, a in enumerate(flown)
-            if (not slots[a].dead or self.firmware_death)
-            and a not in stale
-            and (slots[a].level is CommandLevel.ATTITUDE or slots[a].command is None)
-        ]
-        if att:
-            f_all[att] = self._onboard_thrusts(fs, att)
-        attitude = set(att)
-        for i, a in enumerate(flown):
-            sl = slots[a]
-            if i in attitude:
-                continue
-            if sl.dead:
-                landed = self.cfg.failure.on_agent_death == "motors_off" or fs.x_w[i, 2] < 0.05
-                if not landed:
-                    f_all[i] = _velocity_hold(sl, fs.state(i), _DESCEND)
-            elif a in stale:
-                f_all[i] = _velocity_hold(sl, fs.state(i), _STOP)
-                if first_substep:
-                    sl.braking_ticks += 1
-            elif sl.command is not None:  # rotor level: the agent's thrusts, held (`att` has the drones without one)
-                f_all[i] = np.clip(sl.command, 0.0, sl.model.params.f_max_N)
-        return f_all
-
-    def _onboard_thrusts(self, fs: Any, att: list[int]) -> np.ndarray:
-        """The onboard attitude controller of the drones ``att`` (indices into ``flown``),
-        flying their setpoints as the firmware does (``_setpoint``), in one compiled call."""
-        slots, dt_s = self.slots, self.sim.dt_s
-        att_names = tuple(self.flown[i] for i in att)
-        sp = np.array([_setpoint(slots[a], self.sim.t_s) for a in att_names])
-        for a, yaw_rate in zip(att_names, sp[:, 2].tolist(), strict=True):
-            slots[a].yaw_sp_rad += yaw_rate * dt_s
-        return self._onboard_call(fs, att, att_names, sp, np.array([slots[a].yaw_sp_rad for a in att_names]))
-
-    def _onboard_call(
-        self, fs: Any, att: list[int], names: tuple[str, ...], sp: np.ndarray, yaw_sp_rad: np.ndarray
-    ) -> np.ndarray:
-        """The one compiled call of the onboard controller for the drones ``names`` (indices
-        ``att`` into ``flown``): setpoints ``sp`` (k, 4) as ``_setpoint`` gives them (the yaw
-        rate column unused), yaw setpoints ``yaw_sp_rad`` (k,); their gains stacked once per set."""
-        gains = self.onboard_gains.get(names)
-        if gains is None:
-            gains = self.onboard_gains[names] = OnboardGains.stack([self.slots[a].onboard.gains for a in names])
-        return onboard_rotor_thrusts(fs.q[att], fs.Omega_b[att], sp[:, 0], sp[:, 1], yaw_sp_rad, sp[:, 3], *gains)
 
     def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
         """Count and publish the contacts that began in this substep."""
@@ -604,7 +457,7 @@ class World:
                 c.dead_contacts += 1
             else:
                 c.collisions += 1
-            self._put(self.pub_coll, "collision", self.sim.t_s, k, a=pair[0], b=pair[1], dead=dead)
+            self._put(self.pub_coll, "collision", self.physics.t_s, k, a=pair[0], b=pair[1], dead=dead)
         c.touching = pairs
 
     # --- the run --------------------------------------------------------------------
@@ -659,7 +512,9 @@ class World:
             "phase_wall_s": {n: round(v, 3) for n, v in self.phase.items()},
             "dropped": self.counter.dropped,
             "dropped_reasons": dict(self.counter.reasons),
-            "braking_ticks": sum(s.braking_ticks for s in slots),
+            "braking_ticks": sum(d.braking_ticks for d in self.physics.drones.values()),
+            "commands_lost": self.physics.commands_lost,  # world.realism.comms.command
+            "mocap_frames_dropped": 0 if self.physics.mocap is None else self.physics.mocap.dropped,
             "mocap": None
             if relay is None
             else {"frames": relay.frames, "dropped_frames": relay.dropped_frames, "lost": sorted(relay.lost)},
@@ -685,7 +540,7 @@ class World:
             if self.relay is not None:
                 self.relay.stop()
             self.token.undeclare()
-            self.sim.close()
+            self.physics.close()
         print("WORLD_SUMMARY " + json.dumps(self.summary(k, startup_cpu_s)), file=sys.stderr)
         return 0
 

@@ -1,0 +1,257 @@
+"""Aerodynamics the rigid-body model leaves out: downwash between drones, rotor drag, and
+ground effect. Forces [N, world] at each drone's centre of mass, torques [N m, body].
+
+All three are gym-pybullet-drones' models with the Crazyflie 2.x coefficients of its
+``gym_pybullet_drones/assets/cf2x.urdf`` (``<properties>``), implemented in
+``gym_pybullet_drones/envs/BaseAviary.py`` (``_downwash``, ``_drag``, ``_groundEffect``;
+utiasDSL/gym-pybullet-drones at 90b178a, May 2026) and described in Panerati et al.,
+"Learning to Fly", IROS 2021:
+
+=====================  =============  =================================================
+URDF attribute          value          here
+=====================  =============  =================================================
+``dw_coeff_1``          2267.18        :attr:`AeroParams.downwash_peak_N`
+``dw_coeff_2``          0.16           :attr:`AeroParams.downwash_width_slope`
+``dw_coeff_3``          -0.11          :attr:`AeroParams.downwash_width_offset_m`
+``prop_radius``         2.31348e-2 m   :attr:`AeroParams.prop_radius_m`
+``drag_coeff_xy``       9.1785e-7      :attr:`AeroParams.drag_xy_kg_per_rad`
+``drag_coeff_z``        10.311e-7      :attr:`AeroParams.drag_z_kg_per_rad`
+``gnd_eff_coeff``       11.36859       :attr:`AeroParams.ground_effect_coeff`
+=====================  =============  =================================================
+
+Where this module departs from upstream, it says so at the function.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from swarm.rotation import FloatArray
+
+RPM_TO_RAD_S = 2.0 * math.pi / 60.0
+
+
+@dataclass(frozen=True)
+class AeroParams:
+    """Coefficients of the three models (defaults: gym-pybullet-drones' cf2x.urdf) and
+    which of them act."""
+
+    downwash: bool = True
+    drag: bool = True
+    ground_effect: bool = True
+    prop_radius_m: float = 2.31348e-2
+    downwash_peak_N: float = 2267.18
+    """``dw_coeff_1``: the on-axis force is ``peak (r_p / (4 dz))^2`` [N]."""
+    downwash_width_slope: float = 0.16
+    """``dw_coeff_2``: the wake's lateral width is ``slope dz + offset`` [m]."""
+    downwash_width_offset_m: float = -0.11
+    """``dw_coeff_3`` [m]."""
+    downwash_cap_thrust_fraction: float = 1.0
+    """The force on a drone below is at most this fraction of the collective thrust of the
+    drone above (:func:`downwash_force_w`); ``inf``: upstream's unbounded model."""
+    downwash_range_xy_m: float = 10.0
+    """Drones farther apart than this horizontally are ignored (upstream's 10 m)."""
+    drag_xy_kg_per_rad: float = 9.1785e-7
+    """Rotor drag per (rad/s of summed rotor speed) per (m/s of airspeed), body x and y
+    [N / (rad/s) / (m/s) = kg/rad]; Forster 2015's identification of the Crazyflie 2.0."""
+    drag_z_kg_per_rad: float = 10.311e-7
+    """The same along body z [kg/rad]."""
+    ground_effect_coeff: float = 11.36859
+    """``gnd_eff_coeff``: each rotor's thrust grows by ``coeff (r_p / (4 h))^2`` of itself."""
+    ground_z_m: float = 0.0
+    """Height of the floor [m, world]."""
+
+    @property
+    def any(self) -> bool:
+        return self.downwash or self.drag or self.ground_effect
+
+    @property
+    def ground_clip_m(self) -> float:
+        """Upstream's ``GND_EFF_H_CLIP``: rotor heights below this count as this [m].
+
+        ``0.25 r_p sqrt(15 MAX_RPM^2 kf coeff / MAX_THRUST)`` with ``MAX_THRUST = 4 kf
+        MAX_RPM^2`` is ``0.25 r_p sqrt(15 coeff / 4)`` (3.78 cm for the Crazyflie): the
+        height at which the gain reaches 4/15 of the rotor's thrust, its largest."""
+        return 0.25 * self.prop_radius_m * math.sqrt(15.0 * self.ground_effect_coeff / 4.0)
+
+
+@njit(cache=True)
+def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_xy, out):
+    n = x_w.shape[0]
+    for i in range(n):
+        fz = 0.0
+        for j in range(n):
+            dz = x_w[j, 2] - x_w[i, 2]
+            if j == i or not dz > 0.0:
+                continue
+            dx = x_w[j, 0] - x_w[i, 0]
+            dy = x_w[j, 1] - x_w[i, 1]
+            dxy2 = dx * dx + dy * dy
+            if not dxy2 < range_xy * range_xy:
+                continue
+            s = r_p / (4.0 * max(dz, 1e-6))  # finite: the cap binds long before 1 um
+            alpha = peak_N * s * s
+            beta = slope * dz + offset_m
+            b2 = beta * beta
+            if dxy2 == 0.0:
+                e = 1.0
+            elif b2 > 0.0:
+                e = math.exp(-0.5 * dxy2 / b2)
+            else:
+                e = 0.0
+            if e == 0.0:
+                continue
+            f = alpha * e
+            cap = cap_fraction * max(thrust_N[j], 0.0)
+            if f > cap:
+                f = cap
+            fz -= f
+        out[i, 0] = 0.0
+        out[i, 1] = 0.0
+        out[i, 2] = fz
+
+
+def downwash_force_w(x_w: FloatArray, thrust_N: FloatArray, p: AeroParams) -> FloatArray:
+    """Downwash on each drone from every drone above it: (n, 3) [N, world], straight down.
+
+    ``x_w`` (n, 3) [m, world] are the centres of mass, ``thrust_N`` (n,) each drone's
+    collective thrust. For a drone ``j`` above ``i`` (``dz = z_j - z_i > 0``, horizontal
+    distance ``d``), upstream's model (``BaseAviary._downwash``, fitted by SiQi Zhou at
+    UTIAS's Dynamic Systems Lab on Crazyflies)::
+
+        F = alpha exp(-d^2 / (2 beta^2)),   alpha = c1 (r_p / (4 dz))^2,   beta = c2 dz + c3
+
+    Fitted range: not published with the coefficients; upstream's own ``downwash.py``
+    example flies the pair 0.5 m apart vertically. Where it departs from upstream:
+
+    * **Bounded as dz -> 0.** ``alpha`` grows as ``1/dz^2`` (1.21 N, 4.6 Crazyflie
+      weights, at 0.25 m; unbounded at contact). The force on a drone below is capped at
+      ``downwash_cap_thrust_fraction`` times the collective thrust of the drone above: by
+      momentum theory the rotor wake carries a momentum flux equal to that thrust, and a
+      body that stops the whole wake feels at most that flux. The cap binds below
+      ``dz = 0.54 m`` for two hovering Crazyflies, so close under another drone the lower
+      one loses up to one weight of the upper drone (0.265 N).
+    * **Width.** ``beta`` changes sign at ``dz = -c3/c2 = 0.69 m``: upstream squares it (so
+      the wake is 11 cm wide at contact, narrows to nothing at 0.69 m and widens again),
+      and divides 0 by 0 on the axis at exactly 0.69 m. Kept as upstream, with the axis
+      value there taken as its limit (``exp(0) = 1``), so no NaN.
+    * **Direction.** Straight down in the world frame (the wake of a level drone above),
+      where upstream applies it along the lower drone's body z; the two differ by the
+      lower drone's tilt (at most 35 degrees here).
+
+    Leaves out: the upper drone's tilt and thrust (the fit is at hover), the wake's travel
+    time, and any torque (a drone half under a wake is rolled in reality)."""
+    x_w = np.ascontiguousarray(x_w, dtype=float)
+    out = np.empty_like(x_w)
+    _downwash(
+        x_w,
+        np.ascontiguousarray(thrust_N, dtype=float),
+        p.downwash_peak_N,
+        p.downwash_width_slope,
+        p.downwash_width_offset_m,
+        p.prop_radius_m,
+        p.downwash_cap_thrust_fraction,
+        p.downwash_range_xy_m,
+        out,
+    )
+    return out
+
+
+@njit(cache=True)
+def _drag(R, v_rel_w, omega_sum, k_xy, k_z, out):
+    for i in range(R.shape[0]):
+        vb = np.empty(3)
+        for a in range(3):  # R^T v
+            vb[a] = R[i, 0, a] * v_rel_w[i, 0] + R[i, 1, a] * v_rel_w[i, 1] + R[i, 2, a] * v_rel_w[i, 2]
+        w = omega_sum[i]
+        fb0, fb1, fb2 = -k_xy * w * vb[0], -k_xy * w * vb[1], -k_z * w * vb[2]
+        for a in range(3):
+            out[i, a] = R[i, a, 0] * fb0 + R[i, a, 1] * fb1 + R[i, a, 2] * fb2
+
+
+def drag_force_w(R: FloatArray, v_rel_w: FloatArray, omega_sum_rad_s: FloatArray, p: AeroParams) -> FloatArray:
+    """Rotor drag (n, 3) [N, world]: ``F = -(sum_i omega_i) R K R^T v_rel``.
+
+    ``R`` (n, 3, 3) body to world, ``v_rel_w`` (n, 3) [m/s, world] the velocity relative to
+    the air (the drone's minus the wind's), ``omega_sum_rad_s`` (n,) the sum of the four
+    rotor speeds [rad/s]; ``K = diag(k_xy, k_xy, k_z)`` in the body frame. Forster,
+    *System Identification of the Crazyflie 2.0 Nano Quadrocopter*, ETH Zurich 2015,
+    identified ``K`` in flight; upstream (``BaseAviary._drag``) multiplies ``K`` into
+    the world-frame velocity before rotating, which equals this only when level; here
+    ``K`` acts in the body frame, as identified. At hover (4 x 1516 rad/s) it is 5.6 mN
+    per m/s (2.1 % of the weight).
+
+    Fitted range: Forster's flights, at speeds up to about 1 m/s. Leaves out: the
+    quadratic body drag that dominates at higher speeds, and the drag's moment."""
+    R = np.ascontiguousarray(R, dtype=float)
+    out = np.empty((R.shape[0], 3))
+    _drag(
+        R,
+        np.ascontiguousarray(v_rel_w, dtype=float),
+        np.ascontiguousarray(omega_sum_rad_s, dtype=float),
+        p.drag_xy_kg_per_rad,
+        p.drag_z_kg_per_rad,
+        out,
+    )
+    return out
+
+
+@njit(cache=True)
+def _ground(x_w, R, f_N, rotor_xy_b, coeff, r_p, h_clip, ground_z, F_out, tau_out):
+    for i in range(x_w.shape[0]):
+        for a in range(3):
+            F_out[i, a] = 0.0
+            tau_out[i, a] = 0.0
+        if not R[i, 2, 2] > 0.0:  # upstream: only while |roll| and |pitch| are below 90 degrees
+            continue
+        total = 0.0
+        for j in range(f_N.shape[1]):
+            px, py = rotor_xy_b[i, j, 0], rotor_xy_b[i, j, 1]
+            h = x_w[i, 2] + R[i, 2, 0] * px + R[i, 2, 1] * py - ground_z
+            if h < h_clip:
+                h = h_clip
+            s = r_p / (4.0 * h)
+            g = max(f_N[i, j], 0.0) * coeff * s * s
+            total += g
+            tau_out[i, 0] += py * g  # r x (0, 0, g)
+            tau_out[i, 1] -= px * g
+        for a in range(3):
+            F_out[i, a] = total * R[i, a, 2]
+
+
+def ground_effect(
+    x_w: FloatArray, R: FloatArray, f_N: FloatArray, rotor_xy_b: FloatArray, p: AeroParams
+) -> tuple[FloatArray, FloatArray]:
+    """Ground effect: (force (n, 3) [N, world], torque (n, 3) [N m, body]).
+
+    Each rotor ``j`` of thrust ``f_j`` [N] at body position ``rotor_xy_b[i, j]`` (n, 4, 2)
+    [m], at height ``h_j`` above the floor, pushes an extra ``f_j c (r_p / (4 h_j))^2``
+    along body z (upstream's ``BaseAviary._groundEffect``, after the analytical model
+    compared in Shi et al., "Neural Lander", ICRA 2019; ``h_j`` clipped below at
+    :attr:`AeroParams.ground_clip_m`, so the gain is at most 4/15 of the thrust; off while
+    upside down). Rotors at different heights (a tilted drone) give the torque.
+
+    Fitted range: the coefficient is gym-pybullet-drones' (no range published); the
+    ``(r/4h)^2`` form is Cheeseman and Bennett's (1955) image-rotor law, which holds for
+    heights above about half a rotor radius. At 0.25 m (the filter's default floor) the
+    gain is 0.6 % of the thrust; at the clip height it is 26.7 %."""
+    x_w = np.ascontiguousarray(x_w, dtype=float)
+    F = np.empty_like(x_w)
+    tau = np.empty_like(x_w)
+    _ground(
+        x_w,
+        np.ascontiguousarray(R, dtype=float),
+        np.ascontiguousarray(f_N, dtype=float),
+        np.ascontiguousarray(rotor_xy_b, dtype=float),
+        p.ground_effect_coeff,
+        p.prop_radius_m,
+        p.ground_clip_m,
+        p.ground_z_m,
+        F,
+        tau,
+    )
+    return F, tau

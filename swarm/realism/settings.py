@@ -1,0 +1,270 @@
+"""The ``world.realism`` section of a scenario: which imperfections the simulated world has.
+
+A named ``preset`` fills every field; any field given beside it overrides the preset's
+value (``world: {realism: {preset: crazyflie_lab, sensing: {position_noise_m: 0.002}}}``;
+``world: {realism: crazyflie_lab}`` is the preset alone). A bad value is refused with its
+field named (``world.realism.sensing.position_noise_m: ...``).
+
+* ``ideal``: today's perfect world: every effect off, agents act on ground truth, every
+  message arrives at once. The default.
+* ``crazyflie_lab``: a Crazyflie 2.1 lab, every value with its source in
+  :data:`PRESETS`. Where Crazyswarm2 warns about a quantity (motion-capture rate, link
+  latency, lost packets), the preset sits at the limit it accepts without a warning.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Annotated, Any, Literal
+
+from pydantic import Field, model_validator
+
+from swarm.strict import Strict, merge
+
+if TYPE_CHECKING:  # (imported where used: a config is read, and refused, without numba or scipy)
+    from swarm.model import QuadParams
+    from swarm.realism.aero import AeroParams
+    from swarm.realism.comms import CommsModel, CommsParams, LinkParams
+    from swarm.realism.motors import MotorParams
+    from swarm.realism.plant import Plant, PlantParams
+    from swarm.realism.sensing import Estimator, EstimatorParams, MocapParams, MocapSensor
+    from swarm.realism.wind import WindParams
+    from swarm.rotation import FloatArray
+
+_F = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "ideal": {},
+    "crazyflie_lab": {
+        # gym-pybullet-drones' measured Crazyflie models (swarm.realism.aero, the coefficients' defaults)
+        "aero": {"downwash": True, "drag": True, "ground_effect": True},
+        "motors": {
+            # CrazySim's Crazyflie model (model.sdf.jinja: timeConstantUp / timeConstantDown)
+            "time_constant_up_s": 0.0125,
+            "time_constant_down_s": 0.025,
+            # assumed, no published spread: Bitcraze's PWM-to-thrust measurements show the thrust
+            # at one command falling with the battery's voltage (4.0 V to 3.65 V over their table);
+            # 5 % per drone stands for battery state and propeller wear between drones of a lab
+            "thrust_coefficient_spread_fraction": 0.05,
+            # assumed: the Crazyflie 2.1 takes off at 27 g (datasheet) and a lab's carry decks and
+            # markers (Crazyswarm2's simulator uses 34 g); a lab that weighs its drones is off
+            # by its batteries and markers, 3 % (about 1 g)
+            "mass_spread_fraction": 0.03,
+        },
+        # indoor air: ASHRAE 55 counts air speeds above 0.2 m/s in an occupied zone as
+        # "elevated"; a lab's drafts as Dryden gusts with 0.2 m/s at 2 sigma, no steady wind
+        "wind": {"gust_std_mps": 0.1},
+        "sensing": {
+            "enabled": True,
+            # Crazyswarm2 warns when motion capture runs outside 80-120 Hz (server.yaml,
+            # warnings.motion_capture.warning_if_rate_outside): its middle
+            "rate_hz": 100.0,
+            # Merriaux et al., "A Study of Vicon System Positioning Performance", Sensors 2017:
+            # errors below 2 mm in motion (2 sigma)
+            "position_noise_m": 0.001,
+            # the Crazyflie firmware's trust in an external attitude (crtp_localization_service.c:
+            # extQuatStdDev = 4.5e-3)
+            "attitude_noise_rad": 0.0045,
+            # Crazyswarm2's warning limit for a link's latency (warnings.communication.max_unicast_latency: 10 ms)
+            "latency_s": 0.010,
+            # Crazyswarm2's warning limit for broadcasts received (min_broadcast_receive_rate: 0.9)
+            "drop_fraction": 0.1,
+        },
+        "comms": {
+            # Zenoh over a switched LAN (TCP: nothing lost), well under a tick: used the next tick,
+            # as agents that compute concurrently see each other's states in realtime runs
+            "state": {"delay_s": 0.001},
+            "bundle": {"delay_s": 0.001},
+            # the radio to the drone at Crazyswarm2's warning limits: 10 ms latency, 90 % acknowledged
+            "command": {"delay_s": 0.010, "loss_fraction": 0.1},
+        },
+    },
+}
+
+
+class AeroSettings(Strict):
+    """Downwash, rotor drag and ground effect (:mod:`swarm.realism.aero`; defaults:
+    gym-pybullet-drones' cf2x.urdf)."""
+
+    downwash: bool = False
+    drag: bool = False
+    ground_effect: bool = False
+    prop_radius_m: float = Field(2.31348e-2, gt=0, allow_inf_nan=False)
+    downwash_peak_N: float = Field(2267.18, ge=0, allow_inf_nan=False)
+    downwash_width_slope: float = Field(0.16, allow_inf_nan=False)
+    downwash_width_offset_m: float = Field(-0.11, allow_inf_nan=False)
+    # the downwash on a drone is at most this fraction of the collective thrust above (momentum theory)
+    downwash_cap_thrust_fraction: float = Field(1.0, ge=0, allow_inf_nan=False)
+    downwash_range_xy_m: float = Field(10.0, gt=0, allow_inf_nan=False)
+    drag_xy_kg_per_rad: float = Field(9.1785e-7, ge=0, allow_inf_nan=False)
+    drag_z_kg_per_rad: float = Field(10.311e-7, ge=0, allow_inf_nan=False)
+    ground_effect_coeff: float = Field(11.36859, ge=0, allow_inf_nan=False)
+    ground_z_m: float = Field(0.0, allow_inf_nan=False)  # m, world: the floor
+
+    def params(self) -> AeroParams:
+        from swarm.realism.aero import AeroParams
+
+        return AeroParams(**self.model_dump())
+
+
+class MotorSettings(Strict):
+    """Rotor-speed lag and the drones' departures from their nominal model
+    (:mod:`swarm.realism.motors`)."""
+
+    time_constant_up_s: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
+    time_constant_down_s: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
+    # every drone's thrust coefficient (mass) is off by the offset, and each by a further seeded
+    # normal fraction of standard deviation spread (clipped at 3 sigma)
+    thrust_coefficient_offset_fraction: float = Field(0.0, gt=-0.5, le=1, allow_inf_nan=False)
+    thrust_coefficient_spread_fraction: float = Field(0.0, ge=0, le=0.15, allow_inf_nan=False)
+    mass_offset_fraction: float = Field(0.0, gt=-0.5, le=0.5, allow_inf_nan=False)
+    mass_spread_fraction: float = Field(0.0, ge=0, le=0.15, allow_inf_nan=False)
+
+    def params(self) -> MotorParams:
+        from swarm.realism.motors import MotorParams
+
+        return MotorParams(**self.model_dump())
+
+
+class WindSettings(Strict):
+    """A steady wind and Dryden gusts (:mod:`swarm.realism.wind`)."""
+
+    steady_mps: Annotated[list[_F], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]  # m/s, world
+    gust_std_mps: float = Field(0.0, ge=0, le=20, allow_inf_nan=False)  # sigma_u = sigma_v
+    gust_vertical_std_mps: float | None = Field(None, ge=0, le=20, allow_inf_nan=False)  # None: MIL-F-8785C ratio
+    gust_length_m: float | None = Field(None, gt=0, le=1e4, allow_inf_nan=False)  # L_u = L_v; None: MIL-F-8785C
+    gust_vertical_length_m: float | None = Field(None, gt=0, le=1e4, allow_inf_nan=False)  # L_w; None: MIL-F-8785C
+    height_m: float = Field(1.0, gt=0, allow_inf_nan=False)  # where the MIL-F-8785C scales are taken
+    airspeed_mps: float = Field(1.0, gt=0, allow_inf_nan=False)  # V: lengths L become times L / V
+    gust_field: Literal["shared", "per_drone"] = "shared"  # one gust field for all drones, or one each
+
+    def params(self) -> WindParams:
+        from swarm.realism.wind import WindParams
+
+        s = self.steady_mps
+        return WindParams(
+            steady_w_mps=(s[0], s[1], s[2]),
+            shared=self.gust_field == "shared",
+            **self.model_dump(exclude={"steady_mps", "gust_field"}),
+        )
+
+
+class EstimatorSettings(Strict):
+    """The agent's estimator (:class:`swarm.realism.sensing.Estimator`)."""
+
+    latency_s: float | None = Field(None, ge=0, le=1, allow_inf_nan=False)  # what the agent assumes; None: exact
+    position_noise_m: float | None = Field(None, gt=0, le=1, allow_inf_nan=False)  # None: the sensing's
+    # the Crazyflie EKF's process noise (kalman_core_params_defaults.h: procNoiseAcc_xy, procNoiseAcc_z)
+    process_accel_xy_mps2: float = Field(0.5, gt=0, le=100, allow_inf_nan=False)
+    process_accel_z_mps2: float = Field(1.0, gt=0, le=100, allow_inf_nan=False)
+    rate_filter_s: float = Field(0.02, ge=0, le=1, allow_inf_nan=False)  # low-pass of body rates from frames
+
+
+class SensingSettings(Strict):
+    """Motion capture of the simulated drones and the agents' estimator
+    (:mod:`swarm.realism.sensing`). ``enabled: false``: agents get ground truth."""
+
+    enabled: bool = False
+    rate_hz: float = Field(100.0, gt=0, le=10_000, allow_inf_nan=False)
+    position_noise_m: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)  # std of each coordinate
+    attitude_noise_rad: float = Field(0.0, ge=0, le=0.5, allow_inf_nan=False)  # std of each rotation-vector component
+    latency_s: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
+    drop_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
+    estimator: EstimatorSettings = EstimatorSettings()
+
+    def mocap_params(self) -> MocapParams:
+        from swarm.realism.sensing import MocapParams
+
+        return MocapParams(
+            self.rate_hz, self.position_noise_m, self.attitude_noise_rad, self.latency_s, self.drop_fraction
+        )
+
+    def estimator_params(self) -> EstimatorParams:
+        from swarm.realism.sensing import EstimatorParams
+
+        e = self.estimator
+        return EstimatorParams(
+            position_noise_m=e.position_noise_m if e.position_noise_m is not None else self.position_noise_m,
+            latency_s=e.latency_s if e.latency_s is not None else self.latency_s,
+            process_accel_xy_mps2=e.process_accel_xy_mps2,
+            process_accel_z_mps2=e.process_accel_z_mps2,
+            rate_filter_s=e.rate_filter_s,
+        )
+
+
+class LinkSettings(Strict):
+    """One kind of message's delay and loss (:mod:`swarm.realism.comms`)."""
+
+    delay_s: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)
+    jitter_s: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)  # plus up to this, uniformly
+    loss_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
+
+    def params(self) -> LinkParams:
+        from swarm.realism.comms import LinkParams
+
+        return LinkParams(self.delay_s, self.jitter_s, self.loss_fraction)
+
+
+class CommsSettings(Strict):
+    state: LinkSettings = LinkSettings()  # an agent's state to another agent
+    bundle: LinkSettings = LinkSettings()  # the relay's bundle to an agent
+    command: LinkSettings = LinkSettings()  # an agent's command to its drone
+
+    def params(self) -> CommsParams:
+        from swarm.realism.comms import CommsParams
+
+        return CommsParams(self.state.params(), self.bundle.params(), self.command.params())
+
+
+class RealismSettings(Strict):
+    """``world.realism``: see the module docstring and docs/design.md, "The model of the world"."""
+
+    preset: Literal["ideal", "crazyflie_lab"] = "ideal"
+    aero: AeroSettings = AeroSettings()
+    motors: MotorSettings = MotorSettings()
+    wind: WindSettings = WindSettings()
+    sensing: SensingSettings = SensingSettings()
+    comms: CommsSettings = CommsSettings()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset(cls, data: Any) -> Any:
+        """The preset's values under the ones given (a bare name: the preset alone)."""
+        if isinstance(data, str):
+            data = {"preset": data}
+        if isinstance(data, dict):
+            name = data.get("preset", "ideal")
+            if isinstance(name, str) and name in PRESETS:
+                return merge(PRESETS[name], data)
+        return data
+
+    def plant_params(self) -> PlantParams:
+        from swarm.realism.plant import PlantParams
+
+        return PlantParams(self.aero.params(), self.motors.params(), self.wind.params())
+
+    @property
+    def ideal(self) -> bool:
+        """Nothing is imperfect: the simulators may skip the plant, the sensing and the comms."""
+        return self.plant_params().ideal and not self.sensing.enabled and self.comms.params().perfect
+
+    def plant(self, nominal: Sequence[QuadParams], dt_s: float, seed: int) -> Plant:
+        """The plant of the drones whose nominal airframes are ``nominal``, stepped every ``dt_s`` [s]."""
+        from swarm.realism.plant import Plant
+
+        return Plant(self.plant_params(), nominal, dt_s, seed)
+
+    def mocap(self, n: int, seed: int) -> MocapSensor:
+        from swarm.realism.sensing import MocapSensor
+
+        return MocapSensor(self.sensing.mocap_params(), n, seed)
+
+    def estimator(self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0) -> Estimator:
+        from swarm.realism.sensing import Estimator
+
+        return Estimator(self.sensing.estimator_params(), x0_w, q0, t0_s)
+
+    def comms_model(self, seed: int, tick_s: float) -> CommsModel:
+        from swarm.realism.comms import CommsModel
+
+        return CommsModel(self.comms.params(), seed, tick_s)

@@ -1,0 +1,289 @@
+"""One agent's control step, the same in every shell (the agent process, ``simulate_swarm``,
+``simulate``): built once from the agent's settings, then called once per control tick
+with what the agent knows at that tick (docs/design.md, "The control step").
+
+    step = AgentStep.of_agent(agent_cfg, StaticObstacles.of(cfg.obstacles), cfg.goal_tolerance_m)
+    result = step(t_s, state, obstacles, neighbours)       # -> StepResult
+
+A call: the body centre and its velocity from the state; the route's rules (replan a stalled
+path, give way at a narrow passage, brake before turning away from a wall: ``swarm.route``);
+the reference thrust vector (the path tracker, with the right-hand tie-break); at the rotor
+level the rotor thrusts that fly it; the C3BF-QP filter against the obstacles and the
+neighbours; the command the plant flies (the Crazyflie setpoint at the attitude level, the
+rotor thrusts at the rotor level). No I/O; the shell brings the states and carries the result.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
+from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
+from swarm.planning import StaticObstacles
+from swarm.realism.sensing import Estimator, MocapFrame
+from swarm.rotation import E3, FloatArray, quat_to_R
+from swarm.route import Route, corner_cut_m, follows, path_for
+from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
+from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
+from swarm.tuning import filter_config_for
+
+if TYPE_CHECKING:
+    from swarm.config import AgentConfig
+    from swarm.realism.settings import RealismSettings
+
+
+_NO_ESTIMATE = np.zeros(0)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one control step decided, and the agent's running tallies after it."""
+
+    level: CommandLevel
+    command: FloatArray  # (4,): attitude level roll [rad], pitch [rad], yaw rate [rad/s], thrust [N]; rotors f [N]
+    u: FloatArray  # the filter's command: F (3,) [N, world] at the attitude level, f (4,) [N] at the rotor level
+    status: FilterStatus  # OK also when the agent flies unfiltered
+    filter: FilterResult | None  # None: unfiltered (filter.enabled false) or motors off
+    row_ids: list[str]  # the name of each filter row, in the filter's row order
+    held_w: FloatArray | None  # (3,) m/s, world: the velocity the route held in place of the path, or None
+    x_b_w: FloatArray  # (3,) m, world: body centre at the step's state
+    v_b_w: FloatArray  # (3,) m/s, world: its velocity
+    solo: bool  # the agent is not doing its share of a pair's avoidance now (unfiltered, or not a clean solve)
+    arrived: bool  # it has been within the goal tolerance of its goal at some step
+    min_h: float  # m^2/s: smallest exact h of its rows over every step so far (inf: none yet)
+    infeasible_ticks: int  # steps so far whose filter call was not a clean solve
+    est: FloatArray  # (6,) centre of mass [m] and velocity [m/s], world, as estimated (sensing), else (0,)
+
+    @property
+    def intervention(self) -> float:
+        """``|u - u_ref|`` in input units (0 unfiltered)."""
+        return 0.0 if self.filter is None else self.filter.intervention
+
+    @property
+    def solve_us(self) -> float:
+        """The filter call's time [us] (0 unfiltered)."""
+        return 0.0 if self.filter is None else self.filter.solve_time_s * 1e6
+
+    @property
+    def h_rows(self) -> FloatArray:
+        """(n,) m^2/s: h of each row (``row_ids`` order)."""
+        return np.zeros(0) if self.filter is None else self.filter.h
+
+
+class AgentStep:
+    """One agent's control step; holds what persists between ticks (its path tracker and
+    route, the filter's QP workspace, the running tallies). Build with :meth:`of_agent` from a
+    config, or from its parts (``simulate``, tests)."""
+
+    def __init__(
+        self,
+        model: QuadModel,
+        config: FilterConfig,
+        tracker: PathTracker,
+        *,
+        goal_w: FloatArray | None = None,
+        route: Route | None = None,
+        tiebreak: tuple[float, float] | None = None,
+        filtered: bool = True,
+        yaw_rad: float = 0.0,
+        goal_tolerance_m: float = 0.15,
+        landing: bool = False,
+        estimator: Estimator | None = None,
+    ) -> None:
+        """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
+        and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
+        ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
+        ``landing`` also builds the filter a real drone lands with (its floor off);
+        ``estimator``: the agent acts on its estimate from motion-capture frames
+        (``world.realism.sensing``), never on the state it is given."""
+        self.model, self.config, self.level = model, config, config.level
+        self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
+        self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
+        self.goal_w = np.asarray(tracker.goal_w if goal_w is None else goal_w, dtype=float)
+        self.filt = SafetyFilter(model, config)
+        self.filt_land = SafetyFilter(model, replace(config, floor_z_m=None)) if landing else None
+        self.att = AttitudeController(model)
+        self.estimator = estimator
+        self._follows = follows(route)
+        self.min_h = math.inf
+        self.infeasible = 0
+        self.arrived = False
+        self.solo = not filtered
+
+    @classmethod
+    def of_agent(
+        cls,
+        agent: AgentConfig,
+        still: StaticObstacles,
+        goal_tolerance_m: float,
+        level: CommandLevel | None = None,
+        realism: RealismSettings | None = None,
+    ) -> AgentStep:
+        """The step of a configured agent among the static obstacles ``still``: its path
+        planned round the walls (``swarm.route.path_for``), its filter tuned for that path
+        (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
+        ``realism.sensing`` its estimator, starting at rest at its start."""
+        level = agent.command_level if level is None else level
+        path_w, route = path_for(agent, still)
+        estimator = None
+        if realism is not None and realism.sensing.enabled:
+            half = 0.5 * agent.yaw_rad
+            estimator = realism.estimator(
+                np.asarray(agent.start, float), np.array([0.0, 0.0, math.sin(half), math.cos(half)])
+            )
+        return cls(
+            QuadModel(agent.quad_params()),
+            filter_config_for(agent, still, level, route, realism),
+            PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
+            goal_w=np.asarray(agent.final_goal, dtype=float),
+            route=route,
+            tiebreak=agent.tiebreak.pair,
+            filtered=agent.filter.enabled,
+            yaw_rad=agent.yaw_rad,
+            goal_tolerance_m=goal_tolerance_m,
+            landing=agent.backend == "crazyflie",
+            estimator=estimator,
+        )
+
+    def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
+        """Fly a new course from this tick on (a goal from ROS 2): to ``goal_w`` [m, world] along
+        ``tracker``'s path with its ``route``, filtered with ``config`` (a new filter only where
+        its settings differ)."""
+        self.goal_w, self.tracker, self.route, self.arrived = np.asarray(goal_w, dtype=float), tracker, route, False
+        self._follows = follows(route)
+        if config != self.config:
+            self.config = config
+            self.filt = SafetyFilter(self.model, config)
+            if self.filt_land is not None:
+                self.filt_land = SafetyFilter(self.model, replace(config, floor_z_m=None))
+
+    def _held(self, t_s: float, state: QuadState, neighbours: ObstacleArrays) -> FloatArray | None:
+        """The route at this tick: a new path from where the agent is if it has made no
+        progress along its own for a while; then the velocity it holds in place of its path
+        to give way at a narrow passage, or to brake before it turns away from a wall, or None."""
+        route = self.route
+        if route is None:
+            return None
+        remaining = self.tracker.reference(state.x_w)[2]
+        new = route.update(t_s, state.x_w, self.goal_w, remaining)
+        if new is not None:
+            self.tracker = PathTracker(new.waypoints_w, self.tracker.speed_mps, cut_m=route.cut_m)
+            remaining = self.tracker.reference(state.x_w)[2]
+        v_path = self.tracker.command(state.x_w)[0]
+        return route.hold(t_s, remaining, state.x_w, neighbours.c_w, neighbours.c_dot_w, state.v_w, v_path)
+
+    def __call__(
+        self,
+        t_s: float,
+        state: QuadState,
+        obstacles: NamedObstacles,
+        neighbours: NamedObstacles,
+        *,
+        tracker: PathTracker | None = None,
+        landing: bool = False,
+        frames: list[MocapFrame] | None = None,
+    ) -> StepResult:
+        """The step at sim time ``t_s`` [s] from ``state`` (centre of mass, world), among
+        ``obstacles`` and ``neighbours`` (rows at ``t_s``, with their names). ``tracker``:
+        a real drone's take-off or landing path, flown in place of the mission's (no route
+        rules); ``landing``: filter with the floor off (a real drone landing through it).
+        With an estimator the state is its estimate at ``t_s`` from the motion-capture
+        ``frames`` that arrived since the last step (``state`` is not read)."""
+        model, level, est = self.model, self.level, self.estimator
+        if est is not None:
+            for f in frames or ():
+                est.frame(f)
+            e = est.estimate(t_s)
+            state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+        x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
+        nb = neighbours.arrays
+        held = None
+        if tracker is None:
+            held = self._held(t_s, state, nb)
+            tracker = self.tracker
+        if held is not None:
+            F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, held)  # hover, or back out of the passage
+        else:
+            others_v = nb.c_dot_w if self._follows else None  # a lane's queue is followed
+            F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, nb.c_w, self.tiebreak, others_v)
+        u_ref = self.att.from_thrust_vector(state, F_ref, self.yaw_rad) if level is CommandLevel.ROTORS else F_ref
+        res: FilterResult | None = None
+        row_ids: list[str] = []
+        if self.filtered:
+            obs = obstacles.arrays
+            rows = ObstacleArrays.concat([obs, nb]) if len(obs) else nb
+            filt = self.filt_land if landing and self.filt_land is not None else self.filt
+            res = filt.filter(state, u_ref, rows)
+            names = obstacles.ids + neighbours.ids
+            row_ids = [names[i] for i in res.row_index.tolist()]
+            u, status = res.u, res.status
+            if status is not FilterStatus.OK:
+                self.infeasible += 1
+            self.solo = status is not FilterStatus.OK
+            self.min_h = min(self.min_h, res.min_cone_h)
+        else:
+            u, status = u_ref, FilterStatus.OK
+        if not self.arrived:
+            self.arrived = math.dist(state.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
+        command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
+        est_out = _NO_ESTIMATE
+        if est is not None:
+            est.command(t_s, self._accel_w(state, u))
+            est_out = np.concatenate([state.x_w, state.v_w])
+        return StepResult(
+            level, command, u, status, res, row_ids, held, x_b, v_b, self.solo, self.arrived, self.min_h,
+            self.infeasible, est_out,
+        )  # fmt: skip
+
+    def _accel_w(self, state: QuadState, u: FloatArray) -> FloatArray:
+        """The acceleration [m/s^2, world] the command ``u`` asks of the nominal airframe at
+        ``state``, gravity included: ``F / m - g e3`` (at the rotor level ``F = (B u)_0 R e3``)."""
+        p = self.model.params
+        F = u if self.level is CommandLevel.ATTITUDE else (self.model.B[0] @ u) * quat_to_R(state.q)[:, 2]
+        return F / p.mass_kg - p.g_mps2 * E3
+
+    def motors_off(self, state: QuadState) -> StepResult:
+        """The result of a tick with the motors off (a real drone that has landed or been
+        stopped): a zero command, the filter not called."""
+        x_b, v_b, _ = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.model.params.l_m)
+        zero = np.zeros(4)
+        return StepResult(
+            self.level, zero, zero, FilterStatus.OK, None, [], None, x_b, v_b, self.solo, self.arrived, self.min_h,
+            self.infeasible, _NO_ESTIMATE,
+        )  # fmt: skip
+
+    def reset_tallies(self) -> None:
+        """Forget the running tallies (after a warm-up call)."""
+        self.min_h, self.infeasible, self.arrived = math.inf, 0, False
+        self.solo = not self.filtered
+
+    def warm_up(self, start_w: FloatArray) -> None:
+        """Load every compiled path of the step now: one step at rest at ``start_w`` [m, world],
+        then the filter's QP with active rows, its least-violation QP and the landing filter. A
+        first use mid-flight stalls that tick for up to a second on a busy machine, long enough
+        to look like a lost drone. The tallies are reset after."""
+        none = NamedObstacles.none()
+        est, self.estimator = self.estimator, None  # (its own warm-up below, on a copy)
+        self(0.0, QuadState.hover(start_w), none, none)
+        self.estimator = est
+        if est is not None:  # its compiled prediction and update
+            c = copy.deepcopy(est)
+            c.command(0.0, np.zeros(3))
+            c.frame(MocapFrame(0, 0, 0.0, c.p.latency_s + 0.005, np.asarray(start_w, float), c.q0))
+            c.estimate(0.01)
+        state = QuadState.hover([0.0, 0.0, 1.0])
+        state.v_w = np.array([2.0, 0.0, 0.0])  # m/s, straight at the obstacles below
+        weight = np.array([0.0, 0.0, self.model.params.weight_N])
+        u = self.att.from_thrust_vector(state, weight) if self.level is CommandLevel.ROTORS else weight
+        ahead = ObstacleArrays.build([[1.5, 0.0, 1.0]], [0.2])  # active: the QP
+        wall = ObstacleArrays.build([[0.4, 0.0, 1.0], [0.4, 0.3, 1.0], [0.4, -0.3, 1.0]], [0.25, 0.25, 0.25])
+        for filt in (self.filt, self.filt_land):
+            if filt is not None:
+                for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
+                    filt.filter(state, u, obstacles)
+        self.reset_tallies()

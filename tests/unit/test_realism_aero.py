@@ -1,0 +1,152 @@
+"""Downwash, rotor drag and ground effect against gym-pybullet-drones' formulas and cf2x.urdf
+coefficients (BaseAviary._downwash, _drag, _groundEffect), computed here by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+from swarm.model import QuadParams, rotor_geometry
+from swarm.realism.aero import AeroParams, downwash_force_w, drag_force_w, ground_effect
+from swarm.rotation import euler_to_quat, quat_to_R
+
+# cf2x.urdf <properties>, typed from the file
+DW1, DW2, DW3 = 2267.18, 0.16, -0.11
+PROP_R = 2.31348e-2
+DRAG_XY, DRAG_Z = 9.1785e-7, 10.311e-7
+GND = 11.36859
+KF = 3.16e-10  # N / rpm^2 (cf2x.urdf kf, swarm.model.QuadParams.kf)
+W = QuadParams().weight_N
+P = AeroParams()
+
+
+def upstream_downwash(dz: float, dxy: float) -> float:
+    """BaseAviary._downwash, line for line (the force's magnitude)."""
+    alpha = DW1 * (PROP_R / (4 * dz)) ** 2
+    beta = DW2 * dz + DW3
+    return alpha * math.exp(-0.5 * (dxy / beta) ** 2)
+
+
+@pytest.mark.parametrize("dz, dxy", [(1.0, 0.0), (1.0, 0.03), (0.8, 0.02), (2.0, 0.1), (0.6, 0.01)])
+def test_downwash_is_upstreams_where_the_cap_does_not_bind(dz, dxy):
+    x = np.array([[0.0, 0.0, 1.0], [dxy, 0.0, 1.0 + dz]])
+    F = downwash_force_w(x, np.array([W, W]), P)
+    assert F[0, 2] == pytest.approx(-upstream_downwash(dz, dxy), rel=1e-12)
+    assert np.all(F[0, :2] == 0.0) and np.all(F[1] == 0.0)  # straight down, and nothing on the upper drone
+
+
+def test_downwash_by_hand_at_one_metre():
+    # alpha = 2267.18 (0.0231348 / 4)^2 = 0.0758399 N; beta = 0.05 m; exp(-0.5 (0.03 / 0.05)^2) = exp(-0.18)
+    x = np.array([[0.0, 0.0, 0.5], [0.0, 0.03, 1.5]])
+    assert downwash_force_w(x, np.array([W, W]), P)[0, 2] == pytest.approx(-0.0758399 * math.exp(-0.18), rel=1e-5)
+
+
+def test_downwash_is_capped_at_the_upper_drones_thrust():
+    x = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.25]])
+    assert upstream_downwash(0.25, 0.0) == pytest.approx(1.2135, rel=1e-4)  # 4.6 weights, unbounded below
+    assert downwash_force_w(x, np.array([W, W]), P)[0, 2] == pytest.approx(-W)  # capped: the thrust above
+    assert downwash_force_w(x, np.array([W, 0.0]), P)[0, 2] == 0.0  # motors off above: no wake
+    half = AeroParams(downwash_cap_thrust_fraction=0.5)
+    assert downwash_force_w(x, np.array([W, W]), half)[0, 2] == pytest.approx(-W / 2)
+    # where the cap starts to bind for two hovering Crazyflies: alpha(dz) = W
+    dz_cap = PROP_R / 4 * math.sqrt(DW1 / W)
+    assert dz_cap == pytest.approx(0.535, abs=1e-3)
+    for dz, capped in ((dz_cap - 0.01, True), (dz_cap + 0.01, False)):
+        f = -downwash_force_w(np.array([[0, 0, 0.0], [0, 0, dz]]), np.array([W, W]), P)[0, 2]
+        assert bool(f == pytest.approx(W)) == capped
+
+
+def test_downwash_where_upstreams_width_vanishes_has_no_nan():
+    dz = -DW3 / DW2  # beta = 0
+    on_axis = downwash_force_w(np.array([[0, 0, 0.0], [0, 0, dz]]), np.array([W, 10.0]), P)
+    assert on_axis[0, 2] == pytest.approx(-DW1 * (PROP_R / (4 * dz)) ** 2)  # the limit along the axis
+    off_axis = downwash_force_w(np.array([[0, 0, 0.0], [0.01, 0, dz]]), np.array([W, 10.0]), P)
+    assert off_axis[0, 2] == 0.0
+
+
+def test_downwash_adds_up_over_the_drones_above_and_ignores_far_ones():
+    x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.02, 0.0, 2.0], [11.0, 0.0, 1.0]])
+    F = downwash_force_w(x, np.full(4, W), P)
+    want = upstream_downwash(1.0, 0.0) + upstream_downwash(2.0, 0.02)
+    assert F[0, 2] == pytest.approx(-want)
+    assert F[1, 2] == pytest.approx(-upstream_downwash(1.0, 0.02))
+    assert F[2, 2] == 0.0 and F[3, 2] == 0.0  # the highest, and one 11 m away from all
+
+
+_coord = st.floats(-50, 50, allow_nan=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.tuples(_coord, _coord, _coord), min_size=1, max_size=8),
+    st.lists(st.floats(0, 1), min_size=8, max_size=8),
+)
+@example(points=[(0.0, 0.0, 1e-176), (0.0, 5.0, 0.0)], thrusts=[0.0] * 8)  # inf * 0 once
+@example(points=[(0.0, 0.0, 1e-176), (0.0, 0.0, 0.0)], thrusts=[0.3] * 8)
+def test_downwash_is_finite_downward_bounded_and_zero_with_none_above(points, thrusts):
+    x = np.array(points, float)
+    T = np.array(thrusts[: len(points)])
+    F = downwash_force_w(x, T, P)
+    assert np.all(np.isfinite(F)) and np.all(F[:, :2] == 0.0) and np.all(F[:, 2] <= 0.0)
+    for i in range(len(x)):
+        above = x[:, 2] > x[i, 2]
+        assert -F[i, 2] <= P.downwash_cap_thrust_fraction * T[above].sum() * (1 + 1e-12)
+        if not above.any():
+            assert F[i, 2] == 0.0
+
+
+def hover_omega_sum() -> float:
+    return 4 * math.sqrt((W / 4) / KF) * 2 * math.pi / 60  # rad/s
+
+
+def test_rotor_drag_of_a_level_drone_by_hand():
+    w = hover_omega_sum()
+    assert w == pytest.approx(6063.6, rel=1e-4)  # 4 x 14476 rpm
+    R = np.eye(3)[None]
+    F = drag_force_w(R, np.array([[1.0, -0.5, 0.2]]), np.array([w]), P)
+    assert F[0] == pytest.approx(-w * np.array([DRAG_XY * 1.0, DRAG_XY * -0.5, DRAG_Z * 0.2]), rel=1e-12)
+    assert -F[0, 0] / W == pytest.approx(0.0210, abs=1e-4)  # 2.1 % of the weight per m/s
+
+
+def test_rotor_drag_acts_in_the_body_frame():
+    R = quat_to_R(euler_to_quat(0.3, -0.4, 1.1))
+    v = np.array([0.7, -0.2, 0.5])
+    F = drag_force_w(R[None], v[None], np.array([5000.0]), P)
+    K = np.diag([DRAG_XY, DRAG_XY, DRAG_Z])
+    assert F[0] == pytest.approx(-5000.0 * R @ K @ R.T @ v, rel=1e-12)
+    # moving with the air: no drag
+    assert np.all(drag_force_w(R[None], np.zeros((1, 3)), np.array([5000.0]), P) == 0.0)
+
+
+def test_ground_effect_of_a_level_drone_by_hand():
+    params = QuadParams()
+    rotors = rotor_geometry(params)[0][None]
+    f = np.array([[0.06, 0.07, 0.08, 0.05]])
+    h = 0.3
+    F, tau = ground_effect(np.array([[0.0, 0.0, h]]), np.eye(3)[None], f, rotors, P)
+    gain = GND * (PROP_R / (4 * h)) ** 2
+    assert F[0] == pytest.approx([0.0, 0.0, f.sum() * gain], rel=1e-12)
+    g = f[0] * gain  # every rotor at the same height: unequal thrusts give unequal pushes, r x (0, 0, g)
+    want = np.array([np.sum(rotors[0, :, 1] * g), -np.sum(rotors[0, :, 0] * g), 0.0])
+    assert tau[0] == pytest.approx(want, rel=1e-9, abs=1e-18)
+
+
+def test_ground_effect_clips_and_tilts():
+    params = QuadParams()
+    rotors = rotor_geometry(params)[0][None]
+    f = np.full((1, 4), W / 4)
+    F, _ = ground_effect(np.array([[0.0, 0.0, 0.001]]), np.eye(3)[None], f, rotors, P)
+    assert F[0, 2] == pytest.approx(W * 4 / 15, rel=1e-12)  # at most 4/15 of the thrust
+    assert P.ground_clip_m == pytest.approx(0.25 * PROP_R * math.sqrt(15 * GND / 4))
+    # rolled: the rotors on the low side push harder, rolling the drone back up
+    R = quat_to_R(euler_to_quat(0.3, 0.0, 0.0))  # right side (-y) down
+    F, tau = ground_effect(np.array([[0.0, 0.0, 0.1]]), R[None], f, rotors, P)
+    assert F[0] / np.linalg.norm(F[0]) == pytest.approx(R[:, 2])
+    assert tau[0, 0] < 0.0  # torque about body x towards less roll
+    upside_down = quat_to_R(euler_to_quat(math.pi, 0.0, 0.0))
+    F, tau = ground_effect(np.array([[0.0, 0.0, 0.1]]), upside_down[None], f, rotors, P)
+    assert np.all(F == 0.0) and np.all(tau == 0.0)

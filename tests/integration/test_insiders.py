@@ -76,13 +76,12 @@ def _safe_and_home(m: dict) -> None:
     ("mode", "topology"),
     [
         ("flood", "star"),
-        ("flood", "mesh"),
         ("nan", "star"),
-        ("nan", "mesh"),
         ("far", "star"),
-        ("far", "mesh"),
-        ("fast", "mesh"),
+        ("fast", "star"),
         ("reorder", "star"),
+        # in the mesh each agent's compiled table: an implausible state, and repeated and old ticks
+        ("far", "mesh"),
         ("reorder", "mesh"),
     ],
 )

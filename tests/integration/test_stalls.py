@@ -1,6 +1,7 @@
 """Every process a run's messages go through, stopped in turn (SIGSTOP, as a busy laptop or a
-slow disk stops one) in each topology (issue 55): the recording holds every message each
-process says it sent, and the swarm flies on safely.
+slow disk stops one), in a star and in a mesh (issue 55; through a router:
+``test_faults.test_a_stopped_world_or_recorder_delays_the_run_and_changes_nothing``): the
+recording holds every message each process says it sent, and the swarm flies on safely.
 
 The recorder is stopped last, while the world finishes the run: the end of the run then
 waits in the links behind it (a star once lost it there)."""
@@ -45,13 +46,13 @@ def _summaries(run_dir: Path) -> dict[str, dict]:
 # an agent, the relay or router (which carries bundles, or everything), the world, the recorder
 STOPPED = {
     "star": ("agent-cf3", "router", "world", "recorder"),
-    "router": ("agent-cf3", "router", "world", "recorder"),
     "mesh": ("agent-cf3", "world", "recorder"),
 }
 
 
-@pytest.mark.parametrize("stop_s", [0.2, 1.0, 3.0])
-@pytest.mark.parametrize("topology", ["star", "router", "mesh"])
+# the star (the loopback default, where the end of a run was lost behind a stopped recorder) for a
+# second and for three; the mesh (every put to the recorder blocks rather than drops) for three
+@pytest.mark.parametrize(("topology", "stop_s"), [("star", 1.0), ("star", 3.0), ("mesh", 3.0)])
 def test_every_hub_stopped_in_turn_loses_no_message(start_run, topology, stop_s):
     cfg = scenario("swap_2.yaml", name="stalls", duration_s=8.0, agents=THREE, network={"topology": topology})
     assert cfg.topology == topology

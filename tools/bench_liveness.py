@@ -31,7 +31,10 @@ mean_free_time_ratio, worst_free_time_ratio (against the shortest path that keep
 from the static obstacles: :func:`free_times`), per_run (each seed's success, collisions,
 margin_violations, deadlocks, infeasible ticks and time ratios), orca, orca_path (ORCA along the
 paths the C3BF agents plan, among walls), horizon_s, buffer_mps, contact_s, free_braking, gamma,
-sensing_radius_m (null: the default).
+sensing_radius_m (null: the default), realism (``--realism``: the world's preset), estimate_error_p95_m
+(the worst run's 95th percentile of |estimate - truth|, m; null without motion capture).
+
+    python -m tools.bench_liveness --realism crazyflie_lab --no-orca   # the same scenes in the lab
 
 Families among walls (``doorway`` 2 to 8 abreast, ``corridor`` two flows of 4, ``trap``,
 ``forest`` at two densities, ``swarm.offline.scenario``) fly the paths each agent plans
@@ -169,7 +172,10 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         control_hz=cfg.time.control_hz,
         physics_hz=cfg.time.physics_hz,
         goal_tolerance_m=cfg.goal_tolerance_m,
+        realism=cfg.world.realism,
+        seed=cfg.seed,
     )
+    err = log.estimate_error_m
     o = outcome(cfg, log)
     free = free_times(cfg)
     return {
@@ -182,6 +188,9 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         "deadlocks": o.deadlocked,
         "infeasible": o.infeasible_ticks,
         "ratios": o.time_ratios,
+        "estimate_error_p95_m": None if err is None else float(np.percentile(err, 95)),
+        "commands_lost": log.commands_lost,
+        "states_lost": log.states_lost,
     }
 
 
@@ -267,6 +276,7 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
         "mean_free_time_ratio": round(float(np.mean(free)), 3) if free else None,
         "worst_free_time_ratio": round(float(np.max(free)), 3) if free else None,
+        "estimate_error_p95_m": max((r["estimate_error_p95_m"] or 0.0 for r in runs), default=0.0) or None,
         "per_run": runs,
     }
 
@@ -320,14 +330,16 @@ def main(
     knobs: Knobs | None = None,
     engine: str = "local",
     address: str | None = None,
+    realism: str = "ideal",
 ) -> None:
-    """Print one JSON line per point of the families chosen (``family``; None: every one)."""
+    """Print one JSON line per point of the families chosen (``family``; None: every one), in
+    the world ``realism`` (``world.realism``'s preset; ORCA flies only the ideal one)."""
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     fields = asdict(knobs or Knobs())
     with _Pool(engine, jobs, address) as pool:
         for p in todo:
-            raws = [_with_filter(p.make(s), p.rho, **fields) for s in p.seeds]
-            results = pool.map([(raw, orca and p.rho == 1.0) for raw in raws])
+            raws = [_with_filter(p.make(s), p.rho, **fields) | {"world": {"realism": realism}} for s in p.seeds]
+            results = pool.map([(raw, orca and p.rho == 1.0 and realism == "ideal") for raw in raws])
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _, _ in results])
             orca_runs = [o for _, o, _ in results if o is not None]
@@ -335,6 +347,7 @@ def main(
             orca_paths = [o for _, _, o in results if o is not None]
             line["orca_path"] = _summary(orca_paths) if orca_paths else None
             line |= fields
+            line["realism"] = realism
             print(json.dumps(line), flush=True)
 
 
@@ -356,6 +369,12 @@ if __name__ == "__main__":
     ap.add_argument(
         "--sensing-radius-m", type=float, help="filter.sensing_radius_m of every agent (default: the config's)"
     )
+    ap.add_argument(
+        "--realism",
+        choices=["ideal", "crazyflie_lab"],
+        default="ideal",
+        help="world.realism of every scene (crazyflie_lab: no ORCA, which takes velocities, not commands)",
+    )
     ap.add_argument("--engine", choices=["local", "ray"], default="local", help="ray: each scene a Ray task")
     ap.add_argument("--address", help="--engine ray: the Ray cluster's address (default: a local cluster)")
     a = ap.parse_args()
@@ -375,4 +394,5 @@ if __name__ == "__main__":
         ),
         engine=a.engine,
         address=a.address,
+        realism=a.realism,
     )

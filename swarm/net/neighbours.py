@@ -272,8 +272,9 @@ class NeighbourTable:
     def limits(self, limits: statewire.Plausible | None) -> None:
         self._limits = limits
         if limits is not None:
-            # two records: the fields of one are contiguous arrays, a type of their own to numba
-            rec = np.zeros(2, dtype=statewire.STATE)
+            # two records (the fields of one are contiguous arrays, a type of their own to numba),
+            # read-only as a bundle's records are
+            rec = np.frombuffer(np.zeros(2, dtype=statewire.STATE).tobytes(), dtype=statewire.STATE)
             fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
             scratch = (np.full(2, 1.0), np.zeros(2, np.uint64), np.zeros(2, np.int64))
             _admit(*scratch, *fields, limits.as_array(), 0.0, np.empty(2, np.int8))

@@ -267,13 +267,17 @@ class BundleSource(_NearSource):
     def warm_up(self) -> None:
         """Read a bundle of two states into a throwaway table and build its rows (by tick, and
         by the names the world gives): their compiled checks and kernels load now. (Two: the
-        fields of one record are contiguous arrays, a type of their own to numba.)"""
+        fields of one record are contiguous arrays, a type of their own to numba.) The same
+        bundle twice: the second is all copies, which the table's limits drop, and what is left
+        of a bundle then is a copy of its records (writable, another type to numba)."""
         z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
-        records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.1) for n in names]
+        records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.0) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
         t = self.table
         table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
-        table.update_records(b.states.records, set(names), tp.Counter())
+        table.limits = t.limits
+        for _ in range(2):
+            table.update_records(b.states.records, set(names), tp.Counter())
         table.arrays(0.0, 0, names)
         table.arrays(0.0)
         table.state(names[0])

@@ -22,7 +22,8 @@ agents take velocities, not commands, so only the ideal world flies it (``tools.
     python -m tools.bench_imperfections --plot docs/experiments/imperfections.jsonl  # the PNG
 
 Keys (stable): axis, level, unit, method, scene, n, success, collisions, margin_violations,
-min_separation_m (closest centres of any pair, m), min_h, deadlocks, mean_time_ratio,
+min_separation_m (closest centres of any pair, m), min_h, downwash_pairs, downwash_pair_ticks,
+min_downwash_distance (pairs inside their keep-out ellipsoid, ``swarm.offline.metrics``), deadlocks, mean_time_ratio,
 estimate_error_p95_m (null without sensing), commands_lost, states_lost.
 """
 
@@ -126,6 +127,9 @@ def fly(p: Point) -> dict[str, Any]:
         "margin_violations": o.margin_violations,
         "min_separation_m": round(sep, 4),
         "min_h": o.min_h,
+        "downwash_pairs": o.downwash_pairs,
+        "downwash_pair_ticks": o.downwash_pair_ticks,
+        "min_downwash_distance": o.min_downwash_distance,
         "deadlocks": o.deadlocked,
         "mean_time_ratio": round(float(np.mean(o.time_ratios)), 3) if o.time_ratios else None,
         "estimate_error_p95_m": None if err is None else round(float(np.percentile(err, 95)), 5),

@@ -150,12 +150,13 @@ def liveness_variants(out: Path, jobs: int) -> None:
 
 
 def liveness_lab(out: Path, jobs: int) -> None:
-    """The liveness benchmark in the Crazyflie lab's world (``world.realism: crazyflie_lab``),
-    beside the ideal world's ``liveness.jsonl``."""
+    """The liveness benchmark's quick points in the Crazyflie lab's world (``world.realism:
+    crazyflie_lab``) and, from the same code, in the ideal world, side by side."""
     del out
-    args = ["--seeds", "2", "--jobs", str(jobs), "--no-orca", "--realism", "crazyflie_lab"]
-    _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / "liveness_lab.jsonl")
-    stamp("liveness_lab", command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
+    for realism, name in (("crazyflie_lab", "liveness_lab"), ("ideal", "liveness_lab_ideal")):
+        args = ["--quick", "--jobs", str(jobs), "--no-orca", "--realism", realism]
+        _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / f"{name}.jsonl")
+        stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
 
 
 def imperfections(out: Path, jobs: int) -> None:
@@ -447,11 +448,12 @@ def _sweep_table(path: Path) -> str:
 
 def _lab_table(path: Path) -> str:
     """EXPERIMENTS.md section 5's table: each point of the liveness benchmark in the lab's world
-    (``path``) beside the same point in the ideal world (``liveness.jsonl``)."""
-    ideal = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness.jsonl")}
+    (``path``) beside the same point in the ideal world, same code (``liveness_lab_ideal.jsonl``)."""
+    ideal = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness_lab_ideal.jsonl")}
     out = [
-        "| scene | rho | start | ideal: success, contacts, inside the safety radius, mean ratio | "
-        "lab: success, contacts, inside the safety radius, mean ratio | lab: estimate p95 [mm], commands lost |",
+        "| scene | rho | start | ideal: success, contacts, inside the safety radius, downwash pair-ticks, "
+        "mean ratio | lab: success, contacts, inside the safety radius, downwash pair-ticks, mean ratio | "
+        "lab: estimate p95 [mm], commands lost |",
         "|" + "---|" * 6,
     ]
 
@@ -459,7 +461,8 @@ def _lab_table(path: Path) -> str:
         if r is None:
             return "-"
         ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
-        return f"{r['success_rate']:.2f}, {r['collisions']}, {r['margin_violations']}, {ratio}"
+        dw = r.get("downwash_pair_ticks", "-")
+        return f"{r['success_rate']:.2f}, {r['collisions']}, {r['margin_violations']}, {dw}, {ratio}"
 
     for r in _jsonl(path):
         random = r["family"] in ("sphere_field", "forest")

@@ -40,6 +40,8 @@ def _roster_fill(xvr, rows, is_nb, out):
             ob.axis[j] = 0.0
         ob.r = xvr[o + 6]
         ob.is_nb = is_nb[i]
+        ob.is_agent = True
+        ob.grow = 0.0
 
 
 def roster_arrays(xvr: FloatArray, rows: IntArray, is_neighbour: BoolArray) -> ObstacleArrays:
@@ -158,16 +160,19 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
                 ob.c[d] = sl_x[i, j, d]
                 ob.cd[d] = 0.0
             ob.r = sl_r[i, j]
+            ob.grow = 0.0
             ob.is_nb = False
         else:
             for d in range(3):
                 ob.c[d] = sl_x[i, j, d] + sl_v[i, j, d] * age
                 ob.cd[d] = sl_v[i, j, d]
-            ob.r = sl_r[i, j] + growth_mps * max(0.0, age - timeout_s) + (0.5 * accel * age + vel_err) * age
+            ob.grow = growth_mps * max(0.0, age - timeout_s) + (0.5 * accel * age + vel_err) * age
+            ob.r = sl_r[i, j] + ob.grow
             ob.is_nb = not sl_solo[i, j]
         for d in range(3):
             ob.cdd[d] = 0.0
             ob.axis[d] = 0.0
+        ob.is_agent = True
         kept[n] = True
         m += 1
     return m

@@ -17,6 +17,14 @@ Safety figures, all from the measured (ground-truth) states:
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
   counted apart. The rows' own values (lower bounds of h, and other barriers) are
   ``min_row_h``, as each agent reported them, escape rows left out;
+  The barrier of a pair of drones is its keep-out ellipsoid's, as the filter's rows keep it
+  (``filter.ellipsoid``: ``swarm.safety.barriers``, "Keep-out ellipsoid");
+* ``downwash_pairs``, ``downwash_pair_ticks``, ``min_downwash_distance``: the pairs of drones
+  that were ever inside their downwash keep-out ellipsoid (the larger of their airframes'
+  ``keep_out_xy_m`` across and ``keep_out_z_m`` up and down between centres, no margin:
+  Crazyswarm's 0.12 m and 0.30 m for two Crazyflies), the pair-ticks they were, and the
+  smallest scaled distance ``|S (x_j - x_i)| / r_xy`` of any pair (below 1 inside;
+  :func:`swarm.safety.barriers.scaled_distance`), whatever the filter keeps;
 * ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
 * ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
   stalled short of it; the same definition for every method.
@@ -38,13 +46,14 @@ from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
 from swarm.runs.ledger import Ledger, sent_counts
-from swarm.safety.barriers import cone_h, horizon_allowance
+from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.tuning import obstacle_horizon_s
 
 SUMMARY_KEYS = (
     "collisions",
     "margin_violations",
+    "downwash_pairs",
     "min_h",
     "min_separation_m",
     "min_obstacle_clearance_m",
@@ -132,6 +141,13 @@ class SafetyFigures:
         self.body_m = np.array([a.airframe.params().body_radius_m for a in cfg.agents])  # (n,) m
         self.margin_m = np.array([a.filter.margin_m for a in cfg.agents])  # (n,) m
         self.sensing_m = np.array([a.filter.sensing_radius_m for a in cfg.agents])  # (n,) m
+        kept = [a.quad_params() for a in cfg.agents]  # the keep-out the filters keep (the swarm's largest)
+        # (n, 2) m: each agent's rows of drones keep this ellipsoid, before the margin (0: the sphere)
+        self.keep_m = np.array([(k.keep_out_xy_m, k.keep_out_z_m) if a.filter.ellipsoid else (0.0, 0.0)
+                                for k, a in zip(kept, cfg.agents, strict=True)])  # fmt: skip
+        own = np.array([(p.keep_out_xy_m, p.keep_out_z_m) for p in (a.airframe.params() for a in cfg.agents)])
+        # (n, n, 2) m: each pair's downwash keep-out, the larger of its two airframes' (no margin)
+        self.downwash_m = np.maximum(own[:, None, :], own[None, :, :])
         still = StaticObstacles.of(list(cfg.obstacles))
         # (n,) 1/s: the horizon allowance of each agent's neighbour rows and obstacle rows (0: the cone)
         self.inv_tau_nb = np.array([1.0 / a.filter.horizon_s if a.filter.horizon_s else 0.0 for a in cfg.agents])
@@ -144,6 +160,9 @@ class SafetyFigures:
         self.violation_ticks = 0  # pair- or agent-obstacle-ticks inside the safety radius
         self.violations: set[str] = set()  # "a|b" of each pair or agent-obstacle that ever was
         self.depth_m = 0.0  # deepest slip inside a safety radius [m]
+        self.downwash_ticks = 0  # pair-ticks inside the pair's downwash keep-out ellipsoid
+        self.downwash: set[str] = set()  # "a|b" of each pair that ever was
+        self.min_downwash = math.inf  # smallest scaled distance of a pair [unit-free] (below 1: inside)
 
     def add(
         self,
@@ -165,11 +184,17 @@ class SafetyFigures:
             p = c_w[None, :, :] - c_w[:, None, :]  # (m, m, 3): [i, j] = c_j - c_i
             w = cd_w[None, :, :] - cd_w[:, None, :]
             r = self.body_m[idx][:, None] + self.body_m[idx][None, :]
-            r = r + np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
-            h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))
+            margin = np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
+            r = r + margin
+            keep = self.keep_m[idx][:, None, :] + margin[:, :, None]  # (m, m, 2): agent i's rows of j
+            r_xy, sz = keep_out_frame(r, keep[..., 0], keep[..., 1])
+            h, _ = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r_xy.reshape(-1), scale_z=sz.reshape(-1))
+            _, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))  # the sphere's margin
             h, inside = h.reshape(m, m), inside.reshape(m, m)
             if self.inv_tau_nb[idx].any():  # (none without filter.horizon_s)
-                h = h + horizon_allowance(p, r) * self.inv_tau_nb[idx][:, None]
+                ps = np.concatenate([p[..., :2], (sz * p[..., 2])[..., None]], axis=-1)
+                h = h + horizon_allowance(ps, r_xy) * self.inv_tau_nb[idx][:, None]
+            self._downwash(idx, p)
             np.fill_diagonal(h, math.inf)
             np.fill_diagonal(inside, False)
             seen = np.linalg.norm(c_w[None, :, :] - x_w[:, None, :], axis=2) <= self.sensing_m[idx][:, None]
@@ -197,6 +222,19 @@ class SafetyFigures:
             h_seen = np.where(seen_all, h_all, math.inf)
             self.min_h[idx] = np.minimum(self.min_h[idx], h_seen.min(axis=1))
             self.negative[idx] += (h_seen < 0).any(axis=1)
+
+    def _downwash(self, idx: np.ndarray, p: np.ndarray) -> None:
+        """The pairs of ``idx`` inside their downwash keep-out, ``p`` (m, m, 3) their
+        centres' differences [m]."""
+        keep = self.downwash_m[idx][:, idx]  # (m, m, 2)
+        iu = np.triu_indices(len(idx), 1)
+        d = scaled_distance(p[iu], keep[iu][:, 0], keep[iu][:, 1])
+        if not len(d):
+            return
+        self.min_downwash = min(self.min_downwash, float(d.min()))
+        for k in np.flatnonzero(d < 1.0).tolist():
+            self.downwash_ticks += 1
+            self.downwash.add(f"{self.ids[idx[iu[0][k]]]}|{self.ids[idx[iu[1][k]]]}")
 
     def _violation(self, a: str, b: str, depth_m: float) -> None:
         self.violation_ticks += 1
@@ -332,6 +370,10 @@ def compute(
         "margin_violation_pairs": sorted(bar.violations),
         "margin_violation_ticks": bar.violation_ticks,
         "max_margin_depth_m": bar.depth_m,  # deepest slip inside a safety radius (0: none)
+        "downwash_pairs": len(bar.downwash),  # pairs ever inside their downwash keep-out ellipsoid
+        "downwash_pair_names": sorted(bar.downwash),
+        "downwash_pair_ticks": bar.downwash_ticks,
+        "min_downwash_distance": _finite_or_none(bar.min_downwash),  # smallest scaled distance (below 1: inside)
         "min_h": _finite_or_none(min((float(v) for v in bar.min_h), default=math.inf)),
         "negative_h_ticks": int(bar.negative.sum()),  # agent ticks with a row's exact h < 0
         "unseen_negative_h_ticks": int(bar.unseen.sum()),  # agent ticks on course with an unseen neighbour

@@ -542,10 +542,17 @@ class HeardNeighbours:
 
     def missing(self, k: int) -> int:
         """Lockstep: 1 without the world's list of tick k, else how many of the listed (live)
-        agents have no state of tick k-1 yet."""
+        agents have no state of tick k-1 yet. 0 for a tick older than every list held: the
+        world has flown :data:`HELD_TICKS` ticks on without this agent (it went without its
+        command at the timeout), which then acts on what it has rather than wait for each
+        tick of its backlog in turn (the neighbours it still lacks are then passed over as at
+        a deadline, :meth:`late`)."""
         names = self.lists.get(k)
         if names is None:
-            return 1
+            if not self.lists or k >= min(self.lists):
+                return 1
+            self._pass_over(sorted(self.others), k)  # (as at a deadline: see late)
+            return 0
         if k == 0:
             return 0  # no state before the first tick
         return len(self._missing(names, k))
@@ -566,8 +573,12 @@ class HeardNeighbours:
         """Lockstep: tick k is acted on at the deadline, incomplete: the neighbours it still
         waited for are :attr:`behind` until a newer state of theirs is received."""
         if k > 0 and k in self.lists:
-            for n in self._missing(self.lists[k], k):
-                self.behind[n] = self._latest_k(n)
+            self._pass_over(self.lists[k], k)
+
+    def _pass_over(self, names: list[str], k: int) -> None:
+        """Of ``names``, those still waited for at tick ``k`` are :attr:`behind`."""
+        for n in self._missing(names, k):
+            self.behind[n] = self._latest_k(n)
 
     def at(self, t_s: float) -> None:
         """This agent has heard of sim time ``t_s`` [s] (a measurement): no neighbour's state is

@@ -97,6 +97,9 @@ def test_a_rogue_agents_bad_states_are_dropped_counted_and_named(start_run, monk
         assert o["dropped"] >= 999 * 100 * len(receivers), o
     # its commands were flown and recorded as any agent's: the recording is whole
     assert m["complete"] is True and m["lost_messages"] == 0, m["recording_gaps"]
+    # the honest agents waited for its states at most once (a whole timeout), not once per tick
+    timeout_s = h.cfg.time.lockstep_timeout_s
+    assert sum(w["wait_s"] >= 0.99 * timeout_s for w in m["stall_events"] if ROGUE not in w["agents"]) <= 1, m
 
 
 def test_an_agent_that_never_commands_costs_one_timeout_and_is_named(start_run, monkeypatch):

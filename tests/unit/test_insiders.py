@@ -14,7 +14,7 @@ from swarm.config import load
 from swarm.net import statewire
 from swarm.net import transport as tp
 from swarm.net.bundle import Bundler, Intake
-from swarm.net.neighbours import HeardNeighbours, NeighbourTable
+from swarm.net.neighbours import HELD_TICKS, HeardNeighbours, NeighbourTable
 from swarm.offline.metrics import Silence, offenders
 from swarm.realism.settings import RealismSettings
 
@@ -190,6 +190,15 @@ def test_an_agent_waits_once_for_a_neighbour_whose_states_stop():
     t.update_records(_bundle([_state(10, 6, x=(0.0, 1000.0, 1.0))]), {"cf3"}, counter)  # dropped: not heard
     heard.on_list(8, ["cf3"])
     assert heard.missing(8) == 0 and t.rejected["cf3"] == {statewire.OUTSIDE: 1}
+    heard.at(0.08)
+    t.update_records(_bundle([_state(11, 8)]), {"cf3"}, counter)
+    heard.on_list(10, ["cf3"])
+    assert heard.missing(10) == 1 and heard.missing(60) == 1  # heard again: waited for; a list not yet come
+    for k in range(100, 100 + HELD_TICKS):  # the world flew on without this agent
+        heard.on_list(k, ["cf3"])
+    assert heard.missing(10) == 0  # its backlog's ticks, older than every list held: no wait ...
+    heard.on_list(11, ["cf3"])
+    assert heard.missing(11) == 0  # ... and the neighbour it lacked then is passed over
 
 
 def test_a_flood_of_one_tick_keeps_one_state():

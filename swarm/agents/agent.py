@@ -257,6 +257,7 @@ class AgentProcess:
     def _measurement(self, m: Message) -> None:
         self.pending.append(m)
         self.msg_seen.setdefault(m.k, time.monotonic())
+        self.source.at(m.t)  # how far the run is: no neighbour's state is much newer
 
     def _obstacles(self, m: Message) -> None:
         """The obstacles of a clock or tick message, if it is the newest."""
@@ -460,6 +461,7 @@ class AgentProcess:
             "rx_messages": counter.rx_messages,
             "missed_neighbours": self.source.missed,
             "cells_declared": self.source.cells_declared,
+            "rejected": tp.rejected(self.source.rejected, counter.by_sender),  # per sender and reason
         }
 
     def run(self, conf: Any) -> int:

@@ -262,7 +262,7 @@ def world(
 
     cfg, run_name = _process_args(config, run_id, port, mode)
     conf = _zenoh_config(cfg, run_name, tp.Role.WORLD, secrets)
-    os._exit(world_main(cfg, run_name, conf, gui=gui, expect=expect))
+    tp.exit_when_sent(world_main(cfg, run_name, conf, gui=gui, expect=expect), "world")
 
 
 @cli.command()
@@ -284,7 +284,7 @@ def router(config: str, run_id: str | None, port: int | None, secrets: Path | No
         )
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.ROUTER, secrets)
-    os._exit(router_main(run_name, conf, cfg))
+    tp.exit_when_sent(router_main(run_name, conf, cfg), "router")
 
 
 @cli.command()
@@ -309,7 +309,7 @@ def agent(
         click.echo(f"config error: {exc}", err=True)
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.AGENT, secrets, agent_id)
-    os._exit(agent_main(cfg, agent_id, run_name, conf))
+    tp.exit_when_sent(agent_main(cfg, agent_id, run_name, conf), f"agent {agent_id}")
 
 
 @cli.command()
@@ -325,6 +325,7 @@ def record(
     """Start the recorder alone."""
     _pin_cpu()
     from swarm.net import transport as tp
+    from swarm.runs.ledger import Ledger
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -335,7 +336,8 @@ def record(
     real = any(a.backend == "crazyflie" for a in cfg.agents)
     linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
     conf = _zenoh_config(cfg, run_name, tp.Role.RECORDER, secrets)
-    os._exit(record_main(run_name, out, conf, linger_s, live_port))
+    ids, ledger = tuple(a.id for a in cfg.agents), Ledger.of(cfg)
+    tp.exit_when_sent(record_main(run_name, out, conf, linger_s, live_port, ids, ledger), "recorder")
 
 
 @cli.command("ros2-bridge")

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from swarm.crazyflie_fw import CMD_FULL, ThrustMap, pwm_per_newton, thrust_map
 from swarm.errors import ConfigError
@@ -73,6 +73,9 @@ class FilterSettings(_Strict):
     contact_s: float = Field(0.0, ge=0, allow_inf_nan=False)
     # live rows leave the braking of a relative velocity free (swarm.safety.barriers, "Free braking")
     free_braking: bool = True
+    # rows of other drones keep the airframes' keep-out ellipsoid (downwash: airframe.keep_out_*_m, plus
+    # margin_m; swarm.safety.barriers, "Keep-out ellipsoid"); false: the sphere of the bodies' radii
+    ellipsoid: bool = True
 
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
@@ -91,6 +94,7 @@ class FilterSettings(_Strict):
             buffer_mps=self.buffer_mps,
             contact_s=self.contact_s,
             free_braking=self.free_braking,
+            ellipsoid=self.ellipsoid,
         )
 
 
@@ -106,6 +110,10 @@ class AirframeSettings(_Strict):
     thrust_to_weight: float | None = Field(None, gt=1)
     layout: Layout | None = None
     body_radius_m: float | None = Field(None, gt=0)
+    # m: the keep-out ellipsoid between this drone's centre and another's, across and up and down
+    # (downwash; default Crazyswarm's 0.12 and 0.30 between Crazyflies: swarm.model.QuadParams)
+    keep_out_xy_m: float | None = Field(None, ge=0, allow_inf_nan=False)
+    keep_out_z_m: float | None = Field(None, ge=0, allow_inf_nan=False)
 
     def params(self) -> QuadParams:
         return QuadParams(**{k: v for k, v in self.model_dump().items() if v is not None})
@@ -245,6 +253,7 @@ class AgentConfig(_Strict):
     airframe: AirframeSettings = AirframeSettings()
     backend: Literal["sim", "crazyflie"] = "sim"  # simulated in PyBullet, or a real Crazyflie
     crazyflie: CrazyflieSettings | None = None  # required with backend: crazyflie
+    _pair_keep_out_m: tuple[float, float] | None = PrivateAttr(None)  # ScenarioConfig._keep_out
 
     _fin = field_validator("start", "start_velocity", "goal", "speed_mps")(_finite)
 
@@ -266,8 +275,11 @@ class AgentConfig(_Strict):
     def quad_params(self) -> QuadParams:
         """The airframe the filter and the world use. A real Crazyflie's thrust-to-weight
         is at most what its setpoint can ask (``crazyflie.thrust.max_thrust_N``): a
-        guarantee computed with thrust the drone cannot give is none."""
+        guarantee computed with thrust the drone cannot give is none. Its keep-out is the
+        largest of its swarm's airframes' (:meth:`ScenarioConfig._keep_out`)."""
         p = self.airframe.params()
+        if self._pair_keep_out_m is not None:
+            p = replace(p, keep_out_xy_m=self._pair_keep_out_m[0], keep_out_z_m=self._pair_keep_out_m[1])
         if self.crazyflie is None:
             return p
         ttw = self.crazyflie.thrust.max_thrust_N / p.weight_N
@@ -550,6 +562,19 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _keep_out(self) -> ScenarioConfig:
+        """A pair of drones keeps the larger of its two airframes' keep-out ellipsoids, per
+        axis (``airframe.keep_out_xy_m``, ``keep_out_z_m``). An agent learns its neighbours'
+        airframes only from this config, so every agent keeps the largest of its swarm's
+        against every other drone (:meth:`AgentConfig.quad_params`): it holds each pair's, and
+        a pair's two rows stay mirror images, as a shared condition needs."""
+        par = [a.airframe.params() for a in self.agents]
+        keep = (max(p.keep_out_xy_m for p in par), max(p.keep_out_z_m for p in par))
+        for a in self.agents:
+            a._pair_keep_out_m = keep
+        return self
+
+    @model_validator(mode="after")
     def _physical(self) -> ScenarioConfig:
         """Starts, goals and waypoints a drone can be at: above the floor, clear of the
         obstacles (at t = 0 for the start; static ones for the path) and of each other's
@@ -600,7 +625,9 @@ class ScenarioConfig(_Strict):
         cancel their closing speed before the safety radius (docs/design.md, "What the rows
         guarantee", under "The barrier math"): ``R - r >= v_c^2 / (2 a) + v_c / control_hz``, with ``v_c`` the two
         agents' speeds added (head on), ``a = g tan(max tilt)`` the agent's own braking
-        alone (the other may not brake) and one tick for its state to arrive."""
+        alone (the other may not brake) and one tick for its state to arrive; ``r`` the
+        larger radius of the pair's keep-out (the ellipsoid's up and down, with
+        ``filter.ellipsoid``)."""
         if len(self.agents) < 2:
             return self
         speed = [max(a.speed_mps, math.hypot(*a.start_velocity)) for a in self.agents]
@@ -611,6 +638,8 @@ class ScenarioConfig(_Strict):
             j = max((j for j in range(len(self.agents)) if j != i), key=lambda j: speed[j])
             other = self.agents[j].airframe.params().body_radius_m
             r = par.body_radius_m + other + a.filter.margin_m
+            if a.filter.ellipsoid:  # the keep-out ellipsoid's radius up and down, where it is larger
+                r = max(r, a.quad_params().keep_out_z_m + a.filter.margin_m)
             v_c = speed[i] + speed[j]
             need = v_c**2 / (2 * par.g_mps2 * math.tan(par.max_tilt_rad)) + v_c / self.time.control_hz
             if a.filter.sensing_radius_m - r < need:

@@ -123,6 +123,13 @@ class QuadParams:
     layout: Layout = Layout.X
     body_radius_m: float = 0.07
     """Bounding-sphere radius of the airframe [m], added to every barrier radius."""
+    keep_out_xy_m: float = 0.12
+    keep_out_z_m: float = 0.30
+    """The keep-out ellipsoid between this drone's centre and another's [m], across and up
+    and down (downwash): Crazyswarm's between two Crazyflies (jpreiss/smoothener,
+    examples/no_obstacles/main_no_obstacles.m: "robot-robot collision ellipsoid [0.12 0.12
+    0.3]"). The filter's rows of other drones keep it, plus the margin, where it exceeds the
+    bodies' sphere (``swarm.safety.barriers``, "Keep-out ellipsoid"); 0: none."""
     max_tilt_rad: float = math.radians(35.0)
     """Tilt limit of the attitude command level [rad]."""
     min_thrust_fraction: float = 0.1
@@ -145,7 +152,7 @@ class QuadParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"QuadParams.{name}: must be a finite number > 0, got {v!r}")
-        for name in ("l_m", "min_thrust_fraction"):
+        for name in ("l_m", "min_thrust_fraction", "keep_out_xy_m", "keep_out_z_m"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputError(f"QuadParams.{name}: must be a finite number >= 0, got {v!r}")

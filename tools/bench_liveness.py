@@ -21,17 +21,24 @@ figures under ``orca``; ``null`` where it cannot (3-D with obstacles) and at rho
     python -m tools.bench_liveness --buffer-mps 0  # without the live rows' velocity buffer
     python -m tools.bench_liveness --contact-s 0   # without the neighbour rows' contact horizon
     python -m tools.bench_liveness --no-free-braking   # neighbour rows price braking as the cone does
+    python -m tools.bench_liveness --no-ellipsoid  # drones' rows keep the sphere, not the keep-out ellipsoid
     python -m tools.bench_liveness --gamma 1       # the paper's gain, as hand-written configs fly
     python -m tools.bench_liveness --gamma 1 --sensing-radius-m 3   # ... and their sensing radius
 
 Keys (stable): family, scene, n, rho, exact, runs, success_rate, collisions, margin_violations,
-min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.offline.metrics``), deadlocks,
+min_h and negative_h_ticks (the exact C3BF barrier, ``swarm.offline.metrics``), downwash_pairs,
+downwash_pair_ticks and min_downwash_distance (pairs inside their downwash keep-out ellipsoid,
+``swarm.offline.metrics``; summed, and the smallest scaled distance), deadlocks,
 infeasible_ticks, mean_time_ratio, worst_time_ratio (against the straight line),
 mean_free_time_ratio, worst_free_time_ratio (against the shortest path that keeps the safety radius
 from the static obstacles: :func:`free_times`), per_run (each seed's success, collisions,
 margin_violations, deadlocks, infeasible ticks and time ratios), orca, orca_path (ORCA along the
 paths the C3BF agents plan, among walls), horizon_s, buffer_mps, contact_s, free_braking, gamma,
-sensing_radius_m (null: the default).
+sensing_radius_m, ellipsoid (null: the default), realism (``--realism``: the world's preset),
+estimate_error_p95_m (the worst run's 95th percentile of |estimate - truth|, m; null without motion
+capture).
+
+    python -m tools.bench_liveness --realism crazyflie_lab --no-orca   # the same scenes in the lab
 
 Families among walls (``doorway`` 2 to 8 abreast, ``corridor`` two flows of 4, ``trap``,
 ``forest`` at two densities, ``swarm.offline.scenario``) fly the paths each agent plans
@@ -89,8 +96,8 @@ class Point:
 def _with_filter(raw: dict, rho: float, **fields: float | bool | None) -> dict:
     """``raw`` with every agent's responsibility share ``rho`` and the other filter
     ``fields`` (``horizon_s`` [s], ``buffer_mps`` [m/s], ``contact_s`` [s],
-    ``free_braking``, ``gamma`` [1/s], ``sensing_radius_m`` [m]; None: unset, the config's
-    own)."""
+    ``free_braking``, ``gamma`` [1/s], ``sensing_radius_m`` [m], ``ellipsoid``; None: unset,
+    the config's own)."""
     filt = raw["defaults"].setdefault("filter", {})
     filt["rho"] = rho
     filt.update({k: v for k, v in fields.items() if v is not None})
@@ -169,7 +176,10 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         control_hz=cfg.time.control_hz,
         physics_hz=cfg.time.physics_hz,
         goal_tolerance_m=cfg.goal_tolerance_m,
+        realism=cfg.world.realism,
+        seed=cfg.seed,
     )
+    err = log.estimate_error_m
     o = outcome(cfg, log)
     free = free_times(cfg)
     return {
@@ -179,9 +189,15 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         "margin_violations": o.margin_violations,
         "min_h": o.min_h,
         "negative_h_ticks": o.negative_h_ticks,
+        "downwash_pairs": o.downwash_pairs,
+        "downwash_pair_ticks": o.downwash_pair_ticks,
+        "min_downwash_distance": o.min_downwash_distance,
         "deadlocks": o.deadlocked,
         "infeasible": o.infeasible_ticks,
         "ratios": o.time_ratios,
+        "estimate_error_p95_m": None if err is None else float(np.percentile(err, 95)),
+        "commands_lost": log.commands_lost,
+        "states_lost": log.states_lost,
     }
 
 
@@ -229,6 +245,9 @@ def _orca(cfg: ScenarioConfig, with_paths: bool = False) -> dict[str, Any] | Non
         "margin_violations": m["margin_violations"],
         "min_h": m["min_h"],
         "negative_h_ticks": m["negative_h_ticks"],
+        "downwash_pairs": m["downwash_pairs"],
+        "downwash_pair_ticks": m["downwash_pair_ticks"],
+        "min_downwash_distance": m["min_downwash_distance"],
         "deadlocks": len(m["deadlocked_agents"]),
         "infeasible": None,
         "ratios": ratios,
@@ -261,12 +280,18 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "margin_violations": sum(r["margin_violations"] for r in runs),
         "min_h": min((r["min_h"] for r in runs if r["min_h"] is not None), default=None),
         "negative_h_ticks": sum(r["negative_h_ticks"] for r in runs),
+        "downwash_pairs": sum(r["downwash_pairs"] for r in runs),
+        "downwash_pair_ticks": sum(r["downwash_pair_ticks"] for r in runs),
+        "min_downwash_distance": min(
+            (r["min_downwash_distance"] for r in runs if r["min_downwash_distance"] is not None), default=None
+        ),
         "deadlocks": sum(r["deadlocks"] for r in runs),
         "infeasible_ticks": None if None in infeasible else sum(infeasible),
         "mean_time_ratio": round(float(np.mean(ratios)), 3) if ratios else None,
         "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
         "mean_free_time_ratio": round(float(np.mean(free)), 3) if free else None,
         "worst_free_time_ratio": round(float(np.max(free)), 3) if free else None,
+        "estimate_error_p95_m": max((r["estimate_error_p95_m"] or 0.0 for r in runs), default=0.0) or None,
         "per_run": runs,
     }
 
@@ -309,6 +334,7 @@ class Knobs:
     free_braking: bool | None = None
     gamma: float | None = None  # [1/s]
     sensing_radius_m: float | None = None  # [m]
+    ellipsoid: bool | None = None
 
 
 def main(
@@ -320,14 +346,16 @@ def main(
     knobs: Knobs | None = None,
     engine: str = "local",
     address: str | None = None,
+    realism: str = "ideal",
 ) -> None:
-    """Print one JSON line per point of the families chosen (``family``; None: every one)."""
+    """Print one JSON line per point of the families chosen (``family``; None: every one), in
+    the world ``realism`` (``world.realism``'s preset; ORCA flies only the ideal one)."""
     todo = [p for p in points(quick, seeds) if family is None or p.family == family]
     fields = asdict(knobs or Knobs())
     with _Pool(engine, jobs, address) as pool:
         for p in todo:
-            raws = [_with_filter(p.make(s), p.rho, **fields) for s in p.seeds]
-            results = pool.map([(raw, orca and p.rho == 1.0) for raw in raws])
+            raws = [_with_filter(p.make(s), p.rho, **fields) | {"world": {"realism": realism}} for s in p.seeds]
+            results = pool.map([(raw, orca and p.rho == 1.0 and realism == "ideal") for raw in raws])
             line = {"family": p.family, "scene": p.scene, "n": p.n, "rho": p.rho, "exact": p.exact}
             line |= _summary([c for c, _, _ in results])
             orca_runs = [o for _, o, _ in results if o is not None]
@@ -335,6 +363,7 @@ def main(
             orca_paths = [o for _, _, o in results if o is not None]
             line["orca_path"] = _summary(orca_paths) if orca_paths else None
             line |= fields
+            line["realism"] = realism
             print(json.dumps(line), flush=True)
 
 
@@ -352,9 +381,16 @@ if __name__ == "__main__":
     ap.add_argument("--buffer-mps", type=float, help="filter.buffer_mps of every agent (default: the config's)")
     ap.add_argument("--contact-s", type=float, help="filter.contact_s of every agent (default: the config's)")
     ap.add_argument("--no-free-braking", action="store_true", help="filter.free_braking false for every agent")
+    ap.add_argument("--no-ellipsoid", action="store_true", help="filter.ellipsoid false for every agent")
     ap.add_argument("--gamma", type=float, help="filter.gamma of every agent (default: the config's)")
     ap.add_argument(
         "--sensing-radius-m", type=float, help="filter.sensing_radius_m of every agent (default: the config's)"
+    )
+    ap.add_argument(
+        "--realism",
+        choices=["ideal", "crazyflie_lab"],
+        default="ideal",
+        help="world.realism of every scene (crazyflie_lab: no ORCA, which takes velocities, not commands)",
     )
     ap.add_argument("--engine", choices=["local", "ray"], default="local", help="ray: each scene a Ray task")
     ap.add_argument("--address", help="--engine ray: the Ray cluster's address (default: a local cluster)")
@@ -372,7 +408,9 @@ if __name__ == "__main__":
             free_braking=False if a.no_free_braking else None,
             gamma=a.gamma,
             sensing_radius_m=a.sensing_radius_m,
+            ellipsoid=False if a.no_ellipsoid else None,
         ),
         engine=a.engine,
         address=a.address,
+        realism=a.realism,
     )

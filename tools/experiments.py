@@ -149,6 +149,25 @@ def liveness_variants(out: Path, jobs: int) -> None:
         )
 
 
+def liveness_lab(out: Path, jobs: int) -> None:
+    """The liveness benchmark's quick points in the Crazyflie lab's world (``world.realism:
+    crazyflie_lab``) and, from the same code, in the ideal world, side by side."""
+    del out
+    for realism, name in (("crazyflie_lab", "liveness_lab"), ("ideal", "liveness_lab_ideal")):
+        args = ["--quick", "--jobs", str(jobs), "--no-orca", "--realism", realism]
+        _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / f"{name}.jsonl")
+        stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
+
+
+def imperfections(out: Path, jobs: int) -> None:
+    """Each imperfection alone, raised until contact (``tools.bench_imperfections``), and its plot."""
+    del out
+    dest = DOCS / "imperfections.jsonl"
+    _tool_lines("tools.bench_imperfections", ["--jobs", str(jobs)], dest)
+    subprocess.run([sys.executable, "-m", "tools.bench_imperfections", "--plot", str(dest)], cwd=ROOT, check=True)
+    stamp("imperfections", command=["python", "-m", "tools.bench_imperfections", "--jobs", str(jobs)])
+
+
 def faults(out: Path, jobs: int) -> None:
     del jobs
     args = ["--out", str(out / "faults")]
@@ -427,6 +446,64 @@ def _sweep_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _lab_table(path: Path) -> str:
+    """EXPERIMENTS.md section 5's table: each point of the liveness benchmark in the lab's world
+    (``path``) beside the same point in the ideal world, same code (``liveness_lab_ideal.jsonl``)."""
+    ideal = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness_lab_ideal.jsonl")}
+    out = [
+        "| scene | rho | start | ideal: success, contacts, inside the safety radius, downwash pair-ticks, "
+        "mean ratio | lab: success, contacts, inside the safety radius, downwash pair-ticks, mean ratio | "
+        "lab: estimate p95 [mm], commands lost |",
+        "|" + "---|" * 6,
+    ]
+
+    def cells(r: dict | None) -> str:
+        if r is None:
+            return "-"
+        ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
+        dw = r.get("downwash_pair_ticks", "-")
+        return f"{r['success_rate']:.2f}, {r['collisions']}, {r['margin_violations']}, {dw}, {ratio}"
+
+    for r in _jsonl(path):
+        random = r["family"] in ("sphere_field", "forest")
+        start = "random field" if random else ("exact" if r["exact"] else "perturbed")
+        err = r.get("estimate_error_p95_m")
+        lost = sum(run.get("commands_lost", 0) for run in r["per_run"])
+        lab = "-" if err is None else f"{1000 * err:.1f}, {lost}"
+        row = [r["scene"], f"{r['rho']:g}", start, cells(ideal.get((r["scene"], r["rho"], r["exact"]))), cells(r), lab]
+        out.append("| " + " | ".join(row) + " |")
+    return "\n".join(out)
+
+
+def _sep(r: dict | None) -> str:
+    return "-" if r is None else f"{r['min_separation_m']:.3f}" + (" x" if r["collisions"] else "")
+
+
+def _imperfection_table(path: Path) -> str:
+    """EXPERIMENTS.md section 5's sweep table: per imperfection, method and scene, the closest
+    centres at each level and the first level with a contact."""
+    from tools.bench_imperfections import AXES
+
+    lines = _jsonl(path)
+    scale = {"s": (1000.0, "ms"), "m": (1000.0, "mm"), "m/s": (1.0, "m/s"), "fraction": (100.0, "%")}
+    out = []
+    for axis, (unit, levels) in AXES.items():
+        k, name = scale[unit]
+        head = ["method", "scene", *(f"{lv * k:g} {name}" for lv in levels), "first contact"]
+        rows = []
+        for method in sorted({r["method"] for r in lines}):
+            for scene in sorted({r["scene"] for r in lines}):
+                got = {r["level"]: r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, scene)}
+                if not got:
+                    continue
+                seps = [_sep(got.get(lv)) for lv in levels]
+                hits = [lv for lv in levels if lv in got and got[lv]["collisions"]]
+                rows.append([method, scene, *seps, "none" if not hits else f"{hits[0] * k:g} {name}"])
+        if rows:
+            out.append(f"**{axis}** (closest centres [m]; x: a contact)\n\n" + _table(head, rows))
+    return "\n\n".join(out)
+
+
 def _filter_table(path: Path) -> str:
     """docs/benchmarks.md's filter table: median / p99 [us] per row count, backend and level."""
     lines = _jsonl(path)
@@ -546,6 +623,8 @@ GENERATED = {
     "paper": (DOCS / "paper.json", _paper_table),
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
     **{f"liveness_{n}": (DOCS / f"liveness_{n}.jsonl", _variant_table) for n in LIVENESS_VARIANTS},
+    "liveness_lab": (DOCS / "liveness_lab.jsonl", _lab_table),
+    "imperfections": (DOCS / "imperfections.jsonl", _imperfection_table),
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     "access": (DOCS / "bench_access.jsonl", _access_table),
@@ -584,6 +663,8 @@ PARTS = {
     "compare": compare_table,
     "liveness": liveness,
     "liveness_variants": liveness_variants,
+    "liveness_lab": liveness_lab,
+    "imperfections": imperfections,
     "faults": faults,
     "filter": filter_bench,
     "swarm": swarm_bench,

@@ -23,12 +23,12 @@ from swarm.realism.comms import CommsModel, DelayLine, MessageKind
 from swarm.realism.plant import Plant
 from swarm.realism.sensing import MocapFrame, MocapSensor
 from swarm.realism.settings import RealismSettings
-from swarm.rotation import FloatArray, quat_to_R
+from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep
-from swarm.tuning import filter_config_for, prediction_bounds
+from swarm.tuning import command_lead_s, filter_config_for, prediction_bounds
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -229,6 +229,7 @@ class SwarmLog:
     states_lost: int = 0  # world.realism.comms: neighbour states that never arrived
     commands_lost: int = 0  # world.realism.comms: commands that never reached their drone
     frames_dropped: int = 0  # world.realism.sensing: motion-capture frames dropped
+    accel_cmd_w: FloatArray | None = None  # (T, N, 3) m/s^2, world: what each command asks, F / m_nominal - g e3
 
     @property
     def infeasible_ticks(self) -> int:
@@ -285,6 +286,7 @@ def simulate_swarm(
     r = realism if realism is not None and not realism.ideal else None
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
+    lead = command_lead_s(r, control_hz)
     steps = [
         AgentStep(
             model,
@@ -296,6 +298,7 @@ def simulate_swarm(
             filtered=a.filtered,
             goal_tolerance_m=goal_tolerance_m,
             estimator=r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0])) if r is not None and sensing else None,
+            lead_s=lead,
         )
         for a in agents
     ]
@@ -323,7 +326,7 @@ def simulate_swarm(
     everyone = np.ones(n, dtype=bool)
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
-    log_t, log_x, log_v, log_s, log_com, log_vb, log_err = [], [], [], [], [], [], []
+    log_t, log_x, log_v, log_s, log_com, log_vb, log_err, log_a = [], [], [], [], [], [], [], []
     min_sep, min_clear = math.inf, math.inf
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
@@ -339,7 +342,7 @@ def simulate_swarm(
         for i in range(n):
             heard[i].on_list(k, [names[j] for j in near[i]])
             frames = plant.frames(i) if sensing else None
-            results.append(steps[i](t, states[i], obs, heard[i].rows(t, k, xb[i], lockstep=True), frames=frames))
+            results.append(steps[i](t, states[i], obs, heard[i].rows(t + lead, k, xb[i], lockstep=True), frames=frames))
         for i, res in enumerate(results):  # this tick's states, which the next tick uses
             for j in range(n):
                 if j != i:
@@ -357,6 +360,7 @@ def simulate_swarm(
         log_com.append(x_com)
         log_v.append(np.array([s.v_w for s in states]))
         log_s.append([res.status for res in results])
+        log_a.append(np.array([res.u for res in results]) / p.mass_kg - p.g_mps2 * E3)
         if sensing:
             log_err.append(np.linalg.norm(np.array([res.est[:3] for res in results]) - x_com, axis=1))
         if all(tg is not None for tg in t_goal):
@@ -375,6 +379,7 @@ def simulate_swarm(
         sum(h.states_lost for h in heard),
         plant.commands_lost,
         plant.mocap.dropped if plant.mocap is not None else 0,
+        np.array(log_a),
     )
 
 
@@ -414,6 +419,9 @@ class SwarmOutcome:
     time_ratios: list[float]  # per agent that arrived: time to goal / (straight line / target speed)
     min_h: float | None = None  # m^2/s: the smallest exact C3BF h of a row an agent had (swarm.offline.metrics)
     negative_h_ticks: int = 0  # agent ticks with such an h below 0
+    downwash_pairs: int = 0  # pairs ever inside their downwash keep-out ellipsoid (swarm.offline.metrics)
+    downwash_pair_ticks: int = 0  # pair-ticks they were
+    min_downwash_distance: float | None = None  # smallest scaled distance of a pair [unit-free] (below 1: inside)
 
     @property
     def success(self) -> bool:
@@ -470,4 +478,7 @@ def outcome(cfg: ScenarioConfig, log: SwarmLog) -> SwarmOutcome:
         ratios,
         min_h if math.isfinite(min_h) else None,
         int(figures.negative.sum()),
+        len(figures.downwash),
+        figures.downwash_ticks,
+        figures.min_downwash if math.isfinite(figures.min_downwash) else None,
     )

@@ -17,6 +17,14 @@ Safety figures, all from the measured (ground-truth) states:
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
   counted apart. The rows' own values (lower bounds of h, and other barriers) are
   ``min_row_h``, as each agent reported them, escape rows left out;
+  The barrier of a pair of drones is its keep-out ellipsoid's, as the filter's rows keep it
+  (``filter.ellipsoid``: ``swarm.safety.barriers``, "Keep-out ellipsoid");
+* ``downwash_pairs``, ``downwash_pair_ticks``, ``min_downwash_distance``: the pairs of drones
+  that were ever inside their downwash keep-out ellipsoid (the larger of their airframes'
+  ``keep_out_xy_m`` across and ``keep_out_z_m`` up and down between centres, no margin:
+  Crazyswarm's 0.12 m and 0.30 m for two Crazyflies), the pair-ticks they were, and the
+  smallest scaled distance ``|S (x_j - x_i)| / r_xy`` of any pair (below 1 inside;
+  :func:`swarm.safety.barriers.scaled_distance`), whatever the filter keeps;
 * ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
 * ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
   stalled short of it; the same definition for every method.
@@ -25,6 +33,7 @@ Safety figures, all from the measured (ground-truth) states:
 from __future__ import annotations
 
 import math
+from array import array
 from collections import defaultdict
 from typing import Any
 
@@ -36,13 +45,15 @@ from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
-from swarm.safety.barriers import cone_h, horizon_allowance
+from swarm.runs.ledger import Ledger, sent_counts
+from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.tuning import obstacle_horizon_s
 
 SUMMARY_KEYS = (
     "collisions",
     "margin_violations",
+    "downwash_pairs",
     "min_h",
     "min_separation_m",
     "min_obstacle_clearance_m",
@@ -130,6 +141,13 @@ class SafetyFigures:
         self.body_m = np.array([a.airframe.params().body_radius_m for a in cfg.agents])  # (n,) m
         self.margin_m = np.array([a.filter.margin_m for a in cfg.agents])  # (n,) m
         self.sensing_m = np.array([a.filter.sensing_radius_m for a in cfg.agents])  # (n,) m
+        kept = [a.quad_params() for a in cfg.agents]  # the keep-out the filters keep (the swarm's largest)
+        # (n, 2) m: each agent's rows of drones keep this ellipsoid, before the margin (0: the sphere)
+        self.keep_m = np.array([(k.keep_out_xy_m, k.keep_out_z_m) if a.filter.ellipsoid else (0.0, 0.0)
+                                for k, a in zip(kept, cfg.agents, strict=True)])  # fmt: skip
+        own = np.array([(p.keep_out_xy_m, p.keep_out_z_m) for p in (a.airframe.params() for a in cfg.agents)])
+        # (n, n, 2) m: each pair's downwash keep-out, the larger of its two airframes' (no margin)
+        self.downwash_m = np.maximum(own[:, None, :], own[None, :, :])
         still = StaticObstacles.of(list(cfg.obstacles))
         # (n,) 1/s: the horizon allowance of each agent's neighbour rows and obstacle rows (0: the cone)
         self.inv_tau_nb = np.array([1.0 / a.filter.horizon_s if a.filter.horizon_s else 0.0 for a in cfg.agents])
@@ -142,6 +160,9 @@ class SafetyFigures:
         self.violation_ticks = 0  # pair- or agent-obstacle-ticks inside the safety radius
         self.violations: set[str] = set()  # "a|b" of each pair or agent-obstacle that ever was
         self.depth_m = 0.0  # deepest slip inside a safety radius [m]
+        self.downwash_ticks = 0  # pair-ticks inside the pair's downwash keep-out ellipsoid
+        self.downwash: set[str] = set()  # "a|b" of each pair that ever was
+        self.min_downwash = math.inf  # smallest scaled distance of a pair [unit-free] (below 1: inside)
 
     def add(
         self,
@@ -163,11 +184,17 @@ class SafetyFigures:
             p = c_w[None, :, :] - c_w[:, None, :]  # (m, m, 3): [i, j] = c_j - c_i
             w = cd_w[None, :, :] - cd_w[:, None, :]
             r = self.body_m[idx][:, None] + self.body_m[idx][None, :]
-            r = r + np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
-            h, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))
+            margin = np.maximum(self.margin_m[idx][:, None], self.margin_m[idx][None, :])
+            r = r + margin
+            keep = self.keep_m[idx][:, None, :] + margin[:, :, None]  # (m, m, 2): agent i's rows of j
+            r_xy, sz = keep_out_frame(r, keep[..., 0], keep[..., 1])
+            h, _ = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r_xy.reshape(-1), scale_z=sz.reshape(-1))
+            _, inside = cone_h(p.reshape(-1, 3), w.reshape(-1, 3), r.reshape(-1))  # the sphere's margin
             h, inside = h.reshape(m, m), inside.reshape(m, m)
             if self.inv_tau_nb[idx].any():  # (none without filter.horizon_s)
-                h = h + horizon_allowance(p, r) * self.inv_tau_nb[idx][:, None]
+                ps = np.concatenate([p[..., :2], (sz * p[..., 2])[..., None]], axis=-1)
+                h = h + horizon_allowance(ps, r_xy) * self.inv_tau_nb[idx][:, None]
+            self._downwash(idx, p)
             np.fill_diagonal(h, math.inf)
             np.fill_diagonal(inside, False)
             seen = np.linalg.norm(c_w[None, :, :] - x_w[:, None, :], axis=2) <= self.sensing_m[idx][:, None]
@@ -196,6 +223,19 @@ class SafetyFigures:
             self.min_h[idx] = np.minimum(self.min_h[idx], h_seen.min(axis=1))
             self.negative[idx] += (h_seen < 0).any(axis=1)
 
+    def _downwash(self, idx: np.ndarray, p: np.ndarray) -> None:
+        """The pairs of ``idx`` inside their downwash keep-out, ``p`` (m, m, 3) their
+        centres' differences [m]."""
+        keep = self.downwash_m[idx][:, idx]  # (m, m, 2)
+        iu = np.triu_indices(len(idx), 1)
+        d = scaled_distance(p[iu], keep[iu][:, 0], keep[iu][:, 1])
+        if not len(d):
+            return
+        self.min_downwash = min(self.min_downwash, float(d.min()))
+        for k in np.flatnonzero(d < 1.0).tolist():
+            self.downwash_ticks += 1
+            self.downwash.add(f"{self.ids[idx[iu[0][k]]]}|{self.ids[idx[iu[1][k]]]}")
+
     def _violation(self, a: str, b: str, depth_m: float) -> None:
         self.violation_ticks += 1
         self.violations.add(f"{a}|{b}")
@@ -213,8 +253,18 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
 
-def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
-    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``)."""
+def compute(
+    cfg: ScenarioConfig,
+    records: list[dict[str, Any]],
+    recorder_dropped: int = 0,
+    said: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
+    ``said``: each process's summary line (:func:`swarm.runs.ledger.summaries`): what it
+    sent, to find what the recording lacks at the end of a stream, and what it dropped from
+    whom, to name the offenders."""
+    ledger = Ledger.of(cfg)
+    silence = Silence()
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
@@ -229,6 +279,9 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     stalls: list[dict[str, Any]] = []
     for r in records:
         kind = r["kind"]
+        if "topic" in r and "seq" in r:  # as recorded (not one of the measurements a clock carries)
+            ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
+            silence.see(r)
         if kind == "measurement":
             aid = measurement_agent(r)
             x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
@@ -267,6 +320,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             min_clear = min(min_clear, float(surface_clearance(c, obs).min()))
         bar.add([index[aid] for aid in bodies], x, c, cd, obs, [str(i.get("id", j)) for j, i in enumerate(items)])
 
+    quiet = silence.longest_s
     agents: dict[str, Any] = {}
     for a in cfg.agents:
         m = sorted(meas.get(a.id, []), key=lambda e: e[1])
@@ -295,6 +349,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
             "deadlock_at_s": stuck,
+            "longest_silence_s": quiet.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
             "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
             # world.realism.sensing: |estimate - true centre of mass| at the ticks it acted on [m]
@@ -303,6 +358,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             **motion,
         }
     final = statuses[-1] if statuses else {}
+    gaps = ledger.gaps(sent_counts(said or {}), int(final["k"]) if final.get("done") else None)
     live_ever = {x for s in statuses for x in s["live"]}
     lost = sorted(live_ever - set(final.get("live", [])))
     return {
@@ -314,6 +370,10 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         "margin_violation_pairs": sorted(bar.violations),
         "margin_violation_ticks": bar.violation_ticks,
         "max_margin_depth_m": bar.depth_m,  # deepest slip inside a safety radius (0: none)
+        "downwash_pairs": len(bar.downwash),  # pairs ever inside their downwash keep-out ellipsoid
+        "downwash_pair_names": sorted(bar.downwash),
+        "downwash_pair_ticks": bar.downwash_ticks,
+        "min_downwash_distance": _finite_or_none(bar.min_downwash),  # smallest scaled distance (below 1: inside)
         "min_h": _finite_or_none(min((float(v) for v in bar.min_h), default=math.inf)),
         "negative_h_ticks": int(bar.negative.sum()),  # agent ticks with a row's exact h < 0
         "unseen_negative_h_ticks": int(bar.unseen.sum()),  # agent ticks on course with an unseen neighbour
@@ -333,12 +393,66 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         + sum(v["dropped_messages"] for v in agents.values())
         + recorder_dropped,
         "lost_agents": lost,
+        "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
+        "lost_messages": sum(g.messages for g in gaps),
+        "offenders": offenders(said or {}, quiet, cfg.failure.neighbour_hard_limit_s),
         "realism": _realism_applied(cfg, last_report),
         "estimate_error_max_m": max(
             (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
         ),
         "agents": agents,
     }
+
+
+class Silence:
+    """How long [s of sim time] each agent was live (in the clock's live list) without a
+    command: fed the recorded messages in any order (the recorder writes a batch's clocks
+    before its commands), then :attr:`longest_s`."""
+
+    def __init__(self) -> None:
+        self.commands: dict[str, array] = {}  # agent -> sim times [s] of its commands
+        self.live: dict[str, list[float]] = {}  # agent -> [first, last] sim time [s] it was live
+
+    def see(self, r: dict[str, Any]) -> None:
+        if r["kind"] == "command":
+            self.commands.setdefault(r["src"], array("d")).append(float(r["t"]))
+        elif r["kind"] == "clock":
+            t = float(r["t"])
+            for a in r["live"]:
+                span = self.live.setdefault(a, [t, t])
+                span[0], span[1] = min(span[0], t), max(span[1], t)
+
+    @property
+    def longest_s(self) -> dict[str, float]:
+        out = {}
+        for a, (first, last) in self.live.items():
+            ts = np.sort(np.frombuffer(self.commands.get(a, array("d")), dtype=float))
+            ts = ts[(ts >= first) & (ts <= last)]
+            edges = np.concatenate([[first], ts, [last]])
+            out[a] = float(np.diff(edges).max())
+        return out
+
+
+def offenders(
+    said: dict[str, dict[str, Any]], silence_s: dict[str, float], silent_after_s: float
+) -> dict[str, dict[str, Any]]:
+    """The run's agents that misbehaved, with what the others did about it: every sender
+    whose messages a receiver dropped (``said``: the summaries' ``rejected``, per sender and
+    reason: the relay's and each agent's), and every agent live for more than
+    ``silent_after_s`` without a command (``silence_s``)."""
+    out: dict[str, dict[str, Any]] = {}
+    for receiver, summary in sorted(said.items()):
+        for sender, reasons in (summary.get("rejected") or {}).items():
+            o = out.setdefault(sender, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            for reason, n in reasons.items():
+                o["reasons"][reason] = o["reasons"].get(reason, 0) + int(n)
+                o["dropped"] += int(n)
+            o["dropped_by"].append(receiver)
+    for agent, quiet in silence_s.items():
+        if quiet > silent_after_s or agent in out:
+            o = out.setdefault(agent, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            o["longest_silence_s"] = quiet
+    return dict(sorted(out.items()))
 
 
 def _realism_applied(cfg: ScenarioConfig, last_report: dict[str, dict[str, Any]]) -> dict[str, Any] | None:

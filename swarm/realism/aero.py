@@ -55,6 +55,14 @@ class AeroParams:
     drone above (:func:`downwash_force_w`); ``inf``: upstream's unbounded model."""
     downwash_range_xy_m: float = 10.0
     """Drones farther apart than this horizontally are ignored (upstream's 10 m)."""
+    downwash_wake_radius_m: float = 0.0628
+    """The wake's radius where it leaves the drone above, and the radius of the rotor discs of
+    the drone below [m]: cf2x.urdf's ``arm`` (0.0397 m) plus ``prop_radius``, the rotor discs'
+    outer extent (:func:`downwash_force_w`)."""
+    downwash_wake_spread: float = 0.094
+    """How fast the wake's radius grows with the distance below the drone [m/m]: the spreading
+    rate of a turbulent round jet's half-velocity radius (Pope, *Turbulent Flows*, 2000, Table
+    5.1; Hussein, Capp and George 1994: 0.094)."""
     drag_xy_kg_per_rad: float = 9.1785e-7
     """Rotor drag per (rad/s of summed rotor speed) per (m/s of airspeed), body x and y
     [N / (rad/s) / (m/s) = kg/rad]; Forster 2015's identification of the Crazyflie 2.0."""
@@ -80,7 +88,24 @@ class AeroParams:
 
 
 @njit(cache=True)
-def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_xy, out):
+def _inside_fraction(d, r_b, r_w):
+    """The fraction of a disc of radius ``r_b`` that lies inside a disc of radius ``r_w`` whose
+    centre is ``d`` away (the area of the two discs' lens over ``pi r_b^2``)."""
+    if d >= r_b + r_w:
+        return 0.0
+    if d + r_b <= r_w:
+        return 1.0
+    if d <= abs(r_w - r_b):
+        return 1.0 if r_w >= r_b else (r_w * r_w) / (r_b * r_b)
+    c1 = min(1.0, max(-1.0, (d * d + r_b * r_b - r_w * r_w) / (2.0 * d * r_b)))
+    c2 = min(1.0, max(-1.0, (d * d + r_w * r_w - r_b * r_b) / (2.0 * d * r_w)))
+    k = (-d + r_b + r_w) * (d + r_b - r_w) * (d - r_b + r_w) * (d + r_b + r_w)
+    lens = r_b * r_b * math.acos(c1) + r_w * r_w * math.acos(c2) - 0.5 * math.sqrt(max(k, 0.0))
+    return min(1.0, max(0.0, lens / (math.pi * r_b * r_b)))
+
+
+@njit(cache=True)
+def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_xy, wake_r, spread, out):
     n = x_w.shape[0]
     for i in range(n):
         fz = 0.0
@@ -92,6 +117,9 @@ def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_x
             dy = x_w[j, 1] - x_w[i, 1]
             dxy2 = dx * dx + dy * dy
             if not dxy2 < range_xy * range_xy:
+                continue
+            inside = _inside_fraction(math.sqrt(dxy2), wake_r, wake_r + spread * dz)
+            if inside == 0.0:
                 continue
             s = r_p / (4.0 * max(dz, 1e-6))  # finite: the cap binds long before 1 um
             alpha = peak_N * s * s
@@ -106,7 +134,7 @@ def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_x
             if e == 0.0:
                 continue
             f = alpha * e
-            cap = cap_fraction * max(thrust_N[j], 0.0)
+            cap = cap_fraction * max(thrust_N[j], 0.0) * inside
             if f > cap:
                 f = cap
             fz -= f
@@ -135,6 +163,16 @@ def downwash_force_w(x_w: FloatArray, thrust_N: FloatArray, p: AeroParams) -> Fl
       body that stops the whole wake feels at most that flux. The cap binds below
       ``dz = 0.54 m`` for two hovering Crazyflies, so close under another drone the lower
       one loses up to one weight of the upper drone (0.265 N).
+    * **Only inside the wake.** Upstream's Gaussian keeps 7.5 % of ``alpha`` 0.25 m to the side
+      as ``dz -> 0``, where ``alpha`` is unbounded: two drones side by side, one a millimetre
+      higher, would push the lower one down by a whole weight. A wake is a jet below the rotors:
+      its radius is the rotor discs' extent where it leaves the drone
+      (``downwash_wake_radius_m``) and grows by ``downwash_wake_spread`` per metre below (a
+      turbulent round jet's spreading rate), and the cap is scaled by the fraction of the lower
+      drone's rotor discs (the same radius) inside that wake: no force on a drone whose rotors
+      are outside it, the whole cap on one wholly inside. Upstream's value is unchanged wherever
+      the lower drone is wholly inside the wake and below the cap (0.5 m under another, up to
+      4.7 cm off the axis).
     * **Width.** ``beta`` changes sign at ``dz = -c3/c2 = 0.69 m``: upstream squares it (so
       the wake is 11 cm wide at contact, narrows to nothing at 0.69 m and widens again),
       and divides 0 by 0 on the axis at exactly 0.69 m. Kept as upstream, with the axis
@@ -156,6 +194,8 @@ def downwash_force_w(x_w: FloatArray, thrust_N: FloatArray, p: AeroParams) -> Fl
         p.prop_radius_m,
         p.downwash_cap_thrust_fraction,
         p.downwash_range_xy_m,
+        p.downwash_wake_radius_m,
+        p.downwash_wake_spread,
         out,
     )
     return out

@@ -74,7 +74,16 @@ about ``r^2 / (2|p|)`` long and only asks to brake, a live row is the barrier
 it equals h with the same gradient on the cone, and its lateral gradient is ``r`` long: a
 head-on pair swerves. Its class-K gain is at least ``RECOVERY_PER_CONTACT`` over the time
 to contact (coefficient ``RATE``). Within ``AXIS_BAND`` of the axis, where the lateral
-speed is noise, it holds the generator on the side rule's side instead.
+speed is noise, it holds the generator on the side rule's side instead. What the gain
+gives: the row asks ``H' >= g |H|`` with ``g >= 2 / T_c``, ``T_c = (|p| - r) / v_c`` the
+time to contact at the closing speed ``v_c``, so ``|H(t)| <= |H(0)| exp(-2 int_0^t ds / T_c(s))``;
+while the pair keeps its closing speed (``T_c = T_0 - t``) that is
+
+    |H(t)| <= |H(0)| (1 - t / T_0)^2:
+
+the violation shrinks with the square of the time left and vanishes as contact nears
+(``T_c -> 0``), so at worst the pair grazes the safety radius. It does not promise to leave
+the cone sooner: at half the time to contact a quarter of ``|H(0)|`` may remain.
 
 **Far neighbours** (live rows only). The cone condition does not weaken with distance: a
 neighbour 2 m away binds its row as hard as one close by. Two cases matter. In a crowd
@@ -94,6 +103,9 @@ stays forward invariant. What it gives up is the rate ``h' + gamma h >= 0`` for 
 that would not meet within ``FAR_GAIN_CONTACT_S`` (half the extra gain at twice that time,
 all of it for a pair that is not closing); a pair that would meet within
 ``FAR_GAIN_CONTACT_S``, or within ``FAR_GAIN_RADII`` safety radii, keeps the paper's gain.
+The rate a row allows is ``h' >= -gamma k h`` with ``k <= max(1, R / (FAR_GAIN_RADII r))``
+for a neighbour within the sensing radius ``R`` (:data:`FAR_GAIN_RADII`; 9.4 at ``R = 3 m``
+and ``r = 0.16 m``): up to about 9 gamma.
 
 **Horizon allowance** (live rows, opt-in: ``filter.horizon_s = tau``). The cone forbids a
 collision course however far away the contact is; ORCA truncates its velocity obstacles
@@ -157,6 +169,10 @@ the row's ``b_w`` less ``lambda h / |w|^2``. h is homogeneous of degree 1 in w
 At ``h = 0`` the row is the cone's ``h' >= 0`` whatever lambda, so ``h >= 0`` stays forward
 invariant with lambda chosen per tick; for ``h > 0`` it asks ``h' >= -(gamma k - lambda
 <w, w'> / |w|^2) h``, a class-K bound (``|w| >= w_hi`` and ``w'`` is bounded by the inputs).
+That is the rate ``h' >= -(gamma k + lambda |w'| / |w|) h``, not ``h' >= -gamma k h``: braking
+``|w'|`` a few m/s^2 at ``|w|`` down to ``w_hi`` (2 cm/s) lets h fall at hundreds per second
+(200 /s measured in a swarm) while it stays non-negative. Free braking keeps ``h >= 0``
+forward invariant, not the paper's rate.
 A row takes ``lambda = max(0, min(1, 1 - v_c / BRAKE_CLOSING_MPS))`` (``v_c = -<p, w>/|p|`` the
 closing speed) where its reference's relative acceleration brakes (``<w, a_ref> < 0``), it is
 outside its cone (``h >= 0``) and above ``w_hi``; else ``lambda = 0``. A pair closing fast
@@ -168,6 +184,30 @@ lambda of a row is held for the tick. A tick whose braking carries ``w`` through
 plain row would have capped the braking near ``gamma |w|``) leaves ``h >= -|w+| (|p| - s)``,
 ``w+`` the relative velocity after it, no larger than the tick's change of velocity; the next
 tick's recovery (``RATE``) takes that back.
+
+**Keep-out ellipsoid** (rows of other drones, on by default: ``filter.ellipsoid``). A drone's
+rotors blow a fast stream of air downwards, and a Crazyflie 0.2-0.3 m under another is pushed
+down hard; Crazyswarm's planners keep an axis-aligned ellipsoid between two Crazyflies'
+centres, 0.12 m across and 0.30 m up and down (jpreiss/smoothener, the downwash-aware planner
+of Preiss et al. 2017: ``examples/no_obstacles/main_no_obstacles.m``, "robot-robot collision
+ellipsoid [0.12 0.12 0.3]"; the firmware's collision avoidance keeps a tall ellipsoid for the
+same reason: crazyflie-firmware ``src/modules/interface/collision_avoidance.h``). The row of
+another drone (``OBSTACLE.is_agent``, whether it takes its share or not) keeps the ellipsoid of
+radii ``r_xy = max(r, k_xy)`` across and ``r_z = max(r, k_z)`` along world up
+(:func:`keep_out_frame`; ``r`` the row's safety radius, both bodies' radii and the margin; ``k``
+the airframe pair's keep-out plus the margin: ``ROW_PARAMS.keep_xy``, ``keep_z``). In the frame
+``S = diag(1, 1, r_xy / r_z)`` the ellipsoid is the ball of radius ``r_xy``, and the row is every
+row of this module for ``(S p, S w)``, radius ``r_xy`` and reference ``S a_ref``: S is constant,
+so ``(S p)' = S w`` and ``(S w)' = S w'``, and the row is the C3BF of a sphere in that frame with
+everything this docstring says of it there (the paper's row, live rows, the inside-cone row,
+the escape row, horizon allowance, contact horizon, free braking, far gain):
+``h(S p, S w) < 0`` exactly when the straight relative motion ``p + t w`` enters the ellipsoid.
+Its gradients map back by S (symmetric): ``dh/dp = S dh/dp'``, ``dh/dw = S dh/dw'``
+(``BarrierRows.sz``). Where ``r_xy = r_z`` (no keep-out, or one within the sphere), ``S = I``
+and the row is the sphere's, bit for bit. Obstacles keep their rows; a drone's row has no axis.
+A row whose radius grew for its state's age (``OBSTACLE.grow``: the prediction bounds and a lost
+neighbour's growth, ``swarm.net.neighbours``) keeps the ellipsoid of ``k + grow`` on both axes,
+which holds every point within ``grow`` of the ellipsoid of ``k``.
 """
 
 from __future__ import annotations
@@ -204,7 +244,8 @@ H, A_P, B_P, A_W, B_W, PW, WW, C_D, RATE = range(9)
 N_COEF = 9
 RECOVERY_PER_CONTACT = 2.0
 """Inside the cone a live row's class-K gain is at least this over the time to contact
-[unit-free]: the row asks to leave the cone within half the time to contact."""
+[unit-free]: while the pair keeps its closing speed the row's violation ``|H|`` shrinks at
+least as ``(1 - t / T_0)^2``, ``T_0`` the time to contact (module docstring, inside the cone)."""
 
 FAR_GAIN_RADII = 2.0
 """A neighbour row's class-K gain grows with distance beyond this many safety radii
@@ -242,6 +283,8 @@ ROW_PARAMS = np.dtype(
         ("buffer", "f8"),  # live rows: velocity buffer [m/s] of the tightened rows (0: none)
         ("t_contact", "f8"),  # live neighbour rows: contact time [s] beyond which the radius relaxes (0: never)
         ("free_brake", "?"),  # live rows: free braking (module docstring)
+        ("keep_xy", "f8"),  # rows of other drones: keep-out radius across [m], margin included (0: the sphere)
+        ("keep_z", "f8"),  # ... and along world up [m] (module docstring, "Keep-out ellipsoid")
     ],
     align=True,
 )
@@ -270,6 +313,8 @@ class RowSettings:
     buffer_mps: float = 0.0  # live rows: the velocity buffer [m/s] (0: none)
     contact_s: float = 0.0  # live neighbour rows: the contact horizon [s] (0: none)
     free_braking: bool = False  # live rows: free braking
+    keep_out_xy_m: float = 0.0  # rows of other drones: keep-out radius across [m], margin included (0: the sphere)
+    keep_out_z_m: float = 0.0  # ... and along world up [m] ("Keep-out ellipsoid")
 
 
 def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | None = None) -> np.ndarray:
@@ -295,6 +340,8 @@ def row_params(kind: BarrierKind = BarrierKind.C3BF, settings: RowSettings | Non
         st.buffer_mps if live else 0.0,
         st.contact_s if live else 0.0,
         st.free_braking and live,
+        st.keep_out_xy_m,
+        st.keep_out_z_m,
     )
     return out
 
@@ -476,6 +523,28 @@ def contact_radius(r, pp, pw, T):
     return rho, rho * r * (1.0 - CONTACT_FLOOR) * 6.0 * x * (1.0 - x) / T
 
 
+@njit(cache=True)
+def keep_out_frame(r, keep_xy, keep_z):
+    """A drone pair's keep-out ellipsoid (module docstring, "Keep-out ellipsoid") for a row
+    of safety radius ``r`` [m] > 0 (both bodies' radii and the margin) and the airframe
+    pair's keep-out radii ``keep_xy`` across and ``keep_z`` along world up [m] (0: none):
+    the ellipsoid's radii are ``r_xy = max(r, keep_xy)`` and ``r_z = max(r, keep_z)``.
+    Returns ``(r_xy, sz)``: in the frame ``S = diag(1, 1, sz)``, ``sz = r_xy / r_z``, the
+    ellipsoid is the ball of radius ``r_xy``; ``(r, 1.0)`` without a keep-out."""
+    r_xy = np.maximum(r, keep_xy)  # (elementwise: arrays of pairs too)
+    return r_xy, r_xy / np.maximum(r, keep_z)
+
+
+def scaled_distance(p: FloatArray, r_xy: FloatArray | float, r_z: FloatArray | float) -> FloatArray:
+    """``|S p| / r_xy`` with ``S = diag(1, 1, r_xy / r_z)`` (:func:`keep_out_frame`'s frame) of
+    each ``p`` (..., 3) [m, world]: below 1 exactly inside the axis-aligned ellipsoid of radii
+    ``r_xy`` across and ``r_z`` along world up [m] about the origin [unit-free]."""
+    p = np.asarray(p, dtype=float)
+    r_xy = np.asarray(r_xy, dtype=float)
+    sz = r_xy / np.asarray(r_z, dtype=float)
+    return np.sqrt(p[..., 0] ** 2 + p[..., 1] ** 2 + (sz * p[..., 2]) ** 2) / r_xy
+
+
 @njit(cache=True, fastmath=False)
 def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb, ref_clear):
     """One row for relative ``p`` [m], ``w`` [m/s], safety radius ``r`` [m] and cylinder
@@ -518,7 +587,7 @@ def barrier_row(par, p, w, r, a, Y_out, coef_out, a_ref, has_ref, nb, ref_clear)
             if nb and par.t_contact > 0.0:
                 rho_c, g_c = contact_radius(r, pp, pw, par.t_contact)
                 s = math.sqrt(pp - rho_c * rho_c)
-            if pw + nw * s < 0.0:  # inside the cone, closing at -c: leave it within half the time to contact
+            if pw + nw * s < 0.0:  # inside the cone, closing at -c: the gain 2 / (time to contact)
                 rate = RECOVERY_PER_CONTACT * -c / (rp - r)
             band = AXIS_BAND * nw
             if rho_c == r and nw >= par.w_hi and pw + nw * s < 0.0 and ww - c * c > band * band:
@@ -586,18 +655,28 @@ def far_gain(p, w, r):
 
 
 @njit(cache=True)
-def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb, ref_clear):
+def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb, ref_clear, sz):
     """All rows of stacked ``Y = [p; w]`` (n, 2, 3) under ``params`` (a (1,) :data:`ROW_PARAMS`
-    array): returns (Y_used (n, 3, 3), coef (n, 9), inside)."""
+    array), row i in the frame ``S = diag(1, 1, sz[i])`` (module docstring, "Keep-out
+    ellipsoid"; ``p``, ``w`` and ``a_ref`` scaled by it): returns (Y_used (n, 3, 3), coef
+    (n, 9), inside), Y_used in each row's frame."""
     par = params[0]
     n = Y.shape[0]
     Y_out = np.empty((n, 3, 3))
     coef = np.empty((n, N_COEF))
     inside = np.empty(n, dtype=np.bool_)
+    p = np.empty(3)
+    w = np.empty(3)
+    A = np.empty(3)
     for i in range(n):
-        inside[i] = barrier_row(
-            par, Y[i, 0], Y[i, 1], r[i], axis[i], Y_out[i], coef[i], a_ref[i], has_ref, nb[i], ref_clear
-        )
+        for k in range(3):
+            p[k] = Y[i, 0, k]
+            w[k] = Y[i, 1, k]
+            A[k] = a_ref[i, k]
+        p[2] *= sz[i]
+        w[2] *= sz[i]
+        A[2] *= sz[i]
+        inside[i] = barrier_row(par, p, w, r[i], axis[i], Y_out[i], coef[i], A, has_ref, nb[i], ref_clear)
     return Y_out, coef, inside
 
 
@@ -605,9 +684,10 @@ def barrier_rows(params, Y, r, axis, a_ref, has_ref, nb, ref_clear):
 class BarrierRows:
     """Barrier values and gradient coefficients of ``n`` rows."""
 
-    Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and the live direction d the values refer to
+    Y: FloatArray  # (n, 3, 3) the (projected) p [m], w [m/s] and live direction d, in the row's frame (sz)
     coef: FloatArray  # (n, 9) columns H, A_P, B_P, A_W, B_W, PW, WW, C_D, RATE
     inside: BoolArray  # (n,): |P p| <= r, the row holds the escape barrier
+    sz: FloatArray | None = None  # (n,) each row's frame S = diag(1, 1, sz) (keep-out ellipsoid); None: all 1
 
     @property
     def h(self) -> FloatArray:
@@ -616,14 +696,21 @@ class BarrierRows:
 
     @property
     def dh_dp(self) -> FloatArray:
-        """(n, 3) gradient of h with respect to p."""
-        return self.coef[:, A_P, None] * self.Y[:, 0] + self.coef[:, B_P, None] * self.Y[:, 1]
+        """(n, 3) gradient of h with respect to p [world] (``S dh/dp'`` in a row's frame)."""
+        return self._world(self.coef[:, A_P, None] * self.Y[:, 0] + self.coef[:, B_P, None] * self.Y[:, 1])
 
     @property
     def dh_dw(self) -> FloatArray:
-        """(n, 3) gradient of h with respect to w."""
+        """(n, 3) gradient of h with respect to w [world] (``S dh/dw'`` in a row's frame)."""
         c = self.coef
-        return c[:, A_W, None] * self.Y[:, 0] + c[:, B_W, None] * self.Y[:, 1] + c[:, C_D, None] * self.Y[:, 2]
+        return self._world(
+            c[:, A_W, None] * self.Y[:, 0] + c[:, B_W, None] * self.Y[:, 1] + c[:, C_D, None] * self.Y[:, 2]
+        )
+
+    def _world(self, g: FloatArray) -> FloatArray:
+        if self.sz is not None:
+            g[:, 2] *= self.sz
+        return g
 
     @property
     def d(self) -> FloatArray:
@@ -641,6 +728,7 @@ def evaluate(
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
     reference_clear: bool = False,
+    scale_z: FloatArray | None = None,
 ) -> BarrierRows:
     """Barrier rows for stacked ``Y = [p; w]`` (n, 2, 3) with ``settings`` (default
     :class:`RowSettings`). ``axis_w`` (n, 3) holds unit cylinder axes (zero rows for
@@ -648,17 +736,21 @@ def evaluate(
     accelerations ``a_ref`` (n, 3) [m/s^2, world] (``None``: no reference), the
     neighbour flags ``is_neighbour`` (n,) and ``reference_clear``: ``a_ref`` is the agent's
     own reference, clear of every still obstacle's cone (as the filter finds it:
-    ``swarm.safety.constraints.free_target``; module docstring)."""
+    ``swarm.safety.constraints.free_target``; module docstring). ``scale_z`` (n,): each
+    row's frame ``S = diag(1, 1, scale_z)``, the row that of ``(S p, S w)`` with radius
+    ``r`` (module docstring, "Keep-out ellipsoid"; :func:`keep_out_frame` gives both for a
+    drone pair); None: all 1, every row the sphere's."""
     Y = np.ascontiguousarray(Y, dtype=float)
     n = Y.shape[0]
     axis = np.zeros((n, 3)) if axis_w is None else np.ascontiguousarray(axis_w, dtype=float)
     A = np.zeros((n, 3)) if a_ref is None else np.ascontiguousarray(a_ref, dtype=float)
     nb = np.zeros(n, dtype=np.bool_) if is_neighbour is None else np.ascontiguousarray(is_neighbour, dtype=np.bool_)
+    sz = np.ones(n) if scale_z is None else np.ascontiguousarray(np.broadcast_to(scale_z, (n,)), dtype=float)
     params = row_params(kind, settings)
     Y_used, coef, inside = barrier_rows(
-        params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb, reference_clear
+        params, Y, np.ascontiguousarray(r, dtype=float), axis, A, a_ref is not None, nb, reference_clear, sz
     )
-    return BarrierRows(Y_used, coef, inside)
+    return BarrierRows(Y_used, coef, inside, None if scale_z is None else sz)
 
 
 def evaluate_pw(
@@ -671,6 +763,7 @@ def evaluate_pw(
     a_ref: FloatArray | None = None,
     is_neighbour: BoolArray | None = None,
     reference_clear: bool = False,
+    scale_z: FloatArray | None = None,
     **settings: Any,
 ) -> BarrierRows:
     """:func:`evaluate` for separate ``p`` and ``w`` (n, 3), with the fields of
@@ -685,6 +778,7 @@ def evaluate_pw(
         a_ref=a_ref,
         is_neighbour=is_neighbour,
         reference_clear=reference_clear,
+        scale_z=scale_z,
     )
 
 
@@ -700,7 +794,11 @@ def horizon_allowance(p: FloatArray, r: FloatArray, axis_w: FloatArray | None = 
 
 
 def cone_h(
-    p: FloatArray, w: FloatArray, r: FloatArray, axis_w: FloatArray | None = None
+    p: FloatArray,
+    w: FloatArray,
+    r: FloatArray,
+    axis_w: FloatArray | None = None,
+    scale_z: FloatArray | None = None,
 ) -> tuple[FloatArray, BoolArray]:
     """The exact C3BF barrier ``h = <p, w> + |w| sqrt(|p|^2 - r^2)`` [m^2/s] of each row,
     as the paper defines it, and whether the row is inside its safety radius.
@@ -712,9 +810,18 @@ def cone_h(
     row inside ``r`` (``|p| <= r``) the root is taken as 0, so there ``h = <p, w>`` (the
     rate the gap opens at, times ``|p|``); such a row is a margin violation however its h
     reads. Metrics take it from ground truth; it is not what a filter row holds (those
-    are lower bounds of it, or other barriers: the module docstring)."""
+    are lower bounds of it, or other barriers: the module docstring).
+
+    ``scale_z`` (n,): the rows of drone pairs' keep-out ellipsoids (module docstring,
+    "Keep-out ellipsoid"), h of ``(S p, S w)`` with ``S = diag(1, 1, scale_z)`` and ``r`` the
+    radius across: ``h < 0`` exactly when the straight relative motion enters the ellipsoid.
+    None: all 1."""
     p = np.asarray(p, dtype=float)
     w = np.asarray(w, dtype=float)
+    if scale_z is not None:
+        sz = np.asarray(scale_z, dtype=float)
+        p = np.concatenate([p[..., :2], (sz * p[..., 2])[..., None]], axis=-1)
+        w = np.concatenate([w[..., :2], (sz * w[..., 2])[..., None]], axis=-1)
     if axis_w is not None:
         a = np.asarray(axis_w, dtype=float)
         p = p - np.sum(p * a, axis=-1, keepdims=True) * a

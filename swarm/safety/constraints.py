@@ -38,7 +38,9 @@ Rotor level, with ``M = J^-1 B[1:4]`` (J diagonal)::
 Attitude level (thrust-vector point mass): ``A = -I / m``, ``a0_own = g e3``, about the
 body centre ``x + l R e3`` moving with the centre of mass (this level has no rotation
 state), the point the roster reports for every other drone: a pair's two rows then see
-mirrored ``p`` and ``w``.
+mirrored ``p`` and ``w`` up to the body rates' term ``l R (Omega x e3)`` of a neighbour's
+reported velocity, which this level leaves out of its own (docs/design.md, "What the rows
+guarantee": taken in, it made swaps from rest fly least-violation ticks).
 
 **Velocity buffer** (live rows; ``FilterConfig.buffer_mps``, default 0.1 m/s). A row with
 class-K gain ``g k`` (``g = max(gamma, rate)``, ``k`` the far-neighbour factor, 1 for other
@@ -95,6 +97,7 @@ from swarm.safety.barriers import (
     RowSettings,
     barrier_row,
     far_gain,
+    keep_out_frame,
     row_params,
 )
 from swarm.safety.obstacles import ObstacleArrays
@@ -206,8 +209,9 @@ RING = 16
 
 
 @njit(cache=True)
-def _clear_of(v, Ps, ss, axes, m):
-    """``v`` (3,) lies outside the first ``m`` cones (``Ps`` projected p, ``ss`` s, axes)."""
+def _clear_of(v, Ps, ss, axes, szs, m):
+    """``v`` (3,) [world] lies outside the first ``m`` cones (``Ps`` projected p and ``ss`` s
+    in each cone's frame ``diag(1, 1, szs)``, axes)."""
     for i in range(m):
         a = axes[i]
         av = a[0] * v[0] + a[1] * v[1] + a[2] * v[2]
@@ -215,6 +219,8 @@ def _clear_of(v, Ps, ss, axes, m):
         vv = 0.0
         for k in range(3):
             vk = v[k] - av * a[k]
+            if k == 2:
+                vk *= szs[i]
             pv += Ps[i, k] * vk
             vv += vk * vk
         if pv + ss[i] * math.sqrt(vv) < -1e-12:
@@ -223,10 +229,12 @@ def _clear_of(v, Ps, ss, axes, m):
 
 
 @njit(cache=True)
-def free_target(obs, sel, r_own, xv_b, A0, w_hi):
+def free_target(obs, sel, r_own, xv_b, A0, w_hi, keep_xy, keep_z):
     """The relative acceleration [m/s^2, world] the live rows of static obstacles aim at,
     for the obstacles ``obs[sel]`` (:data:`swarm.safety.obstacles.OBSTACLE`), safety radius
-    ``r + r_own`` [m], the own body centre ``xv_b`` (2, 3).
+    ``r + r_own`` [m] (a drone taken whole: its keep-out ellipsoid with ``keep_xy``,
+    ``keep_z`` [m], each cone in its own frame: ``swarm.safety.barriers.keep_out_frame``),
+    the own body centre ``xv_b`` (2, 3).
 
     At rest relative to several obstacles the exact condition asks for one direction of
     relative acceleration outside every obstacle's cone; rows aimed at the reference
@@ -239,11 +247,15 @@ def free_target(obs, sel, r_own, xv_b, A0, w_hi):
     Ps = np.empty((n, 3))
     ss = np.empty(n)
     axes = np.empty((n, 3))
+    szs = np.empty(n)
     m = 0
     for i in range(n):
         ob = obs[sel[i]]
         if ob.is_nb:
             continue
+        rr, sz = ob.r + r_own, 1.0
+        if ob.is_agent:
+            rr, sz = keep_out_frame(rr, keep_xy + ob.grow, keep_z + ob.grow)
         a = ob.axis
         ap, aw = 0.0, 0.0
         for k in range(3):
@@ -253,31 +265,36 @@ def free_target(obs, sel, r_own, xv_b, A0, w_hi):
         for k in range(3):
             Ps[m, k] = ob.c[k] - xv_b[0, k] - ap * a[k]
             wk = ob.cd[k] - xv_b[1, k] - aw * a[k]
+            if k == 2:
+                Ps[m, k] *= sz
+                wk *= sz
             pp += Ps[m, k] * Ps[m, k]
             ww += wk * wk
-        rr = ob.r + r_own
         if pp <= rr * rr or ww >= w_hi * w_hi:
             continue
         ss[m] = math.sqrt(pp - rr * rr)
         axes[m] = a
+        szs[m] = sz
         m += 1
     na = math.sqrt(A0[0] * A0[0] + A0[1] * A0[1] + A0[2] * A0[2])
-    if m == 0 or na < 1e-6 or _clear_of(A0, Ps, ss, axes, m):
+    if m == 0 or na < 1e-6 or _clear_of(A0, Ps, ss, axes, szs, m):
         return A0
     best = -2.0
     out = A0.copy()
     v = np.empty(3)
     e1 = np.empty(3)
     e2 = np.empty(3)
+    Aj = A0.copy()  # A0 in the cone's frame
     for j in range(m):
         P = Ps[j]
+        Aj[2] = A0[2] * szs[j]
         rp = math.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
         sphi = min(1.0, 1.02 * math.sqrt(max(rp * rp - ss[j] * ss[j], 0.0)) / rp)
         cphi = math.sqrt(1.0 - sphi * sphi)
         # a frame about -P: e1 towards A0's lateral part (the nearest generator first), e2 = -P x e1
-        ap = (A0[0] * P[0] + A0[1] * P[1] + A0[2] * P[2]) / (rp * rp)
+        ap = (Aj[0] * P[0] + Aj[1] * P[1] + Aj[2] * P[2]) / (rp * rp)
         for k in range(3):
-            e1[k] = A0[k] - ap * P[k]
+            e1[k] = Aj[k] - ap * P[k]
         n1 = math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
         if n1 < 1e-9 * na:
             e1[0], e1[1], e1[2] = -P[1], P[0], 0.0
@@ -298,8 +315,13 @@ def free_target(obs, sel, r_own, xv_b, A0, w_hi):
                 aa = (a[0] * A0[0] + a[1] * A0[1] + a[2] * A0[2]) / na
                 for k in range(3):
                     v[k] = v[k] * math.sqrt(max(1.0 - aa * aa, 0.0)) + aa * a[k]
+            if szs[j] != 1.0:  # a generator of the cone's own frame, back in the world's, as a unit vector
+                v[2] /= szs[j]
+                nv = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                for k in range(3):
+                    v[k] /= nv
             score = (v[0] * A0[0] + v[1] * A0[1] + v[2] * A0[2]) / na
-            if score > best and _clear_of(v, Ps, ss, axes, m):
+            if score > best and _clear_of(v, Ps, ss, axes, szs, m):
                 best = score
                 for k in range(3):
                     out[k] = na * v[k]
@@ -329,10 +351,17 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     rows are ``b - buffer``, and ``u_ref`` counts as satisfying the rows only if it holds
     them.
 
+    A row of another drone (``is_agent``) keeps the keep-out ellipsoid of ``params.keep_xy``,
+    ``params.keep_z``, each plus the row's ``grow`` (:func:`swarm.safety.barriers.keep_out_frame`):
+    its barrier is taken in the frame ``S = diag(1, 1, sz)`` where the ellipsoid is a ball (``S p``,
+    ``S w``, ``S a_ref``; its
+    far gain too), and its gradient in w maps back by S for ``Lg_h``, the own and the obstacle's
+    accelerations and the buffer's ``|dh/dw|`` (a margin in world velocity).
+
     Returns (Y_used (n,3,3), coef (n,9), inside (n,), Lf_h (n,), A (k+n,m), b_all (k+n,),
-    c_ref (k+n,), ref_ok, any_inside, buffer (n,)) where ``ref_ok`` says ``u_ref`` satisfies
-    every buffered row and bound and ``any_inside`` that some row is already inside its
-    safety radius."""
+    c_ref (k+n,), ref_ok, any_inside, buffer (n,), sz (n,)) where ``ref_ok`` says ``u_ref``
+    satisfies every buffered row and bound, ``any_inside`` that some row is already inside
+    its safety radius, and ``sz`` is each row's frame (1: the world's; Y_used is in it)."""
     par = params[0]
     kind, r_own, live = par.kind, par.r_own, par.live
     n = sel.shape[0]
@@ -343,6 +372,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
     inside = np.empty(n, dtype=np.bool_)
     Lf = np.empty(n)
     tight = np.zeros(n)
+    scale = np.empty(n)
     A = np.empty((k_in + n, m))
     b = np.empty(k_in + n)
     A[:k_in] = C
@@ -369,23 +399,33 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         any_static = any_static or not obs[sel[i]].is_nb
     ref_clear = False  # the reference itself is clear of every still obstacle's cone
     if with_ref and live and kind == 0 and any_static:  # (only obstacle rows share a target)
-        static_ref = free_target(obs, sel, r_own, xv_b, own_ref, par.w_hi)
+        static_ref = free_target(obs, sel, r_own, xv_b, own_ref, par.w_hi, par.keep_xy, par.keep_z)
         ref_clear = static_ref[0] == own_ref[0] and static_ref[1] == own_ref[1] and static_ref[2] == own_ref[2]
     for i in range(n):
         ob = obs[sel[i]]
+        r, sz = ob.r + r_own, 1.0
+        if ob.is_agent:  # another drone: the keep-out ellipsoid, a sphere in the frame diag(1, 1, sz)
+            r, sz = keep_out_frame(r, par.keep_xy + ob.grow, par.keep_z + ob.grow)
+        scale[i] = sz
         for k in range(3):
             p[k] = ob.c[k] - xv_b[0, k]
             w[k] = ob.cd[k] - xv_b[1, k]
             a_ref[k] = ob.cdd[k] + (own_ref[k] if ob.is_nb else static_ref[k])
-        inside[i] = barrier_row(par, p, w, ob.r + r_own, ob.axis, Y[i], coef[i], a_ref, with_ref, ob.is_nb, ref_clear)
+        if sz != 1.0:
+            p[2] *= sz
+            w[2] *= sz
+            a_ref[2] *= sz
+        inside[i] = barrier_row(par, p, w, r, ob.axis, Y[i], coef[i], a_ref, with_ref, ob.is_nb, ref_clear)
         any_inside = any_inside or inside[i]
         co = coef[i]
-        rel = 0.0
+        rel = 0.0  # <dh/dp, w>, in either frame
         own = 0.0
         for k in range(3):
             dp[k] = co[A_P] * Y[i, 0, k] + co[B_P] * Y[i, 1, k]
             dw[k] = co[A_W] * Y[i, 0, k] + co[B_W] * Y[i, 1, k] + co[C_D] * Y[i, 2, k]
             rel += dp[k] * Y[i, 1, k]
+        dw[2] *= sz  # dh/dw = S dh/dw', world
+        for k in range(3):
             own += dw[k] * (ob.cdd[k] + Aa[k, m])
         row = k_in + i
         for j in range(m):
@@ -399,7 +439,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
             v_buf = min(par.buffer, BUFFER_PER_SPEED * math.sqrt(co[WW]))  # m/s
             tight[i] = share_h * gain * v_buf * math.sqrt(dw[0] * dw[0] + dw[1] * dw[1] + dw[2] * dw[2])
         if ob.is_nb and live and co[H] > 0.0:
-            k_far = far_gain(p, w, ob.r + r_own)
+            k_far = far_gain(p, w, r)
             gain *= k_far
             tight[i] *= min(k_far, BUFFER_FAR_GAIN_MAX)
         b[row] = own + share * rel + share_h * gain * co[H]
@@ -414,7 +454,7 @@ def rows_kernel(obs, sel, params, xv_b, Aa, u_ref, lb, ub, C, d):
         for j in range(m):
             if not lb[j] <= u_ref[j] <= ub[j]:
                 ref_ok = False
-    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside, tight
+    return Y, coef, inside, Lf, A, b, c_ref, ref_ok, any_inside, tight, scale
 
 
 @dataclass(slots=True)
@@ -496,7 +536,7 @@ def assemble_with(
         C, d = np.zeros((0, m)), _NO_REF
     else:
         lb, ub, C, d = input_set.lb, input_set.ub, input_set.C, input_set.d
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, sz = rows_kernel(
         obstacles.rec,
         np.arange(len(obstacles)) if sel is None else sel,
         params,
@@ -508,7 +548,9 @@ def assemble_with(
         C,
         d,
     )
-    return Rows(BarrierRows(Y, coef, inside), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight)
+    return Rows(
+        BarrierRows(Y, coef, inside, sz), Lf, A, b_all, c_ref, bool(ref_ok), C.shape[0], bool(any_inside), tight
+    )
 
 
 __all__ = [

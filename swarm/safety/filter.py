@@ -157,6 +157,7 @@ class Prepared(NamedTuple):
     ref_ok: bool
     any_inside: bool
     tight: FloatArray
+    sz: FloatArray
 
 
 @njit(cache=True)
@@ -209,16 +210,17 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
                 False,
                 False,
                 z1,
+                z1,
             )
     idx, fixed = _select(obs, x, fp.r2, fp.max_rows)
     if fp.floor:
         j = C.shape[0] - 1
         _floor_row(air[0], fp, C[j], d, j, x[2], v[2], qn, ub)
     xv_b, Aa = own_affine(air, x, v, qn, Om)
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight = rows_kernel(
+    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, sz = rows_kernel(
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
-    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight)
+    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, sz)
 
 
 def _is_vector(a: object) -> bool:
@@ -310,6 +312,12 @@ class FilterConfig:
     planner's (``swarm.tuning.filter_config_for``; where its gain covers it): the path
     takes it round the walls, and the cones of pillars far along it no longer hold its
     velocity to a slit. Neighbours not doing their share get obstacle rows, and this too."""
+    ellipsoid: bool = True
+    """Rows of other drones keep the keep-out ellipsoid of the airframe
+    (``QuadParams.keep_out_xy_m``, ``keep_out_z_m``: Crazyswarm's 0.12 m across and 0.30 m up and
+    down between two Crazyflies' centres), each radius plus ``margin_m`` where it exceeds the
+    bodies' sphere (``swarm.safety.barriers``, "Keep-out ellipsoid"); False: the sphere of both
+    bodies' radii and the margin."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "level", CommandLevel(self.level))
@@ -418,6 +426,8 @@ class SafetyFilter:
                 buffer_mps=cfg.buffer_mps,
                 contact_s=cfg.contact_s,
                 free_braking=cfg.free_braking,
+                keep_out_xy_m=model.params.keep_out_xy_m + cfg.margin_m if cfg.ellipsoid else 0.0,
+                keep_out_z_m=model.params.keep_out_z_m + cfg.margin_m if cfg.ellipsoid else 0.0,
             ),
         )
         self._fparams = np.zeros(1, dtype=FILTER_PARAMS)
@@ -490,7 +500,7 @@ class SafetyFilter:
         if prep.fixed > cfg.max_rows:
             raise InputError(f"obstacles: {prep.fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
         rows = Rows(
-            BarrierRows(prep.Y, prep.coef, prep.inside),
+            BarrierRows(prep.Y, prep.coef, prep.inside, prep.sz),
             prep.Lf,
             prep.A,
             prep.b_all,

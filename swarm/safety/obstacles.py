@@ -17,7 +17,9 @@ OBSTACLE = np.dtype(
         ("cdd", "f8", 3),  # m/s^2, world: its acceleration
         ("r", "f8"),  # m: the obstacle's own radius
         ("axis", "f8", 3),  # unit axis of a cylinder [world], zeros for a sphere
-        ("is_nb", "?"),  # another agent (a neighbour row)
+        ("is_nb", "?"),  # another agent taking its share (a neighbour row)
+        ("is_agent", "?"),  # another drone, with or without its share: its row keeps the keep-out ellipsoid
+        ("grow", "f8"),  # m: what ``r`` grew by for its state's age (a drone's keep-out ellipsoid grows by it too)
     ],
     align=True,
 )
@@ -32,7 +34,9 @@ class ObstacleArrays:
 
     ``radius_m`` is the obstacle's own radius; the filter adds the agent's bounding
     radius and margin. Neighbour rows get the responsibility share, obstacle rows do
-    not. Build with :meth:`build`, which validates; the constructor trusts its input.
+    not. Rows of other drones (``is_agent``: every neighbour, and one taken whole) keep the
+    airframe pair's keep-out ellipsoid (``swarm.safety.barriers``, "Keep-out ellipsoid").
+    Build with :meth:`build`, which validates; the constructor trusts its input.
     """
 
     __slots__ = ("rec",)
@@ -45,7 +49,9 @@ class ObstacleArrays:
         radius_m: FloatArray,
         axis_w: FloatArray,
         is_neighbour: BoolArray,
+        is_agent: BoolArray | bool | None = None,
     ) -> None:
+        """``is_agent``: the rows of other drones (None: the neighbour rows without an axis)."""
         rec = np.empty(len(radius_m), dtype=OBSTACLE)
         rec["c"] = c_w
         rec["cd"] = c_dot_w
@@ -53,6 +59,8 @@ class ObstacleArrays:
         rec["r"] = radius_m
         rec["axis"] = axis_w
         rec["is_nb"] = is_neighbour
+        rec["is_agent"] = (rec["is_nb"] & ~rec["axis"].any(axis=1)) if is_agent is None else is_agent
+        rec["grow"] = 0.0
         self.rec = rec
 
     @staticmethod
@@ -89,8 +97,18 @@ class ObstacleArrays:
 
     @property
     def is_neighbour(self) -> BoolArray:
-        """(n,) another agent."""
+        """(n,) another agent taking its share of the pair (a neighbour row)."""
         return self.rec["is_nb"]
+
+    @property
+    def grow_m(self) -> FloatArray:
+        """(n,) m: what each radius grew by for its state's age (``swarm.net.neighbours``)."""
+        return self.rec["grow"]
+
+    @property
+    def is_agent(self) -> BoolArray:
+        """(n,) another drone (a neighbour, or one taken whole): its row keeps the keep-out ellipsoid."""
+        return self.rec["is_agent"]
 
     def __len__(self) -> int:
         return len(self.rec)
@@ -118,9 +136,11 @@ class ObstacleArrays:
         c_ddot_w: object | None = None,
         axis_w: object | None = None,
         is_neighbour: object | None = None,
+        is_agent: object | None = None,
     ) -> ObstacleArrays:
-        """Validated arrays; missing motion is zero, a missing axis means spheres.
-        Raises :class:`InputError` naming the field on a bad shape, NaN or a negative radius."""
+        """Validated arrays; missing motion is zero, a missing axis means spheres, missing
+        ``is_agent`` means the neighbours that are spheres. Raises :class:`InputError` naming the field on a
+        bad shape, NaN or a negative radius, or on a drone with an axis."""
         c = check_finite("obstacles.c_w", c_w)
         if c.ndim == 1 and c.size == 3:
             c = c[None, :]
@@ -145,7 +165,14 @@ class ObstacleArrays:
         nb = np.zeros(n, dtype=bool) if is_neighbour is None else np.asarray(is_neighbour, dtype=bool).reshape(-1)
         if nb.shape != (n,):
             raise InputError(f"obstacles.is_neighbour: expected shape ({n},), got {nb.shape}")
-        return ObstacleArrays(c, vec("c_dot_w", c_dot_w), vec("c_ddot_w", c_ddot_w), r, a, nb)
+        ag = nb & ~cyl if is_agent is None else np.asarray(is_agent, dtype=bool).reshape(-1)
+        if ag.shape == (1,) and n != 1:
+            ag = np.full(n, bool(ag[0]))
+        if ag.shape != (n,):
+            raise InputError(f"obstacles.is_agent: expected shape ({n},), got {ag.shape}")
+        if np.any(cyl & ag):
+            raise InputError("obstacles.is_agent: a drone is a sphere (no axis)")
+        return ObstacleArrays(c, vec("c_dot_w", c_dot_w), vec("c_ddot_w", c_ddot_w), r, a, nb, ag)
 
     def subset(self, keep: IntArray | BoolArray) -> ObstacleArrays:
         return ObstacleArrays.of_records(self.rec[keep])

@@ -202,8 +202,9 @@ def test_reciprocal_rows_add_up_to_the_pair_condition():
     """rho = 0.5: the two agents' rows sum to the pair's h' + kappa(h) >= 0, kappa(h) =
     2 gamma h outside the cone (each agent keeps its row's whole allowance) and gamma h
     inside it (the recovery shared; swarm.safety.constraints, "Responsibility share"). The paper's
-    smoothed rows, whose formula this spells out, on both sides of the cone."""
-    cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, live=False)
+    smoothed rows, whose formula this spells out, on both sides of the cone (the sphere: the
+    keep-out ellipsoid's pair is in test_keep_out.py)."""
+    cfg = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, live=False, ellipsoid=False)
     filt = SafetyFilter(MODEL, cfg)
     signs = set()
     for v_b in ([-1.0, -0.3, -0.1], [-1.0, 1.5, 0.0]):  # head on, inside the cone; outside it

@@ -1,7 +1,7 @@
 """h' = Lf h + Lg h u, checked against a central difference of h along simulated motion
 of the agent and of the obstacle (static, constant velocity and accelerating obstacles;
-spheres and cylinders; both command levels). Dropping the obstacle's velocity term or
-the body-centre offset makes this fail."""
+spheres, cylinders and other drones' keep-out ellipsoids; both command levels). Dropping the
+obstacle's velocity term or the body-centre offset makes this fail."""
 
 import zlib
 
@@ -40,9 +40,11 @@ def _richardson(h_of_t, d=2e-5):
 
 @pytest.mark.parametrize("level", list(CommandLevel))
 @pytest.mark.parametrize("kind", list(BarrierKind))
-@pytest.mark.parametrize("shape", ["sphere", "cylinder"])
+@pytest.mark.parametrize("shape", ["sphere", "cylinder", "drone"])
 @pytest.mark.parametrize("motion", list(MOTIONS))
 def test_hdot_matches_finite_difference_along_motion(level, kind, shape, motion):
+    """A drone (a neighbour, moving with the obstacle's motion) keeps the keep-out ellipsoid:
+    its row is taken in the frame that makes it a ball, its gradients mapped back."""
     rng = np.random.default_rng(zlib.crc32(f"{level}{kind}{shape}{motion}".encode()))  # stable across runs
     model = QuadModel()
     filt = SafetyFilter(model, FilterConfig(level=level, kind=kind, gamma_ho=0.8))
@@ -52,7 +54,8 @@ def test_hdot_matches_finite_difference_along_motion(level, kind, shape, motion)
         c_dot, c_ddot = MOTIONS[motion]
         axis = rng.normal(size=3) if shape == "cylinder" else None
         c = state.x_w + rng.uniform(-2.5, 2.5, 3)
-        obs = ObstacleArrays.build(c, [0.2], c_dot, c_ddot, axis)
+        radius = [0.2 if shape != "drone" else 0.07]
+        obs = ObstacleArrays.build(c, radius, c_dot, c_ddot, axis, is_neighbour=[shape == "drone"])
         rows = filt.rows(state, obs)
         if rows.inside.any():
             continue
@@ -66,6 +69,8 @@ def test_hdot_matches_finite_difference_along_motion(level, kind, shape, motion)
             lambda t, s=state, u=u, o=obs: filt.rows(_advance(level, model, s, u, t), obstacles_at(o, t)).h[0]
         )
         assert abs(predicted - fd) <= 1e-6 * max(1.0, abs(predicted)), (predicted, fd)
+        if shape == "drone":
+            assert rows.barrier.sz is not None and rows.barrier.sz[0] < 1.0  # the ellipsoid's frame
         checked += 1
     assert checked >= 20
 

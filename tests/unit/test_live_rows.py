@@ -369,11 +369,12 @@ def test_a_neighbour_that_does_not_share_gets_a_full_row():
     table.mark_gone("c")
     rows = table.arrays(0.0)
     assert dict(zip(table.row_names, rows.is_neighbour.tolist(), strict=True)) == {"a": True, "b": False, "c": False}
+    assert rows.is_agent.all()  # every one a drone: its keep-out ellipsoid, shared or not
 
     state = QuadState.hover([0.0, 0.0, 1.0])
     state.v_w = np.array([0.5, 0.0, 0.0])
     one = ObstacleArrays.build([[2.0, 0.1, 1.0]], [0.07], [[-1.0, 0.0, 0.0]], is_neighbour=[True])
-    solo = ObstacleArrays.build([[2.0, 0.1, 1.0]], [0.07], [[-1.0, 0.0, 0.0]], is_neighbour=[False])
+    solo = ObstacleArrays.build([[2.0, 0.1, 1.0]], [0.07], [[-1.0, 0.0, 0.0]], is_neighbour=[False], is_agent=[True])
     cfg = dict(level=CommandLevel.ATTITUDE, live=False)
     half = SafetyFilter(QuadModel(), FilterConfig(rho=0.5, **cfg))
     full = SafetyFilter(QuadModel(), FilterConfig(rho=1.0, **cfg))

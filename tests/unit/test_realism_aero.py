@@ -150,3 +150,38 @@ def test_ground_effect_clips_and_tilts():
     upside_down = quat_to_R(euler_to_quat(math.pi, 0.0, 0.0))
     F, tau = ground_effect(np.array([[0.0, 0.0, 0.1]]), upside_down[None], f, rotors, P)
     assert np.all(F == 0.0) and np.all(tau == 0.0)
+
+
+def test_downwash_acts_only_inside_the_wake():
+    """Side by side, one a millimetre higher, a drone feels nothing (upstream's model gives a whole
+    weight there); wholly inside the wake the model is upstream's; in between the force fades with
+    the share of the lower drone's rotor discs inside the wake, the wake widening below the drone."""
+    T = np.full(2, 0.265)
+
+    def below(d_m: float, dz_m: float) -> float:
+        return -downwash_force_w(np.array([[0.0, 0.0, 1.0], [d_m, 0.0, 1.0 + dz_m]]), T, P)[0, 2]
+
+    reach = 2 * P.downwash_wake_radius_m
+    assert below(0.25, 0.001) == 0.0 and below(reach + 1e-6, 1e-6) == 0.0
+    assert below(0.0, 0.3) == pytest.approx(P.downwash_cap_thrust_fraction * 0.265)  # wholly inside, capped
+    assert below(0.02, 1.0) == pytest.approx(upstream_downwash(1.0, 0.02))  # wholly inside, below the cap
+    fading = [below(d, 0.3) for d in np.linspace(0.0, reach + 0.3 * P.downwash_wake_spread, 40)]
+    assert all(a >= b for a, b in zip(fading, fading[1:], strict=False)) and fading[-1] == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 0.5), st.floats(0.001, 0.3), st.floats(0.001, 0.3))
+def test_the_share_inside_the_wake_is_a_fraction_and_exact_at_its_ends(d, r_b, r_w):
+    from swarm.realism.aero import _inside_fraction
+
+    f = _inside_fraction(d, r_b, r_w)
+    assert 0.0 <= f <= 1.0
+    if d >= r_b + r_w:
+        assert f == 0.0
+    if d + r_b <= r_w:
+        assert f == 1.0
+    # by sampling the lower disc
+    g = np.random.default_rng(0).uniform(-1, 1, (4000, 2))
+    g = g[(g**2).sum(1) <= 1] * r_b
+    inside = (((g - [d, 0.0]) ** 2).sum(1) <= r_w**2).mean()
+    assert f == pytest.approx(inside, abs=0.04)

@@ -55,8 +55,8 @@ def test_inside_the_radius_is_flagged_and_finite():
     assert h[0] == pytest.approx(0.1)  # <p, w>: opening
 
 
-def _cfg(sensing_m=3.0, margin_m=0.02):
-    flt = {"sensing_radius_m": sensing_m, "margin_m": margin_m}
+def _cfg(sensing_m=3.0, margin_m=0.02, ellipsoid=True):
+    flt = {"sensing_radius_m": sensing_m, "margin_m": margin_m, "ellipsoid": ellipsoid}
     return resolve(
         {
             "version": 1,
@@ -145,8 +145,12 @@ def test_one_deadlock_rule_a_yield_is_not_a_deadlock():
 
 def test_a_sensing_radius_that_cannot_see_in_time_is_refused_with_the_field():
     with pytest.raises(ConfigError, match=r"h\.yaml: agents\.0\.filter\.sensing_radius_m: 0\.2 m cannot see b"):
-        _cfg(sensing_m=0.2)
-    _cfg(sensing_m=0.3)  # 1 m/s closing: 0.073 m to brake, 0.008 m per tick, plus 0.16 m
+        _cfg(sensing_m=0.2, ellipsoid=False)
+    _cfg(sensing_m=0.3, ellipsoid=False)  # 1 m/s closing: 0.073 m to brake, 0.008 m per tick, plus 0.16 m
+    # the keep-out ellipsoid's radius up and down (0.30 m and the margin) in place of 0.16 m
+    with pytest.raises(ConfigError, match=r"sensing_radius_m: 0\.3 m cannot see b.*safety radius 0\.320 m"):
+        _cfg(sensing_m=0.3)
+    _cfg(sensing_m=0.41)
 
 
 def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():

@@ -262,7 +262,7 @@ def world(
 
     cfg, run_name = _process_args(config, run_id, port, mode)
     conf = _zenoh_config(cfg, run_name, tp.Role.WORLD, secrets)
-    os._exit(world_main(cfg, run_name, conf, gui=gui, expect=expect))
+    tp.exit_when_sent(world_main(cfg, run_name, conf, gui=gui, expect=expect), "world")
 
 
 @cli.command()
@@ -284,7 +284,7 @@ def router(config: str, run_id: str | None, port: int | None, secrets: Path | No
         )
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.ROUTER, secrets)
-    os._exit(router_main(run_name, conf, cfg))
+    tp.exit_when_sent(router_main(run_name, conf, cfg), "router")
 
 
 @cli.command()
@@ -309,7 +309,7 @@ def agent(
         click.echo(f"config error: {exc}", err=True)
         sys.exit(2)
     conf = _zenoh_config(cfg, run_name, tp.Role.AGENT, secrets, agent_id)
-    os._exit(agent_main(cfg, agent_id, run_name, conf))
+    tp.exit_when_sent(agent_main(cfg, agent_id, run_name, conf), f"agent {agent_id}")
 
 
 @cli.command()
@@ -325,6 +325,7 @@ def record(
     """Start the recorder alone."""
     _pin_cpu()
     from swarm.net import transport as tp
+    from swarm.runs.ledger import Ledger
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -335,7 +336,8 @@ def record(
     real = any(a.backend == "crazyflie" for a in cfg.agents)
     linger_s = cfg.time.land_timeout_s + 1.0 if real else 0.0  # the world relays landings that long
     conf = _zenoh_config(cfg, run_name, tp.Role.RECORDER, secrets)
-    os._exit(record_main(run_name, out, conf, linger_s, live_port))
+    ids, ledger = tuple(a.id for a in cfg.agents), Ledger.of(cfg)
+    tp.exit_when_sent(record_main(run_name, out, conf, linger_s, live_port, ids, ledger), "recorder")
 
 
 @cli.command("ros2-bridge")
@@ -675,11 +677,14 @@ def cf_recover(uri: str) -> None:
 
 @cf.command("check")
 @click.argument("uri")
-@click.option("--firmware", default="2026.04", show_default=True, help="the release on the drone (its thrust map)")
+@click.option(
+    "--firmware", default="2026.04", show_default=True, help="the firmware on the drone (its thrust map), or crazysim"
+)
 @click.option("--pwm-per-newton", type=float, default=None, help="a calibration of your own instead")
 def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
     """PROPELLERS OFF: send a known setpoint sequence and compare what the firmware decoded
-    (its ctrltarget log) with what its rules say it must: signs and thrust on your drone."""
+    (its ctrltarget and stabilizer.thrust logs) with what its rules say it must: signs and
+    thrust on your drone."""
     from swarm.agents.cf_admin import check
     from swarm.config import ThrustCalibration
 
@@ -690,6 +695,9 @@ def cf_check(uri: str, firmware: str, pwm_per_newton: float | None) -> None:
         sys.exit(2)
     rows = _cf_call(lambda: check(uri, cal))
     bad = 0
+    missing = rows[0]["missing"] if rows else []  # type: ignore[index]
+    if missing:
+        click.echo(f"the firmware logs no {', '.join(missing)}: those cannot be checked")
     for r in rows:  # type: ignore[attr-defined]
         fw = ", ".join(f"{k} {v:.3g}" for k, v in r["firmware"].items()) or "(nothing logged)"
         want = ", ".join(f"{k} {v:.3g}" for k, v in r["expected"].items())

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
-from swarm.crazyflie_fw import pwm_per_newton
+from swarm.crazyflie_fw import CMD_FULL, ThrustMap, pwm_per_newton, thrust_map
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, Layout, QuadParams
 from swarm.planning import PlannerSettings
@@ -137,37 +137,58 @@ class TiebreakSettings(_Strict):
 
 
 class ThrustCalibration(_Strict):
-    """Collective thrust [N] to the Crazyflie's 16-bit thrust command:
-    ``pwm = offset + per_newton * F``, clipped to ``[0, max_pwm]``. By default
-    ``per_newton`` is the firmware's own linear map (``swarm.crazyflie_fw``:
-    ``65535 / (4 THRUST_MAX)``, THRUST_MAX by release and propellers); for another
-    release, or to trim for your drones, fit ``pwm_per_newton`` (and the offset) by a
-    hover test."""
+    """Collective thrust [N] to the Crazyflie's 16-bit thrust command, clipped to
+    ``[0, max_pwm]``: the inverse of a :class:`swarm.crazyflie_fw.ThrustMap`. By default
+    the firmware's own map for ``firmware`` (linear ``65535 / (4 THRUST_MAX)`` per newton
+    for the battery-compensated releases, THRUST_MAX by release and propellers; quadratic
+    for ``crazysim``, the software-in-the-loop build's simulated motors). To trim for your
+    drones fit, by a hover test, either ``pwm_per_newton`` (and ``pwm_offset``): linear,
+    ``pwm = offset + per_newton * F``; or ``pwm_to_thrust_a`` and ``_b``: quadratic, each
+    motor ``a u^2 + b u`` [N] at ``u = (pwm - offset) / 65535`` (the firmware's
+    ``quadSysId`` parameters)."""
 
-    firmware: str = "2026.04"  # the release on the drones: 2025.09, 2025.12, 2026.04, 2026.08
+    firmware: str = "2026.04"  # the firmware on the drones: 2025.09, 2025.12, 2026.04, 2026.08, crazysim
     propellers: Literal["standard", "thrust_upgrade"] = "standard"
     pwm_offset: float = 0.0
     pwm_per_newton: float | None = Field(None, gt=0)  # None: the firmware's thrust map
+    pwm_to_thrust_a: float | None = Field(None, ge=0)  # N per motor at u^2, with pwm_to_thrust_b
+    pwm_to_thrust_b: float | None = Field(None, gt=0)  # N per motor at u
     max_pwm: int = Field(60_000, gt=0, le=60_000)  # the RPYT commander caps at 60000 (crtp_commander_rpyt.c)
 
     @model_validator(mode="after")
     def _known(self) -> ThrustCalibration:
-        if self.pwm_per_newton is None:
+        if (self.pwm_to_thrust_a is None) != (self.pwm_to_thrust_b is None):
+            raise ValueError("give pwm_to_thrust_a and pwm_to_thrust_b together")
+        if self.pwm_per_newton is not None and self.pwm_to_thrust_b is not None:
+            raise ValueError("give either pwm_per_newton or pwm_to_thrust_a and _b, not both")
+        if self.pwm_per_newton is None and self.pwm_to_thrust_b is None:
             try:
-                pwm_per_newton(self.firmware, self.propellers)
+                thrust_map(self.firmware, self.propellers)
             except ValueError as exc:
                 raise ValueError(str(exc)) from None
         return self
 
     @property
+    def map(self) -> ThrustMap:
+        """The thrust map this calibration inverts."""
+        if self.pwm_per_newton is not None:
+            return ThrustMap(0.0, CMD_FULL / (4.0 * self.pwm_per_newton), self.pwm_offset)
+        if self.pwm_to_thrust_a is not None and self.pwm_to_thrust_b is not None:
+            return ThrustMap(self.pwm_to_thrust_a, self.pwm_to_thrust_b, self.pwm_offset)
+        m = thrust_map(self.firmware, self.propellers)
+        return ThrustMap(m.a_N, m.b_N, self.pwm_offset)
+
+    @property
     def per_newton(self) -> float:
-        """Thrust command per newton of collective thrust."""
+        """Thrust command per newton of collective thrust (a linear map's slope)."""
+        if self.map.a_N != 0.0:
+            raise ValueError("a quadratic thrust map has no single pwm_per_newton")
         return self.pwm_per_newton or pwm_per_newton(self.firmware, self.propellers)
 
     @property
     def max_thrust_N(self) -> float:
         """The largest collective thrust [N] a setpoint can ask of the drone."""
-        return max(0.0, (self.max_pwm - self.pwm_offset) / self.per_newton)
+        return max(0.0, self.map.collective_N(self.max_pwm))
 
 
 class CrazyflieSettings(_Strict):

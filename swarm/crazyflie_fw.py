@@ -18,6 +18,10 @@ would in a lab.
   default, each motor gives ``cmd / 65535 * THRUST_MAX``; the legacy power distribution
   adds the attitude terms around the thrust command, so the collective is
   ``4 * THRUST_MAX * thrust / 65535``. ``THRUST_MAX`` by release in :data:`THRUST_MAX_N`.
+  CrazySim's software-in-the-loop build (``firmware: crazysim``) has no battery: its
+  simulated motors are quadratic, ``a u^2 + b u`` per motor with ``u = cmd / 65535``
+  (``src/modules/src/power_distribution_sitl.c``, :data:`CRAZYSIM`). :class:`ThrustMap`
+  holds either.
 * Supervisor (``src/modules/src/supervisor.c``, ``supervisor_state_machine.c``): flying
   means a motor above idle within the last 2 s (``IS_FLYING_HYSTERESIS_THRESHOLD``).
   While flying, a setpoint older than 500 ms (``COMMANDER_WDT_TIMEOUT_STABILIZE``) is
@@ -55,21 +59,87 @@ THRUST_MAX_N: dict[tuple[str, str], float] = {
 table with a voltage model: calibrate ``pwm_per_newton`` by a hover test instead."""
 
 
-def pwm_per_newton(firmware: str, propellers: str = "standard") -> float:
-    """Thrust command per newton of collective thrust for a firmware release."""
+CMD_FULL = 65535.0  # a thrust or PWM command's full scale (uint16)
+
+
+@dataclass(frozen=True)
+class ThrustMap:
+    """A motor's thrust [N] of its 16-bit command ``cmd``: ``a u^2 + b u`` with
+    ``u = (cmd - offset) / 65535`` (``a = 0``: linear). The legacy power distribution gives
+    every motor the thrust command (plus attitude terms that cancel in the collective), so the
+    collective thrust is four times a motor's."""
+
+    a_N: float  # N per motor at u^2
+    b_N: float  # N per motor at u
+    offset: float = 0.0  # command at zero thrust
+
+    def collective_N(self, cmd: float) -> float:
+        """The collective thrust [N] of a thrust command."""
+        u = (cmd - self.offset) / CMD_FULL
+        return 4.0 * (self.a_N * u * u + self.b_N * u)
+
+    def command(self, thrust_N: float) -> float:
+        """The thrust command [unclipped, fractional] whose collective thrust is ``thrust_N``
+        (a linear map extrapolates below zero thrust; a quadratic one takes the root with
+        ``u >= 0`` and no less than zero thrust)."""
+        if self.a_N == 0.0:
+            return self.offset + CMD_FULL * thrust_N / (4.0 * self.b_N)
+        per_motor = max(thrust_N, 0.0) / 4.0
+        u = (-self.b_N + math.sqrt(self.b_N * self.b_N + 4.0 * self.a_N * per_motor)) / (2.0 * self.a_N)
+        return self.offset + CMD_FULL * u
+
+
+@dataclass(frozen=True)
+class SitlAirframe:
+    """CrazySim's simulated Crazyflie, as its firmware build states it."""
+
+    thrust: ThrustMap  # power_distribution_sitl.c pwmToThrustA, pwmToThrustB (params quadSysId.*)
+    thrust_to_torque_m: float  # power_distribution_sitl.c thrustToTorque: yaw torque [N m] per N of thrust
+    arm_m: float  # platform_defaults_cf2.h ARM_LENGTH: centre to motor [m]
+    mass_kg: float  # platform_defaults_cf2.h CF_MASS
+
+
+CRAZYSIM = SitlAirframe(ThrustMap(0.091492681, 0.067673604), 0.005964552, 0.046, 0.027)
+"""The simulated motors and frame of CrazySim's firmware (llanesc/crazyflie-firmware
+``sitl-release``: ``src/modules/src/power_distribution_sitl.c``,
+``src/platform/interface/platform_defaults_cf2.h``); ``tests/integration/test_firmware.py``
+reads the parameters back from the running firmware."""
+
+MOTOR_XY = ((1, -1), (-1, -1), (-1, 1), (1, 1))
+"""Signs of each motor's (x forward, y left) position, M1..M4: front right, back right, back
+left, front left (power_distribution_sitl.c ``powerDistributionForceTorque``: roll takes
+from M1, M2; pitch from M1, M4)."""
+MOTOR_YAW = (-1, 1, -1, 1)
+"""Sign of each motor's yaw torque on the body, M1..M4: ``powerDistributionForceTorque``
+lowers M1 and M3 for a positive (counter-clockwise) yaw torque."""
+
+
+def thrust_map(firmware: str, propellers: str = "standard") -> ThrustMap:
+    """The firmware's own thrust map: linear for the battery-compensated releases of
+    :data:`THRUST_MAX_N`, quadratic for ``crazysim`` (:data:`CRAZYSIM`, standard propellers)."""
+    if firmware == "crazysim" and propellers == "standard":
+        return CRAZYSIM.thrust
     try:
-        return 65535.0 / (4.0 * THRUST_MAX_N[(firmware, propellers)])
+        return ThrustMap(0.0, THRUST_MAX_N[(firmware, propellers)])
     except KeyError:
-        known = ", ".join(sorted({f for f, _ in THRUST_MAX_N}))
+        known = ", ".join(sorted({f for f, _ in THRUST_MAX_N} | {"crazysim"}))
         raise ValueError(
-            f"no linear thrust map for firmware {firmware!r} with {propellers} propellers "
-            f"(known: {known}); give pwm_per_newton from a hover test"
+            f"no thrust map for firmware {firmware!r} with {propellers} propellers "
+            f"(known: {known}); give pwm_per_newton (or pwm_to_thrust_a and _b) from a hover test"
         ) from None
+
+
+def pwm_per_newton(firmware: str, propellers: str = "standard") -> float:
+    """Thrust command per newton of collective thrust for a release with a linear map."""
+    m = thrust_map(firmware, propellers)
+    if m.a_N != 0.0:
+        raise ValueError(f"firmware {firmware!r} has a quadratic thrust map: no single pwm_per_newton")
+    return CMD_FULL / (4.0 * m.b_N)
 
 
 def collective_thrust_N(cmd: int, firmware: str, propellers: str = "standard") -> float:
     """The collective thrust [N] the firmware makes of a decoded RPYT thrust command."""
-    return 4.0 * THRUST_MAX_N[(firmware, propellers)] * cmd / 65535.0
+    return thrust_map(firmware, propellers).collective_N(cmd)
 
 
 def wire_yaw_rate_dps(yaw_rate_ccw_dps: float) -> float:

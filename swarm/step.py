@@ -30,7 +30,7 @@ from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import filter_config_for
+from swarm.tuning import command_lead_s, filter_config_for
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig
@@ -51,7 +51,7 @@ class StepResult:
     filter: FilterResult | None  # None: unfiltered (filter.enabled false) or motors off
     row_ids: list[str]  # the name of each filter row, in the filter's row order
     held_w: FloatArray | None  # (3,) m/s, world: the velocity the route held in place of the path, or None
-    x_b_w: FloatArray  # (3,) m, world: body centre at the step's state
+    x_b_w: FloatArray  # (3,) m, world: body centre at the step's state at its time (before any lead)
     v_b_w: FloatArray  # (3,) m/s, world: its velocity
     solo: bool  # the agent is not doing its share of a pair's avoidance now (unfiltered, or not a clean solve)
     arrived: bool  # it has been within the goal tolerance of its goal at some step
@@ -94,13 +94,17 @@ class AgentStep:
         goal_tolerance_m: float = 0.15,
         landing: bool = False,
         estimator: Estimator | None = None,
+        lead_s: float = 0.0,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
         ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
         ``landing`` also builds the filter a real drone lands with (its floor off);
         ``estimator``: the agent acts on its estimate from motion-capture frames
-        (``world.realism.sensing``), never on the state it is given."""
+        (``world.realism.sensing``), never on the state it is given; ``lead_s`` [s]: its command
+        acts this much later (``swarm.tuning.command_lead_s``), so it filters its state predicted
+        to then (the estimate, or the given state moved by its last command) against rows the
+        caller gives at the same time."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -109,6 +113,8 @@ class AgentStep:
         self.filt_land = SafetyFilter(model, replace(config, floor_z_m=None)) if landing else None
         self.att = AttitudeController(model)
         self.estimator = estimator
+        self.lead_s = lead_s
+        self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included)
         self._follows = follows(route)
         self.min_h = math.inf
         self.infeasible = 0
@@ -123,12 +129,15 @@ class AgentStep:
         goal_tolerance_m: float,
         level: CommandLevel | None = None,
         realism: RealismSettings | None = None,
+        control_hz: float | None = None,
     ) -> AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
         (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
-        ``realism.sensing`` its estimator, starting at rest at its start."""
+        ``realism.sensing`` its estimator, starting at rest at its start; with ``control_hz`` its
+        command's lead in that world."""
         level = agent.command_level if level is None else level
+        lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
         path_w, route = path_for(agent, still)
         estimator = None
         if realism is not None and realism.sensing.enabled:
@@ -148,6 +157,7 @@ class AgentStep:
             goal_tolerance_m=goal_tolerance_m,
             landing=agent.backend == "crazyflie",
             estimator=estimator,
+            lead_s=lead_s,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -193,13 +203,23 @@ class AgentStep:
         a real drone's take-off or landing path, flown in place of the mission's (no route
         rules); ``landing``: filter with the floor off (a real drone landing through it).
         With an estimator the state is its estimate at ``t_s`` from the motion-capture
-        ``frames`` that arrived since the last step (``state`` is not read)."""
-        model, level, est = self.model, self.level, self.estimator
+        ``frames`` that arrived since the last step (``state`` is not read). With a lead the
+        neighbours' rows are the caller's at ``t_s + lead_s``."""
+        model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
+        now = state  # (the state at t_s, published; a lead moves the one filtered)
         if est is not None:
             for f in frames or ():
                 est.frame(f)
             e = est.estimate(t_s)
-            state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+            est_out = np.concatenate([e.x_w, e.v_w])  # (reported at the tick's time)
+            state = now = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+            if lead > 0.0:
+                e = est.estimate(t_s + lead)
+                state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+        elif lead > 0.0:
+            a = self._a_w
+            x_w = state.x_w + state.v_w * lead + 0.5 * a * lead * lead
+            state = QuadState(x_w, state.v_w + a * lead, state.q, state.Omega_b)
         x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
         nb = neighbours.arrays
         held = None
@@ -229,14 +249,19 @@ class AgentStep:
         else:
             u, status = u_ref, FilterStatus.OK
         if not self.arrived:
-            self.arrived = math.dist(state.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
+            self.arrived = math.dist(now.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
+        pub_x, pub_v = (
+            (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
+        )
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
-        est_out = _NO_ESTIMATE
+        if est is not None or lead > 0.0:
+            self._a_w = self._accel_w(state, u)
         if est is not None:
-            est.command(t_s, self._accel_w(state, u))
-            est_out = np.concatenate([state.x_w, state.v_w])
+            est.command(t_s + lead, self._a_w)
+        else:
+            est_out = _NO_ESTIMATE
         return StepResult(
-            level, command, u, status, res, row_ids, held, x_b, v_b, self.solo, self.arrived, self.min_h,
+            level, command, u, status, res, row_ids, held, pub_x, pub_v, self.solo, self.arrived, self.min_h,
             self.infeasible, est_out,
         )  # fmt: skip
 

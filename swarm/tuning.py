@@ -61,6 +61,19 @@ def prediction_bounds(params: QuadParams, realism: RealismSettings | None) -> tu
     return max_accel_mps2(params), vel
 
 
+def command_lead_s(realism: RealismSettings | None, control_hz: float) -> float:
+    """How far ahead [s] an agent's command acts: the ticks its command link takes to reach the
+    drone, ``ceil((delay + jitter / 2) / tick)`` ticks (``world.realism.comms.command``, the
+    median of its fates, ``swarm.realism.comms``), 0 in the ideal world. The agent filters the
+    state it predicts for then, with its neighbours' rows moved and grown to then, so the delay of
+    its command is a prediction, not a lag the filter does not know of."""
+    if realism is None or realism.ideal:
+        return 0.0
+    link = realism.comms.command
+    tick = 1.0 / control_hz
+    return math.ceil((link.delay_s + 0.5 * link.jitter_s) / tick - 1e-9) * tick
+
+
 HORIZON_SPEED_PER_GAIN_M = 0.4
 """The planner's obstacle horizon ``planner.obstacle_horizon_s`` holds as written for an agent
 whose target speed ``u`` [m/s] over its class-K gain ``g`` [1/s] is at most this [m], and is

@@ -14,9 +14,14 @@ victim_unaffected (forgeries: lockstep, the victim's path is the one of a run wi
 attack to the bit; realtime, it reached its goal without contact).
 
 Cases: agent_kill, agent_stop (SIGSTOP for 3 s, then SIGCONT), recorder_kill, world_kill,
-world_stop (1 s), forged_command (another agent's credentials, the victim's next tick),
+world_stop (1 s), recorder_stop (3 s, while the run ends: the recording against what each
+process says it sent), forged_command (another agent's credentials, the victim's next tick),
 outsider (no credentials), bad_config (the slowest refusal over the malformed configs of
-the tests).
+the tests), and a run's own agent gone wrong in place of cf3, hovering between cf1 and cf2
+(``tests/integration/rogue.py``, from t = 1 s): rogue_flood (a thousand states per tick),
+rogue_nan, rogue_far (a kilometre away), rogue_fast (300 m/s), rogue_reorder (each tick
+again, and one 50 ticks old), rogue_mute (never a command). Keys of those rows also:
+``dropped`` (its messages the receivers dropped), ``offenders`` (whom the metrics name).
 """
 
 from __future__ import annotations
@@ -149,6 +154,74 @@ def world_stop(out: Path, mode: str) -> dict[str, Any]:
     return _summary("world_stop", cfg, h, None, "the world resumes; agents wait for its next tick")
 
 
+def recorder_stop(out: Path, mode: str) -> dict[str, Any]:
+    cfg, h, _t0 = _faulted(out, mode, "recorder", signal.SIGSTOP)
+    time.sleep(3.0)  # the fault: the recorder frozen for 3 s, while the run ends
+    h.kill("recorder", signal.SIGCONT)
+    h.wait()
+    m = h.result
+    gaps = m.get("recording_gaps") or []
+    what = f"the recording holds {m['recording']['summary']}; " + (
+        f"{m['lost_messages']} lost, in gaps {gaps}" if gaps else "nothing lost"
+    )
+    return _summary("recorder_stop", cfg, h, None, what, lost_messages=m.get("lost_messages"))
+
+
+ROGUE_AGENTS = [
+    {"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [4.0, 0.0, 1.0]},
+    {"id": "cf2", "start": [4.0, 0.05, 1.0], "goal": [0.0, 0.05, 1.0]},
+    {"id": "cf3", "start": [2.0, 0.0, 1.0], "goal": [2.0, 0.0, 1.0]},  # the rogue: it hovers between them
+]
+
+
+def _rogue(out: Path, mode: str, fault: str) -> dict[str, Any]:
+    """cf3's process replaced by a rogue of the run (``tests/integration/rogue.py``)."""
+
+    class RogueRun(RunHandle):
+        def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
+            if name == "agent-cf3":
+                args = ["-m", "tests.integration.rogue", *args[args.index("agent") + 1 :], "--mode", fault]
+            super()._spawn(name, args, cpu)
+
+    cfg = _config(mode, agents=ROGUE_AGENTS, time={"mode": mode, "late_command": "brake", "lockstep_timeout_s": 1.0})
+    h = RogueRun.start(cfg, out)
+    h.wait()
+    m = h.result
+    o = m.get("offenders", {}).get("cf3", {})
+    by = ", ".join(o.get("dropped_by", [])) or "no one"
+    what = f"{o.get('dropped', 0)} of its states dropped by {by} ({', '.join(sorted(o.get('reasons', {})))})"
+    if fault == "mute":
+        quiet = o.get("longest_silence_s", 0.0)
+        what = f"never a command: waited for once, then {m.get('late_ticks')} late ticks; silent {quiet:.1f} s"
+    named = sorted(m.get("offenders", {}))
+    what += f"; named: {', '.join(named) or 'no one'}"
+    return _summary(f"rogue_{fault}", cfg, h, None, what, dropped=o.get("dropped"), offenders=named)
+
+
+def rogue_flood(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "flood")
+
+
+def rogue_nan(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "nan")
+
+
+def rogue_far(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "far")
+
+
+def rogue_fast(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "fast")
+
+
+def rogue_reorder(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "reorder")
+
+
+def rogue_mute(out: Path, mode: str) -> dict[str, Any]:
+    return _rogue(out, mode, "mute")
+
+
 def _attacker_session(cfg: ScenarioConfig, acc: tp.Access | None) -> tuple[zenoh.Session, str]:
     """The attacker's session and how it opened. Through a router a client without the run's
     credentials has its one link refused and does not open (tests/integration/test_forged.py):
@@ -251,7 +324,23 @@ def bad_config(out: Path, mode: str) -> dict[str, Any]:
 
 CASES: dict[str, Callable[[Path, str], dict[str, Any]]] = {
     f.__name__: f
-    for f in (agent_kill, agent_stop, recorder_kill, world_kill, world_stop, forged_command, outsider, bad_config)
+    for f in (
+        agent_kill,
+        agent_stop,
+        recorder_kill,
+        world_kill,
+        world_stop,
+        recorder_stop,
+        forged_command,
+        outsider,
+        bad_config,
+        rogue_flood,
+        rogue_nan,
+        rogue_far,
+        rogue_fast,
+        rogue_reorder,
+        rogue_mute,
+    )
 }
 
 

@@ -9,7 +9,8 @@ one JSON line. The imperfections and their levels:
   forward), and every state, bundle and command this late too (0-100 ms);
 * ``noise`` [m]: motion-capture position noise, one standard deviation per coordinate (0-10 mm;
   frames at 100 Hz, on time);
-* ``gusts`` [m/s]: Dryden gusts' standard deviation (MIL-F-8785C lengths at 1 m; 0-3 m/s);
+* ``gusts`` [m/s]: Dryden gusts' standard deviation (MIL-F-8785C lengths at 1 m; 0-3 m/s), with
+  the rotor drag through which wind reaches a drone (on at every level, 0 included);
 * ``mass`` [fraction]: every drone heavier than the filter's model by this much (0-30 %).
 
 The scenes: ``circle_8`` (8 drones swapping across a 2 m circle, exact symmetry), ``sphere_8``
@@ -65,8 +66,8 @@ def realism(axis: str, level: float) -> dict[str, Any]:
         }
     if axis == "noise":
         return {"sensing": {"enabled": True, "rate_hz": 100.0, "position_noise_m": level}}
-    if axis == "gusts":
-        return {"wind": {"gust_std_mps": level}}
+    if axis == "gusts":  # (wind reaches a drone through its rotor drag, so drag acts at every level)
+        return {"wind": {"gust_std_mps": level}, "aero": {"drag": True}}
     if axis == "mass":
         return {"motors": {"mass_offset_fraction": level}}
     raise ValueError(f"unknown axis {axis!r}")

@@ -148,7 +148,9 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = AgentStep.of_agent(me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism)
+        self.step = AgentStep.of_agent(
+            me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism, control_hz=cfg.time.control_hz
+        )
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
         self.source = pick(cfg, agent_id, run, self.counter)
@@ -255,6 +257,7 @@ class AgentProcess:
     def _measurement(self, m: Message) -> None:
         self.pending.append(m)
         self.msg_seen.setdefault(m.k, time.monotonic())
+        self.source.at(m.t)  # how far the run is: no neighbour's state is much newer
 
     def _obstacles(self, m: Message) -> None:
         """The obstacles of a clock or tick message, if it is the newest."""
@@ -392,7 +395,7 @@ class AgentProcess:
         tick (a real drone: the tracker of its flight phase)."""
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
         x_b = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.step.model.params.l_m)[0]
-        neighbours = self.source.rows(msg.t, msg.k, x_b, self.lockstep)
+        neighbours = self.source.rows(msg.t + self.step.lead_s, msg.k, x_b, self.lockstep)
         if self.plan is None:
             return self.step(msg.t, state, self.obstacles, neighbours, frames=msg.body.get("frames"))
         tracker = self.plan.tracker(state.x_w)
@@ -458,6 +461,7 @@ class AgentProcess:
             "rx_messages": counter.rx_messages,
             "missed_neighbours": self.source.missed,
             "cells_declared": self.source.cells_declared,
+            "rejected": tp.rejected(self.source.rejected, counter.by_sender),  # per sender and reason
         }
 
     def run(self, conf: Any) -> int:

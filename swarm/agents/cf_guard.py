@@ -44,14 +44,19 @@ It sends an emergency stop by itself in three cases:
   ``on_agent_loss: watchdog`` it goes silent instead and leaves the drone to the
   firmware's watchdog: level out after 500 ms, motors off and locked after 2 s);
 * the link reports an error;
-* no packet has come back for ``link_timeout_s``. The server polls each link with
-  null packets every 50 ms, as cflib's radio driver does; the radio acknowledges every
-  packet, and so does the test stand-in. Set ``expect_replies`` false to turn this check
-  off.
+* no packet has come back for ``link_timeout_s``. The server polls each link every
+  50 ms with a packet the link answers: on a Crazyradio (``radio://``) a null packet, as
+  cflib's radio driver polls, which the radio acknowledges; on a link without
+  acknowledgements (``udp://`` to a software-in-the-loop firmware, ``usb://``) a link
+  echo (CRTP port 15 channel 0), which the firmware sends back (crtpservice.c ``linkEcho``):
+  a firmware answers nothing it is not asked. Set ``expect_replies`` false to turn this
+  check off.
 
-An emergency stop goes out both ways, the supervisor's command (protocol 12 and later)
-and the older localization packet, each three times. A firmware ignores the form it
-does not know.
+An emergency stop goes out both ways, each three times: the supervisor's command (CRTP
+port 9, from protocol 12, firmware 2025.09) and the older localization packet
+(``Localization.EMERGENCY_STOP``, crtp_localization_service.c). A firmware that does not
+know one form ignores it; in CrazySim's software-in-the-loop build (protocol 7) port 9
+carries the simulator's sensors, so there the localization packet is the one that stops it.
 """
 
 from __future__ import annotations
@@ -76,6 +81,20 @@ LANDED_AFTER_S = 2.5  # > the supervisor's 2 s flying hysteresis (supervisor.c I
 def default_socket() -> Path:
     """The machine's guard socket (one per user)."""
     return Path(os.environ.get("C3SWARM_CF_SOCKET", f"/tmp/c3swarm-cf-{os.getuid()}.sock"))
+
+
+def poll_packet(uri: str) -> Any:
+    """The packet that polls a link every 50 ms: a null packet (port 15, channel 3, no data)
+    on a Crazyradio, which acknowledges every packet; elsewhere a link echo (port 15,
+    channel 0), which the firmware sends back (crtpservice.c)."""
+    from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
+
+    if uri.startswith("radio://"):
+        return CRTPPacket(0xFF)
+    pk = CRTPPacket()
+    pk.set_header(CRTPPort.LINKCTRL, 0)
+    pk.data = b"\x00"
+    return pk
 
 
 class _Shim:
@@ -177,13 +196,11 @@ class _Drone:
         print(f"cf_guard {self.uri}: emergency stop ({reason})", file=sys.stderr, flush=True)
 
     def _watch_link(self) -> None:
-        """The link thread: null packets every 50 ms, the keep-alive while the motors are
-        off, and the emergency stop when the link reports an error or stops answering."""
-        from cflib.crtp.crtpstack import CRTPPacket
-
+        """The link thread: a poll every 50 ms (:func:`poll_packet`), the keep-alive while the
+        motors are off, and the emergency stop when the link reports an error or stops answering."""
         last_rx = time.monotonic()
         while not self.lost.is_set():
-            self.cf.send_packet(CRTPPacket(0xFF))  # a null packet: port 15, channel 3, no data
+            self.cf.send_packet(poll_packet(self.uri))
             pk = self.driver.receive_packet(0.05)
             now = time.monotonic()
             while pk is not None:

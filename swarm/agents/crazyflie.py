@@ -13,7 +13,8 @@ Crazyflie's legacy RPYT setpoint:
   (``attitudeRate.yaw = -values->yaw``, crtp_commander_rpyt.c), so a counter-clockwise
   (z up) rate goes out negative (:func:`swarm.crazyflie_fw.wire_yaw_rate_dps`);
 * thrust as a 16-bit command, through the config's calibration (:func:`thrust_command`),
-  by default the firmware's own thrust map.
+  by default the firmware's own thrust map (linear for a release on a drone, quadratic for
+  CrazySim's simulated motors).
 
 Fly a new setup with the propellers off first, and check these signs against the
 client's attitude display.
@@ -55,7 +56,7 @@ def thrust_command(thrust_N: float, cal: ThrustCalibration) -> int:
     """Collective thrust [N] to the 16-bit thrust command, clipped to ``[0, max_pwm]``."""
     if not math.isfinite(thrust_N):
         return 0
-    return int(round(min(max(cal.pwm_offset + cal.per_newton * thrust_N, 0.0), cal.max_pwm)))
+    return int(round(min(max(cal.map.command(thrust_N), 0.0), cal.max_pwm)))
 
 
 def rpyt(roll_rad: float, pitch_rad: float, yaw_rate_radps: float, thrust_N: float, cal: ThrustCalibration) -> tuple:

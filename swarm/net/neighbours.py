@@ -1,16 +1,26 @@
 """What an agent knows of the other agents (docs/design.md, "Failures"): last published state,
 extrapolated at constant velocity, with a radius that grows once the state is older
 than the timeout; past the hard limit, or once the neighbour's liveliness is gone, it
-is kept as a stopped obstacle at its last position or dropped, as configured."""
+is kept as a stopped obstacle at its last position or dropped, as configured.
+
+It takes only what a neighbour can have meant (docs/design.md, "A run's own agents"): with
+:attr:`NeighbourTable.limits` set, a plausible state (:class:`swarm.net.statewire.Plausible`),
+one per neighbour and tick in order (a state or two late is taken), none ahead of the newest tick this
+agent has heard of by more than ``limits.ahead_s`` (:meth:`NeighbourTable.at`). Anything
+else is dropped and counted against its sender (:attr:`NeighbourTable.rejected`), and the
+neighbour is kept as its last good state allows: a neighbour that goes silent or
+implausible is extrapolated and grows, not forgotten."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numba import njit
 
+from swarm.net import statewire
 from swarm.realism.comms import LOST, CommsModel, DelayLine, MessageKind
 from swarm.rotation import BoolArray, FloatArray, IntArray
 from swarm.safety.obstacles import OBSTACLE, NamedObstacles, ObstacleArrays
@@ -169,6 +179,48 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
 
 
 _ANY_TICK = np.iinfo(np.int64).max
+_VERDICTS = (
+    None,
+    statewire.REPEATED,
+    statewire.OUT_OF_ORDER,
+    statewire.AHEAD,
+    statewire.OUTSIDE,
+    statewire.TOO_FAST,
+    statewire.TOO_LARGE,
+)  # _admit's codes 1..6
+
+
+@njit(cache=True)
+def _admit(last_t, last_seq, slots, seq, t, x, v, r, lim, horizon_s, out):
+    """out[n] for record n (sequence number seq, sim time t [s], centre x [m, world],
+    velocity v [m/s], radius r [m]) from slot slots[n], whose newest state taken has time
+    last_t and sequence number last_seq: 0 take it, -1 a copy of that state (a relay bundles
+    a late neighbour's state again: not an offence), else the index of its reason in
+    ``_VERDICTS``. ``lim``: ``Plausible.as_array``; ``horizon_s``: no state is newer. A state
+    up to ``lim[8]`` [s] older than last_t is taken (into the history) without moving it."""
+    for n in range(slots.shape[0]):
+        i = slots[n]
+        if t[n] == last_t[i]:
+            out[n] = -1 if seq[n] == last_seq[i] else 1
+            continue
+        if t[n] < last_t[i] - lim[8]:
+            out[n] = 2
+            continue
+        if t[n] > horizon_s:
+            out[n] = 3
+            continue
+        v2 = 0.0
+        out[n] = 0
+        for d in range(3):
+            if not lim[d] <= x[n, d] <= lim[3 + d]:
+                out[n] = 4
+            v2 += v[n, d] * v[n, d]
+        if out[n] == 0 and v2 > lim[6] * lim[6]:
+            out[n] = 5
+        elif out[n] == 0 and r[n] > lim[7]:
+            out[n] = 6
+        if out[n] == 0 and t[n] > last_t[i]:
+            last_t[i], last_seq[i] = t[n], seq[n]
 
 
 class NeighbourTable:
@@ -209,6 +261,33 @@ class NeighbourTable:
         self.s = _Slots.empty(0, self.HISTORY)
         self.gone: set[str] = set()
         self.row_names: list[str] = []  # names of the rows the last arrays() built
+        self._limits: statewire.Plausible | None = None
+        self.now_s = -np.inf  # sim time [s] of the newest tick this agent has heard of (at(), arrays())
+        self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
+        self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) and its sequence number
+        self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
+
+    @property
+    def limits(self) -> statewire.Plausible | None:
+        """What a neighbour's state may say (None: anything well-formed). Setting it loads
+        the compiled check now, not on the first bundle of the flight."""
+        return self._limits
+
+    @limits.setter
+    def limits(self, limits: statewire.Plausible | None) -> None:
+        self._limits = limits
+        if limits is not None:
+            # two records (the fields of one are contiguous arrays, a type of their own to numba),
+            # read-only as a bundle's records are
+            rec = np.frombuffer(np.zeros(2, dtype=statewire.STATE).tobytes(), dtype=statewire.STATE)
+            fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
+            scratch = (np.full(2, 1.0), np.zeros(2, np.uint64), np.zeros(2, np.int64))
+            _admit(*scratch, *fields, limits.as_array(), 0.0, np.empty(2, np.int8))
+
+    def at(self, t_s: float) -> None:
+        """This agent has heard of sim time ``t_s`` [s] (a measurement, its tick): no
+        neighbour's state is more than ``limits.ahead_s`` newer."""
+        self.now_s = max(self.now_s, t_s)
 
     @property
     def history(self) -> list[str]:
@@ -220,17 +299,40 @@ class NeighbourTable:
         if i is None:
             if len(self.names) == self.s.k.shape[0]:
                 self.s = self.s.grown(max(4, len(self.names)))
+                more = max(4, len(self.names))
+                self.last_t = np.concatenate([self.last_t, np.full(more, -np.inf)])
+                self.last_seq = np.concatenate([self.last_seq, np.zeros(more, np.uint64)])
             i = self.slot[name] = len(self.names)
             self.names.append(name)
         return i
 
     def update(
-        self, name: str, t_s: float, k: int, x_w: FloatArray, v_w: FloatArray, radius_m: float, solo: bool = False
+        self,
+        name: str,
+        t_s: float,
+        k: int,
+        x_w: FloatArray,
+        v_w: FloatArray,
+        radius_m: float,
+        solo: bool = False,
+        seq: int | None = None,
     ) -> None:
+        """``name``'s state of tick ``k`` at ``t_s`` [s] (body centre ``x_w`` [m, world], its
+        velocity ``v_w`` [m/s], radius [m]; ``seq``: its sequence number, which tells a copy of
+        the newest state taken, as a relay bundles a late neighbour's state again, from a repeat)."""
         if name in self.gone:
             return
         i = self._slot(name)
         s, j = self.s, k % self.HISTORY
+        if self.limits is not None:
+            if t_s == self.last_t[i] and seq is not None and seq == self.last_seq[i]:
+                return  # (the same state again: no offence)
+            why = self._why(i, t_s, x_w, v_w, radius_m)
+            if why is not None:
+                self._reject(name, why)
+                return
+            if seq is not None and t_s == self.last_t[i]:
+                self.last_seq[i] = seq
         if s.k[i, j] > k:
             return
         s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
@@ -238,8 +340,9 @@ class NeighbourTable:
 
     def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
         """Every checked :data:`swarm.net.statewire.STATE` record of ``records`` whose sender is
-        one of ``known``; any other is dropped and counted on ``counter``
-        (:class:`swarm.net.transport.Counter`). One compiled call writes them all."""
+        one of ``known`` (and, with :attr:`limits`, that it may take: the module docstring);
+        any other is dropped and counted on ``counter`` (:class:`swarm.net.transport.Counter`).
+        Compiled calls check and write them all."""
         slots, keep = [], []
         for n, src in enumerate(records["src"].tolist()):
             name = src.decode()
@@ -251,8 +354,44 @@ class NeighbourTable:
         if not slots:
             return
         rec = records if len(keep) == len(records) else records[keep]
+        sl = np.array(slots, dtype=np.int64)
+        if self.limits is not None:
+            verdict = np.empty(len(sl), dtype=np.int8)
+            fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
+            _admit(self.last_t, self.last_seq, sl, *fields, self.limits.as_array(), self._horizon_s(), verdict)
+            if verdict.any():
+                for n in np.flatnonzero(verdict > 0).tolist():
+                    reason = _VERDICTS[verdict[n]]
+                    assert reason is not None
+                    counter.drop(reason)
+                    self._reject(self.names[sl[n]], reason)
+                ok = verdict == 0
+                rec, sl = rec[ok], sl[ok]
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
-        _store(self.s.fields(), np.array(slots, dtype=np.int64), states)
+        _store(self.s.fields(), sl, states)
+
+    def _horizon_s(self) -> float:
+        """No neighbour's state is newer [s, sim time] (none known before the first tick heard of)."""
+        assert self.limits is not None
+        return self.now_s + self.limits.ahead_s if math.isfinite(self.now_s) else math.inf
+
+    def _why(self, i: int, t_s: float, x_w: Any, v_w: Any, radius_m: float) -> str | None:
+        """Why a state of slot ``i`` is not taken (:attr:`limits` set), or None; taken: noted."""
+        assert self.limits is not None
+        if t_s == self.last_t[i]:
+            return statewire.REPEATED
+        if t_s < self.last_t[i] - self.limits.behind_s:
+            return statewire.OUT_OF_ORDER
+        if t_s > self._horizon_s():
+            return statewire.AHEAD
+        why = self.limits.reason(tuple(x_w), tuple(v_w), radius_m)
+        if why is None:
+            self.last_t[i] = max(self.last_t[i], t_s)
+        return why
+
+    def _reject(self, name: str, reason: str) -> None:
+        per = self.rejected.setdefault(name, {})
+        per[reason] = per.get(reason, 0) + 1
 
     def mark_gone(self, name: str) -> None:
         self.gone.add(name)
@@ -298,6 +437,7 @@ class NeighbourTable:
         or ``solo`` is an obstacle row (``is_neighbour`` false): it is not doing its share,
         so this agent takes all of the pair. ``names``: only these neighbours (in this
         order), and the gone ones."""
+        self.now_s = max(self.now_s, t_now)
         if names is None:
             slots = list(range(len(self.names)))
         else:
@@ -331,7 +471,11 @@ class HeardNeighbours:
     With a ``comms`` model (``world.realism.comms``) a state of tick k reaches the table at tick
     ``k + max(1, d)`` for its seeded fate ``d`` from its sender to ``agent_id`` (through the relay
     with ``bundled``: the state's and the bundle's delays added), or never; lockstep still waits
-    for it to arrive on the wire (:attr:`heard`), then holds it until then."""
+    for it to arrive on the wire (:attr:`heard`), then holds it until then.
+
+    In lockstep a neighbour this agent went without at a tick's deadline (:meth:`late`) is not
+    waited for again until a newer state of it is received: a neighbour gone silent, or whose
+    every state the table drops (``NeighbourTable.limits``), costs one timeout, not one per tick."""
 
     def __init__(
         self, others: set[str], table: NeighbourTable, agent_id: str = "", comms: CommsModel | None = None
@@ -340,10 +484,11 @@ class HeardNeighbours:
         self.lists: dict[int, list[str]] = {}  # tick -> the agents tick k waits for (the world's list)
         self.missed = 0  # listed neighbours whose state was not there when used
         self.id, self.comms = agent_id, comms
-        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool]] = DelayLine()
+        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None]] = DelayLine()
         self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
         self.states_lost = 0  # comms: states that never reach this agent
         self.delay_ticks = 0  # comms: ticks of delay beyond the next tick, summed over the states delivered
+        self.behind: dict[str, int] = {}  # lockstep: neighbour -> its newest tick heard at a deadline without it
 
     def take(
         self,
@@ -355,13 +500,14 @@ class HeardNeighbours:
         radius_m: float,
         solo: bool,
         bundled: bool = False,
+        seq: int | None = None,
     ) -> None:
         """A neighbour's state of tick ``k`` at ``t_s`` [s]: body centre ``x_w`` [m, world], its
         velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share; ``bundled``:
-        it came in the relay's bundle."""
+        it came in the relay's bundle; ``seq``: its sequence number (``NeighbourTable.update``)."""
         comms = self.comms
         if comms is None:
-            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo)
+            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo, seq)
             return
         self.heard[name] = max(self.heard.get(name, -1), k)
         d = comms.fate(name, self.id, MessageKind.STATE, k)
@@ -372,13 +518,13 @@ class HeardNeighbours:
             self.states_lost += 1
             return
         self.delay_ticks += max(0, d - 1)
-        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo))
+        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo, seq))
 
     def _deliver(self, k: int) -> None:
         """The held states due by tick ``k`` into the table (comms)."""
         if self.comms is not None:
-            for name, t_s, kk, x_w, v_w, radius_m, solo in self.line.due(k):
-                self.table.update(name, t_s, kk, x_w, v_w, radius_m, solo)
+            for name, t_s, kk, x_w, v_w, radius_m, solo, seq in self.line.due(k):
+                self.table.update(name, t_s, kk, x_w, v_w, radius_m, solo, seq)
 
     def _latest_k(self, name: str) -> int:
         """The newest tick of ``name``'s states this agent has received (on the wire)."""
@@ -396,17 +542,53 @@ class HeardNeighbours:
 
     def missing(self, k: int) -> int:
         """Lockstep: 1 without the world's list of tick k, else how many of the listed (live)
-        agents have no state of tick k-1 yet."""
+        agents have no state of tick k-1 yet. 0 for a tick older than every list held: the
+        world has flown :data:`HELD_TICKS` ticks on without this agent (it went without its
+        command at the timeout), which then acts on what it has rather than wait for each
+        tick of its backlog in turn (the neighbours it still lacks are then passed over as at
+        a deadline, :meth:`late`)."""
         names = self.lists.get(k)
         if names is None:
-            return 1
+            if not self.lists or k >= min(self.lists):
+                return 1
+            self._pass_over(sorted(self.others), k)  # (as at a deadline: see late)
+            return 0
         if k == 0:
             return 0  # no state before the first tick
-        gone = self.table.gone
-        return sum(1 for n in names if n in self.others and n not in gone and self._latest_k(n) < k - 1)
+        return len(self._missing(names, k))
+
+    def _missing(self, names: list[str], k: int) -> list[str]:
+        """Of the listed ``names``, the live neighbours without a state of tick k-1 yet that are
+        still waited for (not :attr:`behind` since a deadline without a newer state)."""
+        gone, behind = self.table.gone, self.behind
+        out = []
+        for n in names:
+            if n in self.others and n not in gone:
+                latest = self._latest_k(n)
+                if latest < k - 1 and behind.get(n) != latest:
+                    out.append(n)
+        return out
 
     def late(self, k: int) -> None:
-        """Lockstep: tick k is acted on at the deadline, incomplete."""
+        """Lockstep: tick k is acted on at the deadline, incomplete: the neighbours it still
+        waited for are :attr:`behind` until a newer state of theirs is received."""
+        if k > 0 and k in self.lists:
+            self._pass_over(self.lists[k], k)
+
+    def _pass_over(self, names: list[str], k: int) -> None:
+        """Of ``names``, those still waited for at tick ``k`` are :attr:`behind`."""
+        for n in self._missing(names, k):
+            self.behind[n] = self._latest_k(n)
+
+    def at(self, t_s: float) -> None:
+        """This agent has heard of sim time ``t_s`` [s] (a measurement): no neighbour's state is
+        much newer (``NeighbourTable.at``)."""
+        self.table.at(t_s)
+
+    @property
+    def rejected(self) -> dict[str, dict[str, int]]:
+        """The neighbours' states the table dropped, per sender and reason."""
+        return self.table.rejected
 
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         """Every heard neighbour's row at ``t_s`` [s] (lockstep: from its state of tick k-1)."""
@@ -436,6 +618,7 @@ class NearNeighbours(HeardNeighbours):
     def late(self, k: int) -> None:
         if k in self.lists:
             self.missed += self.missing(k)
+        super().late(k)
 
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         table = self.table

@@ -92,7 +92,19 @@ class NeighbourSource(Protocol):
         ...
 
     def late(self, k: int) -> None:
-        """Lockstep: tick k is acted on at the deadline, incomplete."""
+        """Lockstep: tick k is acted on at the deadline, incomplete (the neighbours it still
+        waited for are not waited for again until they are heard)."""
+        ...
+
+    def at(self, t_s: float) -> None:
+        """This agent has heard of sim time ``t_s`` [s] (a measurement): no neighbour's state
+        may be much newer (``swarm.net.statewire.Plausible.ahead_s``)."""
+        ...
+
+    @property
+    def rejected(self) -> dict[str, dict[str, int]]:
+        """The neighbours' states dropped as implausible, repeated, out of order or ahead of
+        the run, per sender and reason."""
         ...
 
 
@@ -149,6 +161,13 @@ class RosterSource:
 
     def late(self, k: int) -> None:
         pass
+
+    def at(self, t_s: float) -> None:
+        pass
+
+    @property
+    def rejected(self) -> dict[str, dict[str, int]]:
+        return {}  # (the world measured every row)
 
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         """From the newest roster of tick <= k (lockstep) or the newest of all, extrapolated
@@ -248,13 +267,17 @@ class BundleSource(_NearSource):
     def warm_up(self) -> None:
         """Read a bundle of two states into a throwaway table and build its rows (by tick, and
         by the names the world gives): their compiled checks and kernels load now. (Two: the
-        fields of one record are contiguous arrays, a type of their own to numba.)"""
+        fields of one record are contiguous arrays, a type of their own to numba.) The same
+        bundle twice: the second is all copies, which the table's limits drop, and what is left
+        of a bundle then is a copy of its records (writable, another type to numba)."""
         z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
-        records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.1) for n in names]
+        records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.0) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
         t = self.table
         table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
-        table.update_records(b.states.records, set(names), tp.Counter())
+        table.limits = t.limits
+        for _ in range(2):
+            table.update_records(b.states.records, set(names), tp.Counter())
         table.arrays(0.0, 0, names)
         table.arrays(0.0)
         table.state(names[0])
@@ -294,7 +317,7 @@ class BundleSource(_NearSource):
             elif name not in self.table.gone:
                 r = rec[n]
                 self.take(name, float(r["t"]), int(r["k"]), r["x"].copy(), r["v"].copy(), float(r["r"]),
-                          bool(r["flags"] & 1), bundled=True)  # fmt: skip
+                          bool(r["flags"] & 1), bundled=True, seq=int(r["seq"]))  # fmt: skip
 
 
 class CellSource(_NearSource):
@@ -361,6 +384,7 @@ def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSou
     table = NeighbourTable(
         f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
     )
+    table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say (a run's own agent gone wrong)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
     comms = None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)

@@ -11,6 +11,11 @@ and the senders' records as they published them, byte for byte.
 Checks: size, magic, schema version, the run (as :func:`run_tag`, a 64-bit hash of the
 run id), the sender's id (ASCII, as the config allows), and finite numbers with a
 non-negative radius. A record that fails is dropped and counted by the receiver.
+
+What a well-formed state may say is :class:`Plausible`: a body centre inside the world's
+bounds, a speed the airframe can reach there, a radius no larger than the run's largest
+airframe's. A run's own agent that says otherwise (a bug, a crashed estimator) is dropped
+and counted too, by the relay and by each receiving agent's neighbour table.
 """
 
 from __future__ import annotations
@@ -21,11 +26,15 @@ import re
 import struct
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from swarm.errors import DecodeError
+
+if TYPE_CHECKING:
+    from swarm.config import ScenarioConfig
 
 VERSION = 8  # the message schema version (swarm.net.messages.VERSION) these records belong to
 STATE_MAGIC = b"C3S"
@@ -205,3 +214,78 @@ def read_bundle(payload: bytes, run: str) -> Bundle:
         raise DecodeError("bundle: bad destination id")
     records = np.frombuffer(payload, STATE, offset=BUNDLE.itemsize)
     return Bundle(dst.decode(), seq, t, k, check_states(records, run))
+
+
+REORDER_TICKS = 8  # (a neighbour table's history: swarm.net.neighbours.NeighbourTable.HISTORY)
+BOUNDS_MARGIN_M = 5.0
+"""How far beyond every start, goal and waypoint of the run a drone may plausibly be [m]."""
+G_MPS2 = 9.81
+
+
+@dataclass(frozen=True)
+class Plausible:
+    """What a state of one run may say (the receivers' plausibility checks).
+
+    ``lo_w``/``hi_w`` [m, world]: the world's bounds, the box of every agent's start, goal
+    and waypoints grown by :data:`BOUNDS_MARGIN_M` (below the floor only 1 m). ``max_speed_mps``:
+    the airframe's limit there, the speed a drone reaches from its start speed accelerating
+    flat out, every rotor at full thrust with gravity helping, ``(thrust_to_weight + 1) g``,
+    in a straight line across the whole box: ``sqrt(v0^2 + 2 a D)`` for the box diagonal D
+    (the world has no drag, so no lower top speed holds). ``max_radius_m``: the largest
+    bounding radius among the run's airframes. ``ahead_s``: how far [s] a neighbour's state
+    may be ahead of the newest tick the receiver has heard of: in lockstep two ticks (every
+    agent acts on the tick the world sent, whose clock may reach one agent a little after
+    another's state of it), in realtime a second (an agent acts on the newest measurement it
+    has; none is a second ahead of the world). ``behind_s``: how much older than the newest
+    state taken from its sender a state may come and still be taken (it fills a receiver's
+    history by tick, never replaces a newer state): :data:`REORDER_TICKS` ticks, as the links of
+    a mesh now and then hand a receiver a sender's state after its next one, plus the jitter of
+    the states' and bundles' delays in ``world.realism.comms`` (a state delayed more reaches
+    the table after a newer one); older is dropped."""
+
+    lo_w: tuple[float, float, float]
+    hi_w: tuple[float, float, float]
+    max_speed_mps: float
+    max_radius_m: float
+    ahead_s: float = 1.0  # s
+    behind_s: float = 0.0  # s
+
+    @classmethod
+    def of(cls, cfg: ScenarioConfig) -> Plausible:
+        pts = np.array([p for a in cfg.agents for p in (*a.path(), a.final_goal)], dtype=float)
+        lo, hi = pts.min(axis=0) - BOUNDS_MARGIN_M, pts.max(axis=0) + BOUNDS_MARGIN_M
+        lo[2] = min(-1.0, float(pts[:, 2].min()) - 1.0)
+        params = [a.airframe.params() for a in cfg.agents]
+        a_max = (max(p.thrust_to_weight for p in params) + 1.0) * G_MPS2  # m/s^2
+        v0 = max(math.hypot(*a.start_velocity) for a in cfg.agents)
+        v_max = math.sqrt(v0 * v0 + 2.0 * a_max * float(np.linalg.norm(hi - lo)))
+        r_max = max(p.body_radius_m for p in params)
+        ahead_s = 2.0 / cfg.time.control_hz if cfg.time.mode.value == "lockstep" else 1.0
+        lo_w, hi_w = (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2]))
+        comms = cfg.world.realism.comms
+        behind_s = REORDER_TICKS / cfg.time.control_hz + comms.state.jitter_s + comms.bundle.jitter_s
+        return cls(lo_w, hi_w, v_max, r_max, ahead_s, behind_s)
+
+    def reason(self, x_w: tuple[float, ...], v_w: tuple[float, ...], r_m: float) -> str | None:
+        """Why a finite state (body centre ``x_w`` [m, world], velocity ``v_w`` [m/s],
+        radius ``r_m`` [m]) is implausible, or None."""
+        lo, hi = self.lo_w, self.hi_w
+        if not all(lo[i] <= x_w[i] <= hi[i] for i in range(3)):
+            return OUTSIDE
+        if v_w[0] * v_w[0] + v_w[1] * v_w[1] + v_w[2] * v_w[2] > self.max_speed_mps * self.max_speed_mps:
+            return TOO_FAST
+        if r_m > self.max_radius_m:
+            return TOO_LARGE
+        return None
+
+    def as_array(self) -> np.ndarray:
+        """(lo x, y, z, hi x, y, z, max speed, max radius, behind_s) for compiled checks."""
+        return np.array([*self.lo_w, *self.hi_w, self.max_speed_mps, self.max_radius_m, self.behind_s])
+
+
+OUTSIDE = "state: outside the world's bounds"
+TOO_FAST = "state: faster than the airframe can fly"
+TOO_LARGE = "state: larger than any airframe of the run"
+REPEATED = "state: a tick it already sent"
+OUT_OF_ORDER = "state: a tick well before one it sent"
+AHEAD = "state: ahead of the run"

@@ -11,16 +11,21 @@ session. Every blocking wait has a deadline.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import queue
+import socket
+import struct
+import sys
+import termios
 import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import zenoh
 
@@ -116,9 +121,20 @@ class Keys:
     def everything(self) -> str:
         return f"{self.root}/**"
 
+    @property
+    def recorded(self) -> list[str]:
+        """What the recorder records (:data:`RECORDED`)."""
+        return [f"{self.root}/{k}" for k in RECORDED]
+
     @staticmethod
     def last(key: str) -> str:
         return key.rsplit("/", 1)[-1]
+
+
+RECORDED = ("world/clock", "world/status", "world/collision", "world/stall", "world/*/measurement", "agent/*/command")
+"""The keys under ``swarm/<run>/`` the recorder records: the world's clock, status, contacts,
+stalls and real drones' measurements, and the agents' commands with their filter reports
+(not states, bundles or ticks: the clock carries every measured state)."""
 
 
 def session_config(
@@ -133,8 +149,16 @@ def session_config(
     other through the endpoints they connect to (gossip), never by multicast; with
     ``gossip`` off they link only to the endpoints they connect to. ``lowlatency``: Zenoh's
     low-latency transport (QoS off, which it needs): a ``put`` is written to the socket in
-    the calling thread, with no transmit thread to wake."""
+    the calling thread, with no transmit thread to wake.
+
+    Every put on a :data:`RECORDED` key waits for room in a full link rather than being
+    dropped (Zenoh's congestion control ``block``; a put's default is ``drop``): a stalled
+    recorder then holds its senders back once the link's queue and the kernel's buffers
+    are full, instead of losing their messages. (The low-latency transport writes the
+    socket in the caller and always waits.)"""
     conf = zenoh.Config()
+    blocked = [{"key_exprs": [f"swarm/*/{k}" for k in RECORDED], "config": {"congestion_control": "block"}}]
+    conf.insert_json5("qos/publication", json.dumps(blocked))
     conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if not gossip:
@@ -310,17 +334,42 @@ def _wait_for_first(conf: zenoh.Config, mode: str) -> None:
 
 @dataclass
 class Counter:
-    """Messages dropped per reason."""
+    """Messages dropped per reason (and, where the sender is known, per sender and reason)."""
 
     dropped: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
     rx_bytes: int = 0  # payload bytes of every sample decoded (kept or dropped)
     rx_messages: int = 0  # samples decoded (kept or dropped)
+    by_sender: dict[str, dict[str, int]] = field(default_factory=dict)
 
-    def drop(self, reason: str) -> None:
+    def drop(self, reason: str, sender: str | None = None) -> None:
         self.dropped += 1
         key = reason.split(":")[0][:40]
         self.reasons[key] = self.reasons.get(key, 0) + 1
+        if sender is not None:
+            per = self.by_sender.setdefault(sender, {})
+            per[reason] = per.get(reason, 0) + 1
+
+
+def rejected(*by_sender: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
+    """Counts of dropped messages per sender and reason, summed over several counts."""
+    out: dict[str, dict[str, int]] = {}
+    for counts in by_sender:
+        for sender, reasons in counts.items():
+            per = out.setdefault(sender, {})
+            for reason, n in reasons.items():
+                per[reason] = per.get(reason, 0) + n
+    return out
+
+
+def state_sender(key: str) -> str | None:
+    """The agent whose state a key carries (``.../agent/<id>/state``, ``.../cell/i/j/k/<id>``), or None."""
+    parts = key.split("/")
+    if len(parts) >= 4 and parts[-3] == "agent" and parts[-1] == "state":
+        return parts[-2]
+    if len(parts) >= 6 and parts[-5] == "cell":
+        return parts[-1]
+    return None
 
 
 def open_channel(session: zenoh.Session, key: str, capacity: int = 4096) -> Any:
@@ -365,7 +414,7 @@ def decode_sample(
     try:
         return decode(data, run, kinds, fields)
     except DecodeError as exc:
-        counter.drop(str(exc))
+        counter.drop(str(exc), state_sender(str(sample.key_expr)))
         return None
 
 
@@ -488,6 +537,74 @@ def liveliness_events(sub: Any) -> Iterator[tuple[str, bool]]:
     """(name, alive) for every queued liveliness change."""
     for s in drain(sub):
         yield liveliness_change(s)
+
+
+SEND_DRAIN_S = 10.0
+"""How long a process of a run waits, before it exits, for its peers to take what it sent
+(:func:`exit_when_sent`): longer than a stall a lab meets (a busy laptop, a slow disk)."""
+
+
+def unsent_bytes() -> dict[str, int]:
+    """Bytes this process has written to each of its TCP connections that the peer's kernel
+    has not yet acknowledged (Linux's ``SIOCOUTQ``), by peer address; connections with none
+    left out. Empty where the platform cannot say."""
+    out: dict[str, int] = {}
+    try:
+        fds = os.listdir("/proc/self/fd")
+    except OSError:
+        return out
+    for name in fds:
+        try:
+            if not os.readlink(f"/proc/self/fd/{name}").startswith("socket:"):
+                continue
+            s = socket.socket(fileno=os.dup(int(name)))
+        except OSError:
+            continue
+        try:
+            if s.family not in (socket.AF_INET, socket.AF_INET6) or s.type != socket.SOCK_STREAM:
+                continue
+            left = struct.unpack("i", fcntl.ioctl(s.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+            if left > 0:
+                host, port = s.getpeername()[:2]
+                out[f"{host}:{port}"] = out.get(f"{host}:{port}", 0) + left
+        except OSError:  # a listening socket, or one closed meanwhile
+            continue
+        finally:
+            s.close()  # (the duplicate only)
+    return out
+
+
+def wait_sent(timeout_s: float = SEND_DRAIN_S, poll_s: float = 0.01, settle: int = 3) -> dict[str, int]:
+    """Block until every TCP connection of this process has delivered what was written to
+    it (nothing unacknowledged at ``settle`` polls in a row, ``poll_s`` apart: Zenoh's own
+    transmit queue refills the socket within that), or ``timeout_s``; returns
+    :func:`unsent_bytes` then (empty: all delivered)."""
+    deadline = time.monotonic() + timeout_s
+    quiet = 0
+    while True:
+        left = unsent_bytes()
+        quiet = 0 if left else quiet + 1
+        if quiet >= settle or time.monotonic() >= deadline:
+            return left
+        time.sleep(poll_s)
+
+
+def exit_when_sent(code: int, who: str, timeout_s: float = SEND_DRAIN_S) -> NoReturn:
+    """``os._exit(code)`` once the peers have taken everything this process sent (at most
+    ``timeout_s``; what is left is named on stderr).
+
+    A process that exits with bytes still queued for a peer that is behind (a stopped
+    recorder's full receive window) leaves them to its kernel, which drops them all when
+    anything arrives from that peer on the closed socket (a keep-alive): Linux resets the
+    connection (``TcpExtTCPAbortOnData``), and the peer reads what it had, then
+    "connection reset". That lost the end of a star's recording behind a recorder stopped
+    for 1 s (the world's last 226 kB, 3 s of the run)."""
+    left = wait_sent(timeout_s)
+    if left:
+        unread = f"{sum(left.values())} bytes still unread by {sorted(left)}"
+        print(f"{who}: {unread} after {timeout_s:.0f} s, exiting anyway", file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def declare_liveliness(session: zenoh.Session, key: str) -> Any:

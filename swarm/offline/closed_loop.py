@@ -28,7 +28,7 @@ from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep
-from swarm.tuning import filter_config_for, prediction_bounds
+from swarm.tuning import command_lead_s, filter_config_for, prediction_bounds
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -286,6 +286,7 @@ def simulate_swarm(
     r = realism if realism is not None and not realism.ideal else None
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
+    lead = command_lead_s(r, control_hz)
     steps = [
         AgentStep(
             model,
@@ -297,6 +298,7 @@ def simulate_swarm(
             filtered=a.filtered,
             goal_tolerance_m=goal_tolerance_m,
             estimator=r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0])) if r is not None and sensing else None,
+            lead_s=lead,
         )
         for a in agents
     ]
@@ -340,7 +342,7 @@ def simulate_swarm(
         for i in range(n):
             heard[i].on_list(k, [names[j] for j in near[i]])
             frames = plant.frames(i) if sensing else None
-            results.append(steps[i](t, states[i], obs, heard[i].rows(t, k, xb[i], lockstep=True), frames=frames))
+            results.append(steps[i](t, states[i], obs, heard[i].rows(t + lead, k, xb[i], lockstep=True), frames=frames))
         for i, res in enumerate(results):  # this tick's states, which the next tick uses
             for j in range(n):
                 if j != i:

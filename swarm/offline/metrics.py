@@ -33,6 +33,7 @@ Safety figures, all from the measured (ground-truth) states:
 from __future__ import annotations
 
 import math
+from array import array
 from collections import defaultdict
 from typing import Any
 
@@ -44,6 +45,7 @@ from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
+from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.tuning import obstacle_horizon_s
@@ -251,8 +253,18 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
 
-def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped: int = 0) -> dict[str, Any]:
-    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``)."""
+def compute(
+    cfg: ScenarioConfig,
+    records: list[dict[str, Any]],
+    recorder_dropped: int = 0,
+    said: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
+    ``said``: each process's summary line (:func:`swarm.runs.ledger.summaries`): what it
+    sent, to find what the recording lacks at the end of a stream, and what it dropped from
+    whom, to name the offenders."""
+    ledger = Ledger.of(cfg)
+    silence = Silence()
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
     by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
@@ -267,6 +279,9 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
     stalls: list[dict[str, Any]] = []
     for r in records:
         kind = r["kind"]
+        if "topic" in r and "seq" in r:  # as recorded (not one of the measurements a clock carries)
+            ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
+            silence.see(r)
         if kind == "measurement":
             aid = measurement_agent(r)
             x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
@@ -305,6 +320,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             min_clear = min(min_clear, float(surface_clearance(c, obs).min()))
         bar.add([index[aid] for aid in bodies], x, c, cd, obs, [str(i.get("id", j)) for j, i in enumerate(items)])
 
+    quiet = silence.longest_s
     agents: dict[str, Any] = {}
     for a in cfg.agents:
         m = sorted(meas.get(a.id, []), key=lambda e: e[1])
@@ -333,6 +349,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(m[-1][1]) if m else None,
             "deadlock_at_s": stuck,
+            "longest_silence_s": quiet.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
             "solve_us_p99": float(np.percentile(us, 99)) if us.size else None,
             # world.realism.sensing: |estimate - true centre of mass| at the ticks it acted on [m]
@@ -341,6 +358,7 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
             **motion,
         }
     final = statuses[-1] if statuses else {}
+    gaps = ledger.gaps(sent_counts(said or {}), int(final["k"]) if final.get("done") else None)
     live_ever = {x for s in statuses for x in s["live"]}
     lost = sorted(live_ever - set(final.get("live", [])))
     return {
@@ -375,12 +393,66 @@ def compute(cfg: ScenarioConfig, records: list[dict[str, Any]], recorder_dropped
         + sum(v["dropped_messages"] for v in agents.values())
         + recorder_dropped,
         "lost_agents": lost,
+        "recording_gaps": [g.as_dict() for g in gaps],  # what the recording lacks, stream by stream
+        "lost_messages": sum(g.messages for g in gaps),
+        "offenders": offenders(said or {}, quiet, cfg.failure.neighbour_hard_limit_s),
         "realism": _realism_applied(cfg, last_report),
         "estimate_error_max_m": max(
             (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
         ),
         "agents": agents,
     }
+
+
+class Silence:
+    """How long [s of sim time] each agent was live (in the clock's live list) without a
+    command: fed the recorded messages in any order (the recorder writes a batch's clocks
+    before its commands), then :attr:`longest_s`."""
+
+    def __init__(self) -> None:
+        self.commands: dict[str, array] = {}  # agent -> sim times [s] of its commands
+        self.live: dict[str, list[float]] = {}  # agent -> [first, last] sim time [s] it was live
+
+    def see(self, r: dict[str, Any]) -> None:
+        if r["kind"] == "command":
+            self.commands.setdefault(r["src"], array("d")).append(float(r["t"]))
+        elif r["kind"] == "clock":
+            t = float(r["t"])
+            for a in r["live"]:
+                span = self.live.setdefault(a, [t, t])
+                span[0], span[1] = min(span[0], t), max(span[1], t)
+
+    @property
+    def longest_s(self) -> dict[str, float]:
+        out = {}
+        for a, (first, last) in self.live.items():
+            ts = np.sort(np.frombuffer(self.commands.get(a, array("d")), dtype=float))
+            ts = ts[(ts >= first) & (ts <= last)]
+            edges = np.concatenate([[first], ts, [last]])
+            out[a] = float(np.diff(edges).max())
+        return out
+
+
+def offenders(
+    said: dict[str, dict[str, Any]], silence_s: dict[str, float], silent_after_s: float
+) -> dict[str, dict[str, Any]]:
+    """The run's agents that misbehaved, with what the others did about it: every sender
+    whose messages a receiver dropped (``said``: the summaries' ``rejected``, per sender and
+    reason: the relay's and each agent's), and every agent live for more than
+    ``silent_after_s`` without a command (``silence_s``)."""
+    out: dict[str, dict[str, Any]] = {}
+    for receiver, summary in sorted(said.items()):
+        for sender, reasons in (summary.get("rejected") or {}).items():
+            o = out.setdefault(sender, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            for reason, n in reasons.items():
+                o["reasons"][reason] = o["reasons"].get(reason, 0) + int(n)
+                o["dropped"] += int(n)
+            o["dropped_by"].append(receiver)
+    for agent, quiet in silence_s.items():
+        if quiet > silent_after_s or agent in out:
+            o = out.setdefault(agent, {"dropped": 0, "reasons": {}, "dropped_by": [], "longest_silence_s": 0.0})
+            o["longest_silence_s"] = quiet
+    return dict(sorted(out.items()))
 
 
 def _realism_applied(cfg: ScenarioConfig, last_report: dict[str, dict[str, Any]]) -> dict[str, Any] | None:

@@ -206,7 +206,11 @@ class RunHandle:
             h._session = tp.open_session(launcher_conf)
         h._status = tp.open_channel(h._session, tp.Keys(h.run).status, 4096)
         if sitl:
-            h._start_sitl()
+            try:
+                h._start_sitl()
+            except BaseException:  # no drone answered: stop what was started (the router, the drones)
+                h._stop_all()
+                raise
         expect = ["--expect", "recorder"]
         if cfg.ros2.enabled:  # the ROS 2 bridge (swarm.ros2.bridge), and what a ROS 2 participant needs to join
             from swarm.ros2.participant import write_env
@@ -255,14 +259,13 @@ class RunHandle:
         cfg = self.cfg
         assert cfg.mocap is not None
         opts = cfg.mocap.options
-        args = [
-            "-m",
-            "swarm.world.sitl_cf",
-            "--mocap-port",
-            opts["port"],
-            "--firmware",
-            opts.get("firmware", "2026.04"),
-        ]
+        if opts.get("firmware") == "crazysim":  # the firmware itself, one cf2 per drone (swarm.world.sitl_fw)
+            cf2 = ["--cf2", opts["cf2"]] if opts.get("cf2") else []
+            args = ["-m", "swarm.world.sitl_fw", "--mocap-port", opts["port"], *cf2, "--until-handed-back"]
+            args += ["--telemetry", str(self.out / "firmware")]
+        else:  # the stand-in (swarm.world.sitl_cf)
+            args = ["-m", "swarm.world.sitl_cf", "--mocap-port", opts["port"]]
+            args += ["--firmware", opts.get("firmware", "2026.04")]
         ports: list[int] = []
         for a in cfg.agents:
             if a.crazyflie is None:

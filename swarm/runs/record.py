@@ -11,7 +11,13 @@ the run's 3-D scene and its log (``swarm.runs.foxglove_scene``: ``/tf`` ``foxglo
 The log lines are the processes' own, read from ``DIR/logs`` as they are written (stamped
 with the sim time at which the recorder read them). Undecodable messages are counted and
 written raw to ``/dropped``. The file is flushed every ``FLUSH_S`` seconds: a crash loses
-at most that much. Stops when the world reports done or disappears.
+at most that much.
+
+It never stops while a process of the run may still have something for it: it ends once
+the world has reported done (or is gone), every agent's liveliness is gone (each sends its
+last command before it goes, on the same link) and nothing has arrived for ``TAIL_S``; or
+``tp.SEND_DRAIN_S`` after the world, if an agent hangs on. Every stream is checked for holes
+as it is written (:class:`swarm.runs.ledger.Ledger`); ``recorder.json`` lists them.
 
 With ``live_port`` the same channels also go to Foxglove's WebSocket server
 (foxglove-sdk's, on 127.0.0.1): Foxglove's "Open connection" shows the run as it goes.
@@ -33,12 +39,13 @@ from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode, json_schema, record_of
 from swarm.runs.foxglove_scene import SCHEMAS as SCENE_SCHEMAS
 from swarm.runs.foxglove_scene import Scene
+from swarm.runs.ledger import Ledger
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5
 BATCH_S = 0.02  # s: the recorder handles what arrived every BATCH_S
 QUEUE = 1 << 16  # samples Zenoh holds for the recorder between batches (36 per batch at 16 agents)
-TAIL_S = 0.3  # keep listening this long after the world says done
+TAIL_S = 0.3  # s: at the end, stop once nothing has arrived for this long
 
 
 class Sinks:
@@ -119,8 +126,9 @@ class LogTail:
 class Recorder:
     """One recording: :meth:`handle` each sample, :meth:`tail_logs` now and then, :meth:`close`."""
 
-    def __init__(self, run: str, out_dir: Path, live_port: int | None = None) -> None:
+    def __init__(self, run: str, out_dir: Path, live_port: int | None = None, ledger: Ledger | None = None) -> None:
         self.run = run
+        self.ledger = ledger or Ledger(1)
         self._prefix = f"swarm/{run}/"
         self._by_key: dict[str, tuple[int, str]] = {}  # key expression -> (MCAP channel, topic)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -166,6 +174,7 @@ class Recorder:
         )
         self.count += 1
         self.sim_t = max(self.sim_t, m.t)
+        self.ledger.see(m.kind, m.src, m.seq, m.k, m.kind == "status" and bool(m["done"]))
         if m.kind == "clock":
             self.clocks += 1
             self._scene(self.scene.on_clock(rec), log_ns, now_ns)
@@ -200,6 +209,9 @@ class Recorder:
                     "dropped": self.counter.dropped,
                     "reasons": self.counter.reasons,
                     "clocks": self.clocks,
+                    "streams": self.ledger.counts(),
+                    "done_seen": self.ledger.done_k is not None,
+                    "gaps": [g.as_dict() for g in self.ledger.gaps()],
                     "cpu_s": time.process_time(),
                     "startup_cpu_s": self.startup_cpu_s,
                 }
@@ -216,48 +228,77 @@ def _schema_bytes(kind: str) -> bytes:
     return _SCHEMA_BYTES[kind]
 
 
-def recorded_keys(keys: tp.Keys) -> list[str]:
-    """What the recorder subscribes to: the world's clock, status, contacts, stalls and
-    real drones' measurements, and the agents' commands with their filter reports."""
-    world = f"{keys.root}/world"
-    return [keys.clock, keys.status, keys.collision, keys.stall, f"{world}/*/measurement", keys.all_commands]
-
-
-def main(run: str, out_dir: Path, conf, linger_s: float = 0.0, live_port: int | None = None) -> int:
-    """Record until the world disappears, or ``linger_s`` + a short tail after it says
-    done (``linger_s``: how long real drones may take to land after the end)."""
+def main(
+    run: str,
+    out_dir: Path,
+    conf,
+    linger_s: float = 0.0,
+    live_port: int | None = None,
+    agent_ids: tuple[str, ...] = (),
+    ledger: Ledger | None = None,
+) -> int:
+    """Record until the world has said done (and ``linger_s`` more: how long real drones
+    may take to land after the end) or is gone, the agents ``agent_ids`` are gone and the
+    links are quiet (see the module docstring)."""
     keys = tp.Keys(run)
     stop = StopFlag()
-    rec = Recorder(run, out_dir, live_port)
+    rec = Recorder(run, out_dir, live_port, ledger)
     session = tp.open_session(conf)
     # channels, not callbacks: between batches Zenoh queues the samples itself, no Python
     # runs per message. Not the agents' states, their bundles or the world's tick messages:
     # the clock carries every drone's measured state and the obstacles already
-    subs = [tp.open_channel(session, key, QUEUE) for key in recorded_keys(keys)]
+    subs = [tp.open_channel(session, key, QUEUE) for key in keys.recorded]
     live_sub = tp.liveliness_subscriber(session, keys.all_alive)
     token = tp.declare_liveliness(session, keys.alive("recorder"))
     rec.startup_cpu_s = time.process_time()
-    done_at: float | None = None
+    end = EndOfRun(set(agent_ids), linger_s)
     last_flush = time.monotonic()
     try:
         while not stop:
             # wake every BATCH_S, not for each message: a wake per command would take the
             # CPU from the agents just when they compute their next one
             time.sleep(BATCH_S)
+            got = 0
             for sub in subs:
                 for s in tp.drain(sub):
                     rec.handle(str(s.key_expr), tp.payload(s), time.time_ns())
-            if rec.done and done_at is None:
-                done_at = time.monotonic() + linger_s
+                    got += 1
+            now = time.monotonic()
             for name, up in tp.liveliness_events(live_sub):
-                if name == "world" and not up:
-                    done_at = min(done_at or math.inf, time.monotonic())
-            if time.monotonic() - last_flush > FLUSH_S:
+                end.liveliness(name, up, now)
+            if now - last_flush > FLUSH_S:
                 rec.flush()
-                last_flush = time.monotonic()
-            if done_at is not None and time.monotonic() - done_at > TAIL_S:
+                last_flush = now
+            if end.over(rec.done, got, now):
                 break
     finally:
         rec.close(out_dir)
         token.undeclare()
     return 0
+
+
+class EndOfRun:
+    """When the recorder may stop (pure: fed liveliness changes, batch sizes and wall times
+    [s, ``time.monotonic``])."""
+
+    def __init__(self, agent_ids: set[str], linger_s: float) -> None:
+        self.agents = agent_ids
+        self.linger_s = linger_s
+        self.live: set[str] = set()
+        self.end_at: float | None = None  # the world said done (+ linger), or went
+        self.quiet_since = math.inf  # wall time of the first empty batch since the last message
+
+    def liveliness(self, name: str, up: bool, now: float) -> None:
+        (self.live.add if up else self.live.discard)(name)
+        if name == "world" and not up:
+            self.end_at = min(self.end_at if self.end_at is not None else math.inf, now)
+
+    def over(self, done: bool, got: int, now: float) -> bool:
+        """After a batch of ``got`` messages: is the recording over?"""
+        if done and self.end_at is None:
+            self.end_at = now + self.linger_s
+        self.quiet_since = math.inf if got else min(self.quiet_since, now)
+        if self.end_at is None or now < self.end_at:
+            return False
+        waiting = bool(self.live & self.agents) and now - self.end_at < tp.SEND_DRAIN_S
+        return not waiting and now - self.quiet_since >= TAIL_S

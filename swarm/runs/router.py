@@ -12,11 +12,14 @@ keys (``swarm.net.access.acl`` with ``router="router"``). It declares the liveli
 With ``neighbours.interest: bundle`` it also hears every agent's state (each on that
 agent's own key, which only that agent may publish) and sends each agent, once per tick,
 one bundle of the states within its interest radius (:mod:`swarm.net.bundle`), under
-``router/bundle/<id>``, a key no client may publish.
+``router/bundle/<id>``, a key no client may publish. It takes from each agent only
+plausible states, one per tick and in order (:class:`swarm.net.bundle.Intake`), and says
+at the end, in its ``ROUTER_SUMMARY`` line, what it dropped from whom.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from typing import Any
@@ -27,7 +30,7 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.errors import DecodeError
 from swarm.net import statewire
 from swarm.net import transport as tp
-from swarm.net.bundle import Bundler
+from swarm.net.bundle import Bundler, Intake
 from swarm.shutdown import StopFlag
 
 
@@ -43,7 +46,10 @@ class BundleRelay:
         # realtime; in lockstep the share of the world's timeout after which a tick is a stall
         wait_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s if lockstep else 0.5 / cfg.time.control_hz
         self.bundler = Bundler(ids, [cfg.interest_radius_m(a) for a in ids], lockstep, wait_s)
+        # the world's status (10 Hz) says how far the run is; a state may be a second ahead of it
+        self.intake = Intake(statewire.Plausible.of(cfg), 1.1)
         self.state_keys = {self.keys.state(a): a for a in ids}
+        self.status = tp.open_channel(session, self.keys.status, 1024)
         self.inbox = tp.Inbox(session, self.keys.all_states)
         self.live_sub = tp.liveliness_subscriber(session, self.keys.all_alive)
         self.pubs = {a: session.declare_publisher(self.keys.bundle(a)) for a in ids}
@@ -58,6 +64,10 @@ class BundleRelay:
         now = time.monotonic()
         deadline = min(b.deadline_s() or now + wake_s, now + wake_s)
         self.inbox.wait_for(max(1, b.waiting_for()), deadline)
+        for s in tp.drain(self.status):  # first: how far the run is, for the states that came with it
+            m = tp.decode_sample(s, self.run, self.counter, ("status",), ("done",))
+            if m is not None:
+                self.intake.run_at(m.t)
         for s in self.inbox.drain():
             self._take(s)
         for name, up in tp.liveliness_events(self.live_sub):
@@ -67,15 +77,30 @@ class BundleRelay:
         data = tp.payload(sample)
         self.counter.rx_bytes += len(data)
         sender = self.state_keys.get(str(sample.key_expr))
+        if sender is None:
+            self.counter.drop("state: on no agent's key")
+            return
+        t = statewire.record_time(data) if len(data) == statewire.STATE.itemsize else None
+        early = None if t is None else self.intake.early(sender, t)
+        if early is not None:  # (a flood's repeats: no more work)
+            self._drop(sender, early)
+            return
         try:
             f = statewire.read_state(data, self.run)
         except DecodeError as exc:
-            self.counter.drop(str(exc))
+            self._drop(sender, str(exc))
             return
-        if sender is None or f[14].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
-            self.counter.drop("state: sender is not its key's agent")
+        if f[14].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
+            self._drop(sender, "state: sender is not its key's agent")
+            return
+        if not self.intake.admit(sender, f[6], f[7:10], f[10:13], f[13]):
+            self.counter.drop("state: implausible")
             return
         self.bundler.add(sender, f[5], np.array(f[7:10]), data, time.monotonic())
+
+    def _drop(self, sender: str, reason: str) -> None:
+        self.counter.drop(reason)
+        self.intake.reject(sender, reason)
 
     def send(self) -> None:
         """Every bundle that is due now."""
@@ -110,4 +135,6 @@ def main(run: str, conf: Any, cfg: ScenarioConfig | None = None) -> int:
     if relay is not None:
         c = relay.counter
         print(f"router: sent {relay.sent} bundles; dropped {c.dropped} {c.reasons}", file=sys.stderr)
+        summary = {"bundles": relay.sent, "dropped": c.dropped, "rejected": relay.intake.rejected}
+        print("ROUTER_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0

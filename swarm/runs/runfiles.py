@@ -15,6 +15,7 @@ from mcap.stream_reader import StreamReader
 from swarm.config import ScenarioConfig, load
 from swarm.net.messages import expand_record
 from swarm.offline.metrics import compute
+from swarm.runs.ledger import summaries
 
 
 @dataclass(frozen=True)
@@ -86,8 +87,9 @@ def read_config(run_dir: Path) -> ScenarioConfig:
 
 def write_metrics(run_dir: Path, stop_reason: str | None = None, **extra: Any) -> dict[str, Any]:
     """Compute ``metrics.json`` of a run folder from what its ``run.mcap`` holds (a file
-    cut short included) and write it. ``complete`` is true only when the file is whole and
-    the world reported the end of the run; ``recording`` says how much is missing.
+    cut short included) and write it. ``complete`` is true only when the file is whole, the
+    world reported the end of the run and no stream has a hole (``recording_gaps``, also
+    against what each process says in its log it sent); ``recording`` says how much is missing.
     ``stop_reason`` (default: the one an earlier ``metrics.json`` gives) and ``extra``
     are stored as they are."""
     cfg = read_config(run_dir)
@@ -101,8 +103,9 @@ def write_metrics(run_dir: Path, stop_reason: str | None = None, **extra: Any) -
             stop_reason = json.loads(old.read_text()).get("stop_reason")
         except ValueError:
             stop_reason = None
-    metrics = compute(cfg, rec.records if rec else [], dropped)
-    metrics["complete"] = bool(rec is not None and rec.complete and metrics["finished"])
+    metrics = compute(cfg, rec.records if rec else [], dropped, summaries(run_dir / "logs"))
+    whole = rec is not None and rec.complete and metrics["finished"] and not metrics["lost_messages"]
+    metrics["complete"] = bool(whole)
     metrics["recording"] = (
         {"complete": False, "summary": "no run.mcap"}
         if rec is None

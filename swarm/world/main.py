@@ -61,6 +61,7 @@ class AgentSlot:
     reached_at_s: float | None = None
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
+    behind: bool = False  # lockstep: let a tick time out; not waited for until it answers again
 
 
 STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
@@ -230,6 +231,7 @@ class World:
         if m.k < slot.command_k:
             return  # older than what we hold
         slot.command_k = m.k
+        slot.behind = False  # it answers again (a backlog's oldest tick first): waited for again
         self.physics.send(m.src, u, m.t, m.k)
         sent = slot.sent_at.pop(m.k, None)
         if sent is not None:
@@ -387,9 +389,11 @@ class World:
         wait_until = wait_from + cfg.time.lockstep_timeout_s
         stall_warn_s = cfg.time.stall_warn_fraction * cfg.time.lockstep_timeout_s
         held: list[str] = []  # the agents still missing when the wait became a stall
+        if any(slots[a].behind for a in live):
+            self.poll_commands(k)  # (an answer from one behind: waited for again, even when no one else is)
         while True:
             self.poll_liveliness()
-            waiting = [a for a in live if slots[a].alive and slots[a].command_k < k]
+            waiting = [a for a in live if slots[a].alive and slots[a].command_k < k and not slots[a].behind]
             if not waiting or self.stop:
                 break
             now = time.monotonic()
@@ -402,11 +406,15 @@ class World:
                 c.late += len(waiting)
                 for a in waiting:
                     slots[a].sent_at.pop(k, None)
+                    slots[a].behind = True  # (an agent that never answers costs one timeout, not one per tick)
                 break
             # wake once the missing commands can all be here (not on each one), at the latest
             # after 20 ms to look at liveliness
             self.cmd_in.wait_for(len(waiting), min(wait_until, now + 0.02))
             self.poll_commands(k)
+        for a in live:  # behind since a timeout: late, not waited for
+            if slots[a].behind and slots[a].command_k < k and slots[a].sent_at.pop(k, None) is not None:
+                c.late += 1
         if held:
             c.stalls += 1
             waited = time.monotonic() - wait_from

@@ -5,18 +5,28 @@
 Each ``--drone NAME,PORT,X,Y,Z,YAW_DEG`` binds 127.0.0.1:PORT, where cflib's UDP driver
 (``udp://127.0.0.1:PORT``) finds it, and starts at rest at (X, Y, Z) [m, world] with yaw
 YAW_DEG [deg, counter-clockwise]. Every CRTP packet (one per datagram: a header byte
-``port << 4 | 3 << 2 | channel``, then up to 30 data bytes) is acknowledged with an empty
-one, as the radio does, and decoded:
+``port << 4 | 3 << 2 | channel``, then up to 30 data bytes) is decoded, and answered only
+where the firmware answers (a firmware over UDP acknowledges nothing: CrazySim's, which
+``swarm.world.sitl_fw`` runs, is the reference):
 
+* a lone null packet (``0xFF``) from an address that has sent nothing else: a scan probe
+  (cflib's udpdriver.py ``scan_interface``, ``swarm run``'s readiness check), answered;
+* port 15 channel 0: a link echo, sent back; channel 1: the link source, "Bitcraze
+  Crazyflie" (crtpservice.c), which cflib's ``PlatformService`` asks before the version;
+* port 13 channel 1 command 0: the CRTP protocol version, ``protocol`` (platformservice.c);
 * port 3 channel 0, ``<fffH``: a legacy RPYT setpoint, given to :class:`swarm.crazyflie_fw.Firmware`
   as it arrives (thrust lock, inverted yaw rate, the release's thrust map, the cap);
-* port 7 (generic commander), type 0: the stop setpoint; type 4 on channel 2: notify-stop;
+* port 7 (generic commander) channel 0 type 0: the stop setpoint; channel 1 type 0:
+  notify-stop (crtp_commander.c ``META_COMMAND_CHANNEL``, ``metaNotifySetpointsStop``);
 * port 6 channel 1 type 8, ``<Bfffffff``: an external pose (recorded; the body is ground truth);
-* port 5 (logging): the TOC (v2) and blocks of the decoded setpoint, ``ctrltarget.roll``,
-  ``.pitch``, ``.yaw`` and ``.thrust``, as stabilizer.c logs them (``swarm cf check`` reads them);
-* port 9 channel 1: supervisor command 3 (emergency stop) or 2 (recover, answered);
-  port 9 channel 0 command 0x0C: the state bitfield, answered (crtp_supervisor.c);
-  port 6 channel 1 type 3: the older emergency stop.
+* port 5 (logging): the TOC (v2) of :data:`LOG_TOC` and its blocks: the decoded setpoint
+  (``ctrltarget.roll``, ``.pitch``, ``.yaw``, as stabilizer.c logs them, and the thrust
+  command, ``stabilizer.thrust``) and the supervisor's bits (``supervisor.info``);
+* port 9, from protocol 12 (crtp_supervisor.c): channel 1 command 3 (emergency stop) or
+  2 (recover, answered); channel 0 command 0x0C: the state bitfield, answered. Before
+  protocol 12 the port is not the supervisor's and nothing there is answered; a crash
+  recovery comes on port 13 channel 0 command 2 (platformservice.c), answered;
+* port 6 channel 1 type 3: the older emergency stop.
 
 The firmware's supervisor (watchdog 500 ms / 2 s, locked, crashed) decides what the
 motors do; an attitude controller of the stand-in's own (the geometric SO(3) law of
@@ -50,9 +60,16 @@ from swarm.rotation import euler_to_quat, quat_to_R
 
 PHYSICS_HZ = 500.0
 MOCAP_HZ = 100.0
-LOG_TOC = [("ctrltarget", "roll"), ("ctrltarget", "pitch"), ("ctrltarget", "yaw"), ("ctrltarget", "thrust")]
-"""The log variables the stand-in serves (all float, type 7): the decoded setpoint."""
-LOG_TOC_CRC = 0x5C3F0001
+LOG_TOC = [
+    ("ctrltarget", "roll", 7),  # (group, name, log.h type: 7 float, 2 uint16)
+    ("ctrltarget", "pitch", 7),
+    ("ctrltarget", "yaw", 7),
+    ("stabilizer", "thrust", 7),
+    ("supervisor", "info", 2),
+]
+"""The log variables the stand-in serves: the decoded setpoint and the supervisor's bits."""
+LOG_TOC_CRC = 0x5C3F0002
+LOG_FORMATS = {7: "f", 2: "H"}
 
 
 @dataclass
@@ -92,6 +109,7 @@ class SitlDrone:
     _done: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
     _addr: tuple = ("127.0.0.1", 0)  # the client's address (cflib's UDP socket)
+    protocol: int = 12  # the CRTP protocol version it reports (12: a 2025.09 or later firmware)
     log_blocks: dict[int, list[int]] = field(default_factory=dict)  # block id -> TOC ids
     log_running: dict[int, tuple[float, float, tuple]] = field(default_factory=dict)  # id -> (period s, next t, addr)
 
@@ -103,8 +121,10 @@ class SitlDrone:
         x_w: list[float] | None = None,
         yaw_deg: float = 0.0,
         firmware: str = "2026.04",
+        protocol: int = 12,
     ) -> SitlDrone:
-        """Bind 127.0.0.1:``port`` (0: a free one, see :attr:`uri`) and serve it."""
+        """Bind 127.0.0.1:``port`` (0: a free one, see :attr:`uri`) and serve it as a firmware
+        of CRTP protocol ``protocol``."""
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.bind(("127.0.0.1", port))
         s.settimeout(0.05)
@@ -112,7 +132,7 @@ class SitlDrone:
         yaw = math.radians(yaw_deg)
         x0 = np.zeros(3) if x_w is None else np.asarray(x_w, float)
         state = QuadState(x0, np.zeros(3), euler_to_quat(0.0, 0.0, yaw), np.zeros(3))
-        d = cls(name, s, Firmware(firmware), state, model, AttitudeController(model), yaw)
+        d = cls(name, s, Firmware(firmware), state, model, AttitudeController(model), yaw, protocol=protocol)
         d._thread = threading.Thread(target=d._serve, name=f"sitl-{name}", daemon=True)
         d._thread.start()
         return d
@@ -149,11 +169,17 @@ class SitlDrone:
                 continue
             except OSError:
                 break
-            if data:
-                self._addr = addr
-                answer = self.decode(data, time.monotonic())
-                if not self._deaf.is_set():
-                    self.sock.sendto(answer or b"\xf3", addr)  # the answer, or an empty packet (port 15, ch 3)
+            if not data:
+                continue
+            deaf = self._deaf.is_set()  # (a deaf drone still hears: it decodes and records, and answers nothing)
+            if data == b"\xff" and addr != self._addr:  # a scan probe: answered (cflib udpdriver.py)
+                if not deaf:
+                    self.sock.sendto(b"\xff", addr)
+                continue
+            self._addr = addr
+            answer = self.decode(data, time.monotonic())
+            if answer is not None and not deaf:
+                self.sock.sendto(answer, addr)
         self.sock.close()
 
     def decode(self, data: bytes, now: float) -> bytes | None:
@@ -162,10 +188,19 @@ class SitlDrone:
         port, ch = (h >> 4) & 0x0F, h & 0x03
         fw = self.firmware
         with self.lock:
-            if data != b"\xff":  # a lone null packet is a probe (cflib/crtp/udpdriver.py's scan, and
-                # swarm run's readiness check), not a client: the drone is not "handed back" 3 s after it
-                self.packets += 1
-                self.last_packet_s = now
+            self.packets += 1
+            self.last_packet_s = now
+            if port == 15 and ch == 0:  # link echo (crtpservice.c linkEcho)
+                return data
+            if port == 15 and ch == 1:  # link source (crtpservice.c linkSource)
+                return bytes([data[0]]) + b"Bitcraze Crazyflie".ljust(30, b"\0")
+            if port == 13 and ch == 1 and body[:1] == b"\x00":  # platformservice.c getProtocolVersion
+                return bytes([data[0], 0, self.protocol])
+            if port == 13 and ch == 0 and body[:1] == b"\x02":  # platformservice.c recoverSystem
+                ok = fw.recover(now, self.tilt_rad() > math.radians(60))
+                return bytes([data[0], 2, ok, fw.state.value != "crashed"])
+            if port == 9 and self.protocol < 12:  # no supervisor port before protocol 12
+                return None
             if port == 3 and ch == 0 and len(body) == 14:
                 r, p, y, thr = struct.unpack("<fffH", body)
                 self.setpoints.append(Setpoint(now, r, -p, y, thr))
@@ -173,8 +208,8 @@ class SitlDrone:
             elif port == 7 and ch == 0 and body[:1] == b"\x00":
                 self.stops.append(now)
                 fw.stop(now)
-            elif port == 7 and ch == 2 and body[:1] == b"\x00":
-                self.notify_stops += 1  # META_COMMAND_CHANNEL, TYPE_META_COMMAND_NOTIFY_SETPOINT_STOP
+            elif port == 7 and ch == 1 and body[:1] == b"\x00":
+                self.notify_stops += 1  # crtp_commander.c META_COMMAND_CHANNEL, metaNotifySetpointsStop
             elif port == 6 and ch == 1 and body[:1] == b"\x08" and len(body) == 29:
                 self.poses.append(struct.unpack("<Bfffffff", body)[1:])
             elif (port == 9 and ch == 1 and body[:1] == b"\x03") or (port == 6 and ch == 1 and body[:1] == b"\x03"):
@@ -198,8 +233,8 @@ class SitlDrone:
         if ch == 0 and body[:1] == b"\x02" and len(body) >= 3:  # CMD_GET_ITEM_V2: id, type, group\0name\0
             i = struct.unpack("<H", body[1:3])[0]
             if i < len(LOG_TOC):
-                group, name = LOG_TOC[i]
-                return hdr + struct.pack("<BHB", 2, i, 7) + group.encode() + b"\0" + name.encode() + b"\0"
+                group, name, kind = LOG_TOC[i]
+                return hdr + struct.pack("<BHB", 2, i, kind) + group.encode() + b"\0" + name.encode() + b"\0"
         if ch == 1 and body[:1] == b"\x05":  # reset: every block gone
             self.log_blocks.clear()
             self.log_running.clear()
@@ -223,14 +258,20 @@ class SitlDrone:
                 continue
             self.log_running[block] = (period, due + period, addr)
             ms = int(now * 1000) & 0xFFFFFF
-            values = [self.firmware.ctrltarget[LOG_TOC[i][1]] for i in self.log_blocks.get(block, [])]
-            pk = bytes([0x50 | 0x0C | 2, block, ms & 0xFF, (ms >> 8) & 0xFF, ms >> 16]) + struct.pack(
-                f"<{len(values)}f", *values
-            )
+            ids = self.log_blocks.get(block, [])
+            values = [self._log_value(i, now) for i in ids]
+            fmt = "<" + "".join(LOG_FORMATS[LOG_TOC[i][2]] for i in ids)
+            pk = bytes([0x50 | 0x0C | 2, block, ms & 0xFF, (ms >> 8) & 0xFF, ms >> 16]) + struct.pack(fmt, *values)
             try:
                 self.sock.sendto(pk, addr)
             except OSError:
                 pass
+
+    def _log_value(self, i: int, now: float) -> float | int:
+        group, name, _ = LOG_TOC[i]
+        if group == "supervisor":
+            return self.bitfield(now)
+        return self.firmware.ctrltarget[name]
 
     def bitfield(self, now: float) -> int:
         """The supervisor's info bits (crtp_supervisor.c, cflib's Supervisor.STATES order)."""

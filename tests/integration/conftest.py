@@ -49,3 +49,56 @@ def wait_linked(h: RunHandle, session: Any, heard: Any, probe_key: str, what: st
         if any(tp.payload(x) == b"hello" for x in tp.drain(heard)):
             return
     raise AssertionError(f"the session never linked to {what}")
+
+
+SITL_DIR = Path(__file__).resolve().parents[3] / "shared" / "crazyflie-sitl"
+"""CrazySim's firmware source and build script, beside the checkout (CI has ``../shared/``)."""
+
+
+def _build_cf2(cache: Path) -> Path:
+    """``SITL_DIR/build.sh`` into ``cache`` (once per version of its tarball: a file lock
+    keeps concurrent sessions from building it twice)."""
+    import fcntl
+    import hashlib
+    import subprocess
+
+    tag = hashlib.sha1((SITL_DIR / "crazyflie-firmware-sitl.tar.xz").read_bytes()).hexdigest()[:12]
+    out = cache / f"crazyflie-sitl-{tag}"
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (out / "cf2").is_file():
+            res = subprocess.run(["bash", str(SITL_DIR / "build.sh"), str(out)], capture_output=True, text=True)
+            if res.returncode != 0:
+                raise RuntimeError(f"building the firmware failed:\n{res.stdout}\n{res.stderr}")
+    return out / "cf2"
+
+
+@pytest.fixture(scope="session")
+def cf2() -> Path:
+    """CrazySim's firmware binary: ``$C3SWARM_CF2`` (``.ci/run`` builds it and sets it), else
+    built once from ``../shared/crazyflie-sitl/`` into ``$XDG_CACHE_HOME/c3swarm``. Where
+    neither can be had the test skips saying why; with ``C3SWARM_CI`` set it fails."""
+    import os
+    import shutil
+
+    from swarm.world.sitl_fw import CF2_ENV, find_cf2
+
+    why = ""
+    if os.environ.get(CF2_ENV):
+        try:
+            return find_cf2(None)
+        except FileNotFoundError as exc:
+            why = str(exc)
+    elif not (SITL_DIR / "build.sh").is_file():
+        why = f"no Crazyflie firmware: set {CF2_ENV} to a CrazySim cf2 build, or put crazyflie-sitl at {SITL_DIR}"
+    elif not all(shutil.which(t) for t in ("cmake", "make", "cc")):
+        why = (
+            "building the Crazyflie firmware needs cmake, make and a C compiler (apt-get install cmake build-essential)"
+        )
+    else:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "c3swarm"
+        return _build_cf2(cache)
+    if os.environ.get("C3SWARM_CI"):
+        pytest.fail(f"{why} (.ci/run should have built it)")
+    pytest.skip(why)

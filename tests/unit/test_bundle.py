@@ -45,8 +45,13 @@ def test_a_stalled_agent_holds_the_others_up_only_until_the_deadline():
     assert not b.due(10.4) and b.due(10.5)
     k, out = b.take(10.5)
     assert k == 0 and dict(out) == {"a": [_rec("b", 0)], "b": [_rec("a", 0)]}  # c sent nothing: no bundle, in none
-    _add(b, "c", 0, [0.5, 0, 1], 10.6)  # its late state of tick 0: kept for later bundles, not waited on
-    assert b.waiting_for() == 3 and not b.due(10.6)
+    _add(b, "c", 0, [0.5, 0, 1], 10.6)  # its late state of tick 0: the others' tick 1 waits for it
+    assert b.due(10.6)
+    k, out = b.take(10.6)  # tick 0's bundles again, with it, at once
+    assert k == 0 and dict(out)["a"] == [_rec("b", 0), _rec("c", 0)] and b.next_k == 1
+    assert b.waiting_for() == 3 and not b.due(10.6)  # tick 1's wait is as it was
+    _add(b, "c", 0, [0.5, 0, 1], 10.65)  # (the same tick again: not sent a third time)
+    assert not b.due(10.65)
     for n, x in (("a", [0, 0, 1]), ("b", [1, 0, 1])):
         _add(b, n, 1, x, 10.7)
     assert b.waiting_for() == 1  # still c, for tick 1

@@ -106,3 +106,34 @@ def test_motion_capture_estimates_need_the_agents_own_states_not_the_roster():
     raw["neighbours"] = {"source": "world"}
     with pytest.raises(ConfigError, match="neighbours.source: world"):
         resolve(raw)
+
+
+def test_a_command_that_acts_a_tick_late_is_filtered_for_then():
+    """The lab's radio takes a tick (``command_lead_s``: ceil((delay + jitter / 2) / tick) ticks),
+    so the agent filters its state predicted to when its command acts: moved by its velocity and
+    its last command's acceleration over the lead; what it publishes is its state at the tick."""
+    from swarm.model import body_centre
+    from swarm.tuning import command_lead_s
+
+    lab = RealismSettings.model_validate("crazyflie_lab")
+    assert command_lead_s(lab, 100.0) == pytest.approx(0.01) and command_lead_s(None, 100.0) == 0.0
+    assert command_lead_s(RealismSettings.model_validate("ideal"), 100.0) == 0.0
+    late = RealismSettings.model_validate({"comms": {"command": {"delay_s": 0.012, "jitter_s": 0.02}}})
+    assert command_lead_s(late, 100.0) == pytest.approx(0.03)  # 12 + 10 ms: 3 ticks
+    start = np.array([0.0, 0.0, 1.0])
+    cfg = FilterConfig(level=CommandLevel.ATTITUDE)
+    steps = [AgentStep(MODEL, cfg, PathTracker([start, [2.0, 0.0, 1.0]], 0.8), lead_s=lead) for lead in (0.0, 0.05)]
+    state = QuadState(start.copy(), np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))
+    none = NamedObstacles.none()
+    first = [s(0.0, state, none, none) for s in steps]
+    assert np.array_equal(first[0].command, first[1].command)  # no command yet: the lead moves by velocity only
+    a_w = steps[1]._accel_w(state, first[1].u)
+    ahead = QuadState(
+        state.x_w + 0.05 * state.v_w + 0.5 * 0.05**2 * a_w, state.v_w + 0.05 * a_w, state.q, state.Omega_b
+    )
+    led = steps[1](0.01, state, none, none)
+    exact = AgentStep(MODEL, cfg, PathTracker([start, [2.0, 0.0, 1.0]], 0.8))
+    exact(0.0, state, none, none)
+    assert np.allclose(led.command, exact(0.01, ahead, none, none).command)  # filtered as the state then
+    x_b, v_b, _ = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, MODEL.params.l_m)
+    assert np.array_equal(led.x_b_w, x_b) and np.array_equal(led.v_b_w, v_b)  # published: the state now

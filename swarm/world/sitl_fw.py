@@ -1,0 +1,679 @@
+"""Software-in-the-loop Crazyflies that run the Crazyflie firmware itself.
+
+    python -m swarm.world.sitl_fw --cf2 PATH --mocap-port 19900 \\
+        --drone real1,19850,1.0,0.3,0.0,20 [--drone ...] [--telemetry DIR] [--until-handed-back]
+
+``cf2`` is CrazySim's build of the Crazyflie firmware for Linux (``bash
+../shared/crazyflie-sitl/build.sh OUT_DIR``, or CrazySim's own ``sitl_make``): the
+firmware's commander, supervisor, Kalman estimator, PID controller and power
+distribution, on the FreeRTOS POSIX port. Without ``--cf2`` the path comes from the
+environment variable ``C3SWARM_CF2``. Each ``--drone NAME,PORT,X,Y,Z,YAW_DEG`` starts one
+firmware process and plays everything around it, as CrazySim's Gazebo plugin does:
+
+* **Its link.** ``cf2 FW_PORT 127.0.0.1`` is a UDP client of this process: it sends
+  ``0xF3`` and waits for ``0xF3`` back, then every datagram is one CRTP packet, and it
+  answers whoever sent it the last one (``src/hal/src/socketlink.c``). So this process is
+  its only peer: it binds 127.0.0.1:PORT for cflib's UDP driver (``udp://127.0.0.1:PORT``)
+  and relays cflib's packets to the firmware and the firmware's answers back. The
+  firmware's link queue holds 5 packets (``socketlink.c``): at most :data:`FORWARD_PER_TICK`
+  client packets go in per millisecond, behind the sensor packet. A lone null packet
+  (``0xFF``, cflib's UDP scan probe) from an address that has sent nothing else is
+  answered here once the drone is ready; everything else goes to the firmware, which
+  answers what it is asked (a link echo, a log request) and nothing more.
+* **Its body.** The firmware sends four motor PWM values on CRTP port 9 every stabilizer
+  tick; they fly a Crazyflie body (``swarm.world.fw_body``: the firmware's quadratic motor
+  map, yaw torque and motor layout, the simulated rotors' lag, the project's rigid body,
+  the floor).
+* **Its sensors.** Every millisecond of wall-clock time (the firmware's stabilizer runs
+  once per sensor packet and assumes 1 kHz, ``src/modules/src/stabilizer.c``) one
+  accelerometer-and-gyro packet goes in on port 9 (``src/hal/src/sensors_sitl.c``). A
+  late tick steps the body as often as it missed but sends one packet: a burst would
+  overflow the link queue (the counters say how many were missed). No barometer: the
+  Kalman estimator of this build does not use it. Its position comes, as in a
+  motion-capture lab, from the external pose the client relays (``extpos``).
+* **Its motion capture.** The bodies' poses go out at 100 Hz as the ``sitl`` capture source
+  (``swarm.world.mocap.SitlMocap``), as from the stand-in (``swarm.world.sitl_cf``).
+* **What the firmware says.** Once its gyro bias is found (it says so on port 9) this
+  process reads the firmware's log table of contents and logs, at 100 Hz under block id
+  :data:`MONITOR_BLOCK` (cflib never uses it), the supervisor's ``supervisor.info`` bits,
+  the setpoint it flies (``ctrltarget.roll``, ``.pitch``, ``.yaw``, ``stabilizer.thrust``)
+  and its position estimate (``stateEstimateZ``); a client that resets the firmware's
+  logging gets its block back. Those samples, the body, every setpoint relayed and the
+  notable packets go to ``DIR/NAME.jsonl`` (:func:`read_trace` reads it).
+
+The drone counts as ready, and answers probes, once the firmware has its gyro bias and
+the monitor is logging. With ``--until-handed-back`` the process ends when every drone has
+been handed back by its client (``send_notify_setpoint_stop``, CRTP port 7 channel 1, as
+crtp_commander.c reads it), or has been silent for 3 s after talking; SIGTERM ends it too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import math
+import os
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import IO, Any
+
+import msgpack
+import numpy as np
+import orjson
+
+from swarm.world.fw_body import FirmwareBody
+
+PHYSICS_HZ = 1000.0  # the firmware's stabilizer rate (stabilizer.c: one loop per sensor packet)
+MOCAP_HZ = 100.0
+FORWARD_PER_TICK = 1  # client and monitor packets into the firmware per millisecond, beside the sensor packet:
+# its link queue holds 5, and the task that fills it and the one that empties it share a priority (config.h), so
+# they take turns at the 1 ms tick
+OUTBOX_MAX = 400  # queued client packets beyond this are dropped (counted)
+MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
+MONITOR_PERIOD_10MS = 1  # 100 Hz
+HANDED_BACK_SILENT_S = 3.0
+BOOT_TIMEOUT_S = 5.0  # a firmware without its gyro bias this long after its hello is restarted (about 1 s normally)
+CF2_ENV = "C3SWARM_CF2"
+
+# CRTP (crtp.h): header = port << 4 | link bits 0b11 << 2 | channel
+PORT_LOG, PORT_SIM, PORT_LINK = 5, 9, 15
+LOG_TOC_CH, LOG_CONTROL_CH, LOG_DATA_CH = 0, 1, 2  # log.c
+CMD_GET_ITEM_V2, CMD_GET_INFO_V2 = 2, 3  # log.c TOC channel
+CONTROL_START_BLOCK, CONTROL_RESET, CONTROL_CREATE_BLOCK_V2 = 3, 5, 6  # log.c control channel
+LOG_TYPES = {1: "<B", 2: "<H", 3: "<I", 4: "<b", 5: "<h", 6: "<i", 7: "<f"}  # log.h LOG_UINT8 .. LOG_FLOAT
+MONITOR_VARS = (
+    "supervisor.info",  # supervisor.c: the state bits (cflib's Supervisor.STATES order)
+    "ctrltarget.roll",  # stabilizer.c: the setpoint after the supervisor's override [deg]
+    "ctrltarget.pitch",
+    "ctrltarget.yaw",  # the yaw rate [deg/s]
+    "stabilizer.thrust",  # the controller's thrust command (control.thrust)
+    "stateEstimateZ.x",  # the position estimate [mm]
+    "stateEstimateZ.y",
+    "stateEstimateZ.z",
+)
+BIT_CAN_FLY, BIT_FLYING, BIT_TUMBLED, BIT_LOCKED, BIT_CRASHED = 3, 4, 5, 6, 7  # supervisor.c infoBitfield
+
+
+def header(port: int, channel: int) -> int:
+    return (port & 0x0F) << 4 | 0x0C | (channel & 0x03)
+
+
+class FwState(StrEnum):
+    """The supervisor's state as its log shows it (``supervisor.info`` and the setpoint it
+    flies). ``level_out`` is not a bit: it is read off the setpoint, roll, pitch and yaw rate
+    zeroed with the thrust kept (supervisor.c ``supervisorOverrideSetpoint``). ``ready``
+    covers ready to fly and landed (both may fly, neither flies)."""
+
+    NOT_READY = "not_ready"
+    READY = "ready"
+    FLYING = "flying"
+    LEVEL_OUT = "level_out"
+    LOCKED = "locked"
+    CRASHED = "crashed"
+
+
+def fw_state(info: int, roll_deg: float, pitch_deg: float, yaw_dps: float, thrust: float) -> FwState:
+    """The state of one monitor sample (see :class:`FwState`)."""
+    if info >> BIT_LOCKED & 1:
+        return FwState.LOCKED
+    if info >> BIT_CRASHED & 1:
+        return FwState.CRASHED
+    if info >> BIT_FLYING & 1:
+        level = roll_deg == 0.0 and pitch_deg == 0.0 and yaw_dps == 0.0 and thrust > 0.0
+        return FwState.LEVEL_OUT if level else FwState.FLYING
+    return FwState.READY if info >> BIT_CAN_FLY & 1 else FwState.NOT_READY
+
+
+def find_cf2(given: str | None) -> Path:
+    """The firmware binary: ``given``, else ``$C3SWARM_CF2``; raises saying how to get one."""
+    path = given or os.environ.get(CF2_ENV, "")
+    if not path:
+        raise FileNotFoundError(
+            "no Crazyflie firmware binary: build CrazySim's cf2 (bash crazyflie-sitl/build.sh OUT_DIR, or "
+            f"CrazySim's sitl_make) and give its path as mocap.options.cf2 or in ${CF2_ENV}"
+        )
+    p = Path(path).expanduser()
+    if not (p.is_file() and os.access(p, os.X_OK)):
+        raise FileNotFoundError(f"the Crazyflie firmware binary {p} is not an executable file")
+    return p
+
+
+class LogMonitor:
+    """This process's own log client of one firmware (log.c, protocol v2): the table of
+    contents, then :data:`MONITOR_VARS` in block :data:`MONITOR_BLOCK` at 100 Hz. It asks one
+    thing at a time and asks again after 50 ms without an answer."""
+
+    RETRY_S = 0.05
+
+    def __init__(self) -> None:
+        self.toc: dict[str, tuple[int, int]] = {}  # "group.name" -> (id, type)
+        self.n_items: int | None = None
+        self.next_item = 0
+        self.fields: list[tuple[str, str]] = []  # (name, struct format) in block order
+        self.stage = "info"  # info, items, create, start, running
+        self.sent_s = -math.inf
+        self.missing: list[str] = []
+
+    @property
+    def running(self) -> bool:
+        return self.stage == "running"
+
+    def request(self, now: float) -> bytes | None:
+        """The next request to send, or None (waiting for an answer, or running)."""
+        if self.stage == "running" or now - self.sent_s < self.RETRY_S:
+            return None
+        self.sent_s = now
+        if self.stage == "info":
+            return bytes([header(PORT_LOG, LOG_TOC_CH), CMD_GET_INFO_V2])
+        if self.stage == "items":
+            return bytes([header(PORT_LOG, LOG_TOC_CH), CMD_GET_ITEM_V2]) + struct.pack("<H", self.next_item)
+        if self.stage == "create":
+            spec = b"".join(struct.pack("<BH", t << 4 | t, i) for i, t in (self.toc[n] for n, _ in self.fields))
+            return bytes([header(PORT_LOG, LOG_CONTROL_CH), CONTROL_CREATE_BLOCK_V2, MONITOR_BLOCK]) + spec
+        return bytes([header(PORT_LOG, LOG_CONTROL_CH), CONTROL_START_BLOCK, MONITOR_BLOCK, MONITOR_PERIOD_10MS])
+
+    def restart_block(self) -> None:
+        """The client reset the firmware's logging: create the block again."""
+        if self.stage in ("start", "running"):
+            self.stage, self.sent_s = "create", -math.inf
+
+    def answer(self, ch: int, data: bytes) -> bool:
+        """Take an answer meant for the monitor; False when it is not one (relay it)."""
+        if ch == LOG_TOC_CH and self.stage in ("info", "items") and data:
+            if self.stage == "info" and data[0] == CMD_GET_INFO_V2 and len(data) >= 7:
+                self.n_items = struct.unpack_from("<H", data, 1)[0]
+                self.stage, self.sent_s = "items", -math.inf
+                return True
+            if self.stage == "items" and data[0] == CMD_GET_ITEM_V2 and len(data) >= 4:
+                ident, t = struct.unpack_from("<HB", data, 1)
+                if ident != self.next_item:
+                    return True  # a repeated answer
+                group, name = data[4:].split(b"\0")[:2]
+                self.toc[f"{group.decode()}.{name.decode()}"] = (ident, t & 0x0F)
+                self.next_item += 1
+                self.sent_s = -math.inf
+                if self.n_items is not None and self.next_item >= self.n_items:
+                    self.fields = [(n, LOG_TYPES[self.toc[n][1]]) for n in MONITOR_VARS if n in self.toc]
+                    self.missing = [n for n in MONITOR_VARS if n not in self.toc]
+                    self.stage = "create"
+                return True
+            return False
+        if ch == LOG_CONTROL_CH and len(data) >= 3 and data[1] == MONITOR_BLOCK:
+            if data[0] == CONTROL_CREATE_BLOCK_V2 and self.stage == "create":
+                self.stage, self.sent_s = "start", -math.inf  # (17, EEXIST: it is there already)
+            elif data[0] == CONTROL_START_BLOCK and self.stage == "start" and data[2] == 0:
+                self.stage = "running"
+            return True
+        return ch == LOG_DATA_CH and len(data) >= 4 and data[0] == MONITOR_BLOCK
+
+    def decode(self, data: bytes) -> dict[str, float]:
+        """A data packet of the block: its variables by name, and the firmware's time ``t_fw_ms``."""
+        out = {"t_fw_ms": float(data[1] | data[2] << 8 | data[3] << 16)}
+        k = 4
+        for name, fmt in self.fields:
+            n = struct.calcsize(fmt)
+            out[name] = float(struct.unpack_from(fmt, data, k)[0])
+            k += n
+        return out
+
+
+@dataclass
+class Counters:
+    restarts: int = 0  # firmware processes restarted after stalling at boot
+    sensor_packets: int = 0
+    late_ticks: int = 0  # ticks that stepped the body more than once (the loop was late) ...
+    missed_packets: int = 0  # ... and the sensor packets not sent for it
+    client_in: int = 0  # packets from the client
+    forwarded: int = 0  # client packets into the firmware
+    outbox_dropped: int = 0
+    to_client: int = 0  # firmware packets relayed to the client
+    probes_answered: int = 0
+
+
+@dataclass
+class FirmwareDrone:
+    """One firmware process, its two sockets and its body."""
+
+    name: str
+    port: int
+    x_w: list[float]
+    yaw_deg: float
+    cf2: Path
+    trace: IO[bytes] | None = None
+    body: FirmwareBody = field(init=False)
+    fw_sock: socket.socket = field(init=False)
+    cl_sock: socket.socket = field(init=False)
+    proc: subprocess.Popen[bytes] | None = None
+    log: IO[bytes] | int = subprocess.DEVNULL  # the firmware's console
+    hello_s: float = math.inf  # monotonic time of the firmware's hello
+    fw_addr: tuple[str, int] | None = None
+    client: tuple[str, int] | None = None
+    calibrated: bool = False  # the firmware found its gyro bias
+    ready: bool = False  # calibrated and the monitor logging (then it stays ready)
+    monitor: LogMonitor = field(default_factory=LogMonitor)
+    outbox: deque[bytes] = field(default_factory=deque)
+    counters: Counters = field(default_factory=Counters)
+    talked_s: float = -math.inf  # monotonic time of the client's newest packet
+    handed_back: bool = False
+    last_sample: dict[str, float] = field(default_factory=dict)
+    state: FwState = FwState.NOT_READY
+    events: list[tuple[float, str]] = field(default_factory=list)  # (monotonic s, FwState) transitions
+    cpu_s: float = 0.0  # the firmware process's CPU time [s], read once a second and at the end
+
+    def __post_init__(self) -> None:
+        self.body = FirmwareBody(np.asarray(self.x_w, float), math.radians(self.yaw_deg))
+        self.fw_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.fw_sock.bind(("127.0.0.1", 0))
+        self.fw_sock.setblocking(False)
+        self.cl_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.cl_sock.bind(("127.0.0.1", self.port))
+        self.cl_sock.setblocking(False)
+
+    def start(self, log: IO[bytes] | int) -> None:
+        """Start the firmware, a UDP client of :attr:`fw_sock` (it dies with this process)."""
+        self.log = log
+        argv = [str(self.cf2), str(self.fw_sock.getsockname()[1]), "127.0.0.1"]
+        stdbuf = shutil.which("stdbuf")  # its console (printf) line by line into the log
+        self.proc = subprocess.Popen(
+            ([stdbuf, "-oL"] if stdbuf else []) + argv,
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent,
+        )
+
+    def check_boot(self, now: float) -> None:
+        """Restart a firmware that has not found its gyro bias :data:`BOOT_TIMEOUT_S` after its
+        hello: a few boots in a hundred of this build on two busy cores stall there, spinning
+        (the FreeRTOS POSIX port), and never would."""
+        if self.calibrated or now - self.hello_s < BOOT_TIMEOUT_S or self.proc is None:
+            return
+        print(f"sitl_fw: the firmware of {self.name} stalled at boot (no gyro bias in {BOOT_TIMEOUT_S:.0f} s): "
+              "restarting it", flush=True)  # fmt: skip
+        self.proc.kill()
+        self.proc.wait()
+        self.fw_addr, self.hello_s, self.monitor = None, math.inf, LogMonitor()
+        self.body.pwm[:] = 0.0
+        self.counters.restarts += 1
+        self.write({"k": "pkt", "t": now, "what": "firmware_restarted"})
+        self.start(self.log)
+
+    def write(self, record: dict[str, Any]) -> None:
+        if self.trace is not None:
+            self.trace.write(orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY) + b"\n")
+
+    def _fw_send(self, pk: bytes) -> None:
+        if self.fw_addr is not None:
+            try:
+                self.fw_sock.sendto(pk, self.fw_addr)
+            except OSError:
+                pass
+
+    def poll(self, now: float) -> None:
+        """Everything waiting on both sockets (until one would block, or fails)."""
+        for sock, take in ((self.fw_sock, self._from_firmware), (self.cl_sock, self._from_client)):
+            while True:
+                try:
+                    pk, addr = sock.recvfrom(64)
+                except OSError:  # (BlockingIOError: nothing more waiting)
+                    break
+                take(pk, addr, now)
+
+    def _from_firmware(self, pk: bytes, addr: tuple[str, int], now: float) -> None:
+        if self.fw_addr is None:
+            if pk == b"\xf3":  # the firmware's hello (socketlink.c): answered, then it talks CRTP
+                self.fw_addr, self.hello_s = addr, now
+                self.fw_sock.sendto(b"\xf3", addr)
+            return
+        if not pk or addr != self.fw_addr:  # (a restarted firmware's predecessor)
+            return
+        port, ch, data = pk[0] >> 4, pk[0] & 0x03, pk[1:]
+        if port == PORT_SIM:  # the simulator's port: motor PWM, or "gyro bias found" (one byte)
+            if len(data) == 8:
+                self.body.pwm[:] = struct.unpack("<4H", data)
+            elif len(data) == 1 and data[0]:
+                self.calibrated = True
+            return
+        if port == PORT_LOG and self.monitor.answer(ch, data):
+            if ch == LOG_DATA_CH:
+                self._sample(now, self.monitor.decode(data))
+            return
+        if self.client is not None:
+            try:
+                self.cl_sock.sendto(pk, self.client)
+                self.counters.to_client += 1
+            except OSError:
+                pass
+
+    def _from_client(self, pk: bytes, addr: tuple[str, int], now: float) -> None:
+        if pk == b"\xff" and addr != self.client:  # a scan probe (cflib udpdriver.py scan_interface)
+            if self.ready:
+                self.cl_sock.sendto(b"\xff", addr)
+                self.counters.probes_answered += 1
+            return
+        self.client = addr
+        self.talked_s = now
+        self.counters.client_in += 1
+        self._inspect(pk, now)
+        if len(self.outbox) >= OUTBOX_MAX:
+            self.counters.outbox_dropped += 1
+            return
+        self.outbox.append(pk)
+
+    def _inspect(self, pk: bytes, now: float) -> None:
+        """Record the client's setpoints and stops; watch for the end of the flight."""
+        port, ch, data = pk[0] >> 4, pk[0] & 0x03, pk[1:]
+        if port == 3 and ch == 0 and len(data) == 14:  # crtp_commander_rpyt.c: roll, pitch, yaw rate, thrust
+            r, p, y, thrust = struct.unpack("<fffH", data)
+            self.write({"k": "sp", "t": now, "roll": r, "pitch": p, "yaw": y, "thrust": thrust})
+        elif port == 7 and ch == 1 and data[:1] == b"\x00":  # crtp_commander.c metaNotifySetpointsStop
+            self.handed_back = True
+            self.write({"k": "pkt", "t": now, "what": "notify_stop"})
+        elif port == 7 and ch == 0 and data[:1] == b"\x00":  # crtp_commander_generic.c stopType
+            self.write({"k": "pkt", "t": now, "what": "stop"})
+        elif port == 6 and ch == 1 and data[:1] == b"\x03":  # crtp_localization_service.c EMERGENCY_STOP
+            self.write({"k": "pkt", "t": now, "what": "estop"})
+        elif port == PORT_SIM and ch == 1 and data[:1] == b"\x03":  # the newer supervisor port's form
+            self.write({"k": "pkt", "t": now, "what": "estop_supervisor_port"})
+        elif port == PORT_LOG and ch == LOG_CONTROL_CH and data[:1] == bytes([CONTROL_RESET]):
+            self.monitor.restart_block()
+
+    def _sample(self, now: float, values: dict[str, float]) -> None:
+        self.last_sample = values
+        state = fw_state(
+            int(values.get("supervisor.info", 0)),
+            values.get("ctrltarget.roll", math.nan),
+            values.get("ctrltarget.pitch", math.nan),
+            values.get("ctrltarget.yaw", math.nan),
+            values.get("stabilizer.thrust", 0.0),
+        )
+        if state is not self.state:
+            self.state = state
+            self.events.append((now, state.value))
+        self.write({"k": "fw", "t": now, "state": state.value, **values})
+
+    def tick(self, now: float, steps: int, dt_s: float) -> None:
+        """``steps`` physics steps of ``dt_s``, then one sensor packet and the next queued packets."""
+        for _ in range(steps):
+            self.body.step(dt_s)
+        if self.fw_addr is None:
+            return
+        imu = self.body.imu
+        self._fw_send(struct.pack("<BBhhhhhh", header(PORT_SIM, 0), 0, imu[0], imu[1], imu[2], imu[3], imu[4], imu[5]))
+        self.counters.sensor_packets += 1
+        room = FORWARD_PER_TICK
+        if not self.ready:  # the client's packets wait until the firmware is calibrated and logged
+            req = self.monitor.request(now) if self.calibrated else None
+            if req is not None:
+                self._fw_send(req)
+            self.ready = self.calibrated and self.monitor.running
+            return
+        if not self.monitor.running:  # after a client reset the firmware's logging: behind its packets
+            req = self.monitor.request(now)
+            if req is not None:
+                self.outbox.append(req)
+        while room > 0 and self.outbox:
+            self._fw_send(self.outbox.popleft())
+            self.counters.forwarded += 1
+            room -= 1
+
+    def body_record(self, now: float) -> None:
+        b = self.body
+        self.write({"k": "body", "t": now, "x": b.x_w, "q": b.q, "v": b.s[3:6], "w": b.s[10:13], "pwm": b.pwm,
+                    "thrust_N": b.thrust_N})  # fmt: skip
+
+    def sample_cpu(self) -> None:
+        """Read the firmware process's CPU time (while it lives: a run's end signals its whole group)."""
+        if self.proc is not None and self.proc.poll() is None:
+            cpu = _cpu_s(self.proc.pid)
+            self.cpu_s = cpu if math.isfinite(cpu) else self.cpu_s
+
+    def finish(self) -> None:
+        """Stop the firmware (reading its CPU time first) and close the sockets."""
+        self.sample_cpu()
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.write({"k": "end", "state": self.state.value, "events": self.events, "cpu_s": self.cpu_s,
+                    "missing": self.monitor.missing, **self.counters.__dict__})  # fmt: skip
+        self.fw_sock.close()
+        self.cl_sock.close()
+
+
+def _die_with_parent() -> None:
+    """In the firmware's process before exec: die when this relay dies (Linux prctl
+    PR_SET_PDEATHSIG), so no firmware spins on at half a core behind a killed relay."""
+    try:
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+
+
+def _cpu_s(pid: int) -> float:
+    """User plus system CPU time [s] of a live process (/proc/PID/stat, clock ticks)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return math.nan
+
+
+def run(drones: list[FirmwareDrone], mocap_port: int, stop: threading.Event, until_handed_back: bool) -> None:
+    """The 1 kHz loop: poll the sockets, step the bodies, send the sensor packets and the
+    queued ones; the poses at :data:`MOCAP_HZ`. Ends on ``stop`` or, with
+    ``until_handed_back``, once every drone's client is done with it."""
+    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    dt = 1.0 / PHYSICS_HZ
+    every = round(PHYSICS_HZ / MOCAP_HZ)
+    t0 = time.monotonic()
+    k = 0  # ticks done
+    while not stop.is_set():
+        now = time.monotonic()
+        steps = max(1, int((now - t0) / dt) - k)  # the ticks due by now: a late loop steps the bodies to now
+        if steps > 1:
+            for d in drones:
+                d.counters.late_ticks += 1
+                d.counters.missed_packets += steps - 1
+        k += steps
+        for d in drones:
+            d.poll(now)
+            d.tick(now, steps, dt)
+        if k // every != (k - steps) // every:
+            frame = [[d.name, *map(float, d.body.x_w), *map(float, d.body.q)] for d in drones]
+            try:
+                out.sendto(msgpack.packb(frame), ("127.0.0.1", mocap_port))
+            except OSError:
+                pass
+            for d in drones:
+                d.body_record(now)
+                if k // PHYSICS_HZ != (k - steps) // PHYSICS_HZ:  # once a second
+                    d.sample_cpu()
+                d.check_boot(now)
+                if d.proc is not None and d.proc.poll() is not None:
+                    raise RuntimeError(f"the firmware of {d.name} exited with {d.proc.returncode}")
+            if until_handed_back and all(
+                d.handed_back or (d.talked_s > -math.inf and now - d.talked_s > HANDED_BACK_SILENT_S) for d in drones
+            ):
+                break
+        wait = t0 + (k + 1) * dt - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+    out.close()
+
+
+def _handshake(drones: list[FirmwareDrone], timeout_s: float) -> None:
+    """Wait for every firmware's hello; raise naming the one that never sent it."""
+    deadline = time.monotonic() + timeout_s
+    while any(d.fw_addr is None for d in drones):
+        for d in drones:
+            if d.proc is not None and d.proc.poll() is not None:
+                raise RuntimeError(f"the firmware of {d.name} exited with {d.proc.returncode} before its hello")
+            d.poll(time.monotonic())
+        if time.monotonic() > deadline:
+            late = [d.name for d in drones if d.fw_addr is None]
+            raise RuntimeError(f"no hello from the firmware of {late} within {timeout_s:.0f} s")
+        time.sleep(0.002)
+
+
+@dataclass
+class FirmwareTrace:
+    """One drone's trace (:func:`read_trace`); times are monotonic seconds of the machine.
+
+    ``body_*``: the body at 100 Hz (position [m], quaternion x, y, z, w, motor PWM, the
+    collective thrust it made [N]); ``fw_*``: the firmware's own log at 100 Hz (its state,
+    supervisor bits, the setpoint it flies: roll, pitch [deg], yaw rate [deg/s], thrust
+    command; its position estimate [m]); ``sp_*``: every RPYT setpoint relayed (roll [deg],
+    pitch [deg, as on the wire], yaw rate [deg/s, as on the wire], thrust command);
+    ``packets``: (t, what) of stops, emergency stops and the notify-stop; ``end``: the
+    summary the relay wrote last (counters, CPU time, final state, transitions)."""
+
+    body_t: np.ndarray
+    body_x: np.ndarray
+    body_q: np.ndarray
+    body_pwm: np.ndarray
+    body_thrust_N: np.ndarray
+    fw_t: np.ndarray
+    fw_state: list[str]
+    fw_info: np.ndarray
+    fw_setpoint: np.ndarray  # (n, 4): roll, pitch, yaw rate, thrust
+    fw_estimate: np.ndarray  # (n, 3) m
+    sp_t: np.ndarray
+    sp: np.ndarray  # (n, 4)
+    packets: list[tuple[float, str]]
+    end: dict[str, Any]
+
+    def transitions(self) -> list[tuple[float, str]]:
+        """(t, state) where the firmware's state changed, starting with its first."""
+        out: list[tuple[float, str]] = []
+        for t, s in zip(self.fw_t, self.fw_state, strict=True):
+            if not out or out[-1][1] != s:
+                out.append((float(t), s))
+        return out
+
+
+def _records(path: Path) -> Iterator[dict[str, Any]]:
+    for line in path.read_bytes().splitlines():
+        try:
+            yield orjson.loads(line)
+        except orjson.JSONDecodeError:  # a line cut by a killed relay
+            continue
+
+
+def read_trace(path: Path) -> FirmwareTrace:
+    """Read ``DIR/NAME.jsonl`` as the relay wrote it."""
+    body, fw, sp, pk, end = [], [], [], [], {}
+    for r in _records(path):
+        kind = r.get("k")
+        if kind == "body":
+            body.append(r)
+        elif kind == "fw":
+            fw.append(r)
+        elif kind == "sp":
+            sp.append(r)
+        elif kind == "pkt":
+            pk.append((r["t"], r["what"]))
+        elif kind == "end":
+            end = r
+    nan = math.nan
+    return FirmwareTrace(
+        body_t=np.array([r["t"] for r in body]),
+        body_x=np.array([r["x"] for r in body]).reshape(-1, 3),
+        body_q=np.array([r["q"] for r in body]).reshape(-1, 4),
+        body_pwm=np.array([r["pwm"] for r in body]).reshape(-1, 4),
+        body_thrust_N=np.array([r["thrust_N"] for r in body]),
+        fw_t=np.array([r["t"] for r in fw]),
+        fw_state=[r["state"] for r in fw],
+        fw_info=np.array([int(r.get("supervisor.info", 0)) for r in fw], dtype=int),
+        fw_setpoint=np.array(
+            [
+                [r.get(f"ctrltarget.{n}", nan) for n in ("roll", "pitch", "yaw")] + [r.get("stabilizer.thrust", nan)]
+                for r in fw
+            ]  # fmt: skip
+        ).reshape(-1, 4),
+        fw_estimate=np.array([[r.get(f"stateEstimateZ.{n}", nan) / 1000.0 for n in "xyz"] for r in fw]).reshape(-1, 3),
+        sp_t=np.array([r["t"] for r in sp]),
+        sp=np.array([[r["roll"], r["pitch"], r["yaw"], r["thrust"]] for r in sp]).reshape(-1, 4),
+        packets=pk,
+        end=end,
+    )
+
+
+def parse_drone(text: str) -> tuple[str, int, list[float], float]:
+    name, port, x, y, z, yaw = text.split(",")
+    return name, int(port), [float(x), float(y), float(z)], float(yaw)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    ap.add_argument("--drone", action="append", required=True, help="NAME,PORT,X,Y,Z,YAW_DEG (repeatable)")
+    ap.add_argument("--mocap-port", type=int, required=True)
+    ap.add_argument("--cf2", default=None, help=f"the firmware binary (default: ${CF2_ENV})")
+    ap.add_argument("--telemetry", type=Path, default=None, help="write DIR/NAME.jsonl and DIR/NAME.cf2.log")
+    ap.add_argument("--until-handed-back", action="store_true", help="end once every client is done")
+    ap.add_argument("--start-timeout-s", type=float, default=20.0)
+    args = ap.parse_args(argv)
+    try:
+        cf2 = find_cf2(args.cf2)
+    except FileNotFoundError as exc:
+        print(f"sitl_fw: {exc}", flush=True)
+        return 2
+    if args.telemetry is not None:
+        args.telemetry.mkdir(parents=True, exist_ok=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())  # swarm run ends it with SIGTERM: a clean end
+    fleet: list[FirmwareDrone] = []
+    code = 0
+    wall0, cpu0 = time.monotonic(), time.process_time()
+    FirmwareBody(np.zeros(3), 0.0).step(0.001)  # load the compiled step now, not in the 1 kHz loop (about 1 s)
+    try:
+        for n, p, x, yaw in map(parse_drone, args.drone):
+            trace = open(args.telemetry / f"{n}.jsonl", "wb") if args.telemetry else None
+            d = FirmwareDrone(n, p, x, yaw, cf2, trace)
+            fleet.append(d)
+            log = open(args.telemetry / f"{n}.cf2.log", "wb") if args.telemetry else subprocess.DEVNULL
+            d.start(log)
+        _handshake(fleet, args.start_timeout_s)
+        print(
+            "sitl_fw: " + ", ".join(f"{d.name} at udp://127.0.0.1:{d.port}" for d in fleet)
+            + f"; firmware {cf2}; poses to :{args.mocap_port}",
+            flush=True,
+        )  # fmt: skip
+        run(fleet, args.mocap_port, done, args.until_handed_back)
+    except (RuntimeError, OSError) as exc:
+        print(f"sitl_fw: {exc}", flush=True)
+        code = 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for d in fleet:
+            d.finish()
+            if d.trace is not None:
+                d.trace.close()
+            print(
+                f"sitl_fw: {d.name} ended {d.state.value}; supervisor events {d.events}; "
+                f"firmware cpu {d.cpu_s:.1f} s; {d.counters}",
+                flush=True,
+            )
+        summary = {"wall_s": time.monotonic() - wall0, "relay_cpu_s": time.process_time() - cpu0,
+                   "firmware_cpu_s": {d.name: d.cpu_s for d in fleet}}  # fmt: skip
+        print("SITL_FW_SUMMARY " + orjson.dumps(summary).decode(), flush=True)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

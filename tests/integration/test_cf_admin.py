@@ -43,10 +43,15 @@ def swarm_cf(*args: str) -> subprocess.CompletedProcess:
 
 
 def _send(d: SitlDrone, header: int, body: bytes) -> None:
+    """Send one packet, then a link echo (port 15, channel 0): a firmware answers neither a
+    commander setpoint nor the supervisor's stop, but it serves packets in order, so the echo's
+    answer says the packet was taken."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.sendto(bytes([header]) + body, ("127.0.0.1", PORT))
-        s.settimeout(1.0)
-        s.recv(64)
+        s.sendto(bytes([0xF0]) + b"taken?", ("127.0.0.1", PORT))
+        s.settimeout(5.0)
+        while s.recv(64) != bytes([0xF0]) + b"taken?":
+            pass
 
 
 def test_scan_finds_the_drone_and_status_reads_its_supervisor(drone):

@@ -1,5 +1,5 @@
 """``swarm cf``: find Crazyflies, read their supervisor, recover, reboot: the CLI through
-cflib against a software-in-the-loop Crazyflie (swarm/world/sitl_cf.py), which answers the
+cflib against a software-in-the-loop Crazyflie (world/sitl_cf.py), which answers the
 supervisor's requests as crtp_supervisor.c does."""
 
 from __future__ import annotations
@@ -10,7 +10,6 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -44,19 +43,15 @@ def swarm_cf(*args: str) -> subprocess.CompletedProcess:
 
 
 def _send(d: SitlDrone, header: int, body: bytes) -> None:
-    """One CRTP packet to the drone, returning once it has decoded it (a firmware, as the
-    stand-in, acknowledges nothing over UDP)."""
-    with d.lock:
-        before = d.packets
+    """Send one packet, then a link echo (port 15, channel 0): a firmware answers neither a
+    commander setpoint nor the supervisor's stop, but it serves packets in order, so the echo's
+    answer says the packet was taken."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.sendto(bytes([header]) + body, ("127.0.0.1", PORT))
-    deadline = time.monotonic() + 5.0
-    while True:
-        with d.lock:
-            if d.packets > before:
-                return
-        assert time.monotonic() < deadline, "the stand-in never decoded the packet"
-        time.sleep(0.001)
+        s.sendto(bytes([0xF0]) + b"taken?", ("127.0.0.1", PORT))
+        s.settimeout(5.0)
+        while s.recv(64) != bytes([0xF0]) + b"taken?":
+            pass
 
 
 def test_scan_finds_the_drone_and_status_reads_its_supervisor(drone):

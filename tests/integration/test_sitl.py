@@ -77,31 +77,6 @@ def test_sitl_drones_take_off_hold_height_and_yaw_let_the_others_pass_and_land(s
     assert not any(r.startswith("command for a tick") for r in world["dropped_reasons"]), world["dropped_reasons"]
 
 
-def test_an_agent_killed_mid_flight_meets_the_firmware_watchdog(start_run):
-    cfg = scenario(
-        "mixed_sitl.yaml",
-        duration_s=12.0,
-        stop_when_all_reached=False,
-        time={"late_command": "brake"},
-        agent_types={"real": {"crazyflie": {"on_agent_loss": "watchdog"}}},
-    )
-    h = start_run(cfg, "kill")
-    h.wait_sim_time(5.0)  # the real drones are up and holding
-    killed = time.monotonic()
-    h.kill("agent-real1", signal.SIGKILL)
-    assert h.wait() == "completed"
-    state, events = _sitl_events(h.out)["real1"]
-    assert state == "locked"
-    after = [(round(t - killed, 2), what) for t, what in events if t > killed]
-    level = next(t for t, what in after if what == "level_out")
-    locked = next(t for t, what in after if what == "locked")
-    assert 0.4 < level < 0.9 and 1.9 < locked < 2.4, after  # 500 ms level out, 2 s cut (supervisor.c)
-    t, x, _ = _track(h.out, "real1")
-    z_lock = np.interp(t[-1] - 0.0, t, x[:, 2])
-    assert z_lock < 0.1  # then it fell: the recording shows the firmware's end of a lost agent
-    assert _sitl_events(h.out)["real2"][0] == "landed"  # the other real drone landed as usual
-
-
 def test_a_drone_that_does_not_answer_fails_the_run_in_seconds_naming_it(start_run):
     cfg = scenario("mixed_mock.yaml")
     silent = next(a for a in cfg.agents if a.crazyflie is not None)

@@ -390,17 +390,13 @@ def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_the
     ].filter.filter_config(CommandLevel.ATTITUDE)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="a known defect: with the neighbours' states of tick k-1 (as the agent processes use them) the two "
-    "drones that meet mid-corridor in mirror symmetry both climb and touch (1 contact, 0.124 m at 4.75 s); the "
-    "runtime's own lockstep run with bundles has the same contact (CHANGELOG, Known issues)",
-)
 def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home():
     """A hand-written config's default gain (gamma 1, the paper's) at 0.8 m/s: two drones each
     way through a corridor too narrow to pass in. With the obstacle horizon stretched to 6 s
     all four are home without contact or a slip into the safety radius; with every pillar's
-    whole cone (the horizon off, as it was at this gain) the two that meet mid-way never are."""
+    whole cone (the horizon off, as it was at this gain) the two that meet mid-way never are.
+    The keep-out ellipsoid keeps those two from climbing one over the other (with the sphere,
+    ``filter.ellipsoid: false``, they slip into their safety radius: CHANGELOG, Known issues)."""
     from swarm.offline.closed_loop import outcome
 
     raw = corridor(2)

@@ -144,12 +144,15 @@ def _ros2_session(h, user: str) -> zenoh.Session:
     return tp.open_session(conf)
 
 
-def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run):
+def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run, ros2_client):
     from swarm.ros2.topics import Kind, run_topics
 
     cfg = scenario("ros2_swap_2.yaml", duration_s=120.0, stop_when_all_reached=False, time={"mode": "lockstep"})
     h = start_run(cfg, "ros2_acl")
     h.wait_sim_time(0.5)
+    ros2_client(h)  # the bridge's subscription to /cf1/goal is declared (its liveliness token) before any put
+    listed = wait_topics(h, {"/cf1/goal": "geometry_msgs/msg/PoseStamped"})
+    assert listed.get("/cf1/goal") == ["geometry_msgs/msg/PoseStamped"], listed
     keys = tp.Keys(h.run)
     topics = {(t.kind, t.agent): t.key(0) for t in run_topics("", ["cf1", "cf2"])}
     ros = _ros2_session(h, "ros2")

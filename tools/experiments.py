@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from swarm.config import load
+from swarm.model import CommandLevel
 from swarm.runs.compare import compare, markdown
 from swarm.runs.launch import unpinned
 from swarm.runs.report import make_report
@@ -233,16 +234,23 @@ def paper(out: Path, jobs: int) -> None:
 
     def one(name: str) -> tuple[str, list[dict]]:
         cfg = load(CONFIGS / "paper" / f"{name}.yaml")
-        rows = compare(unpinned(cfg) if jobs > 1 else cfg, ["c3bf", "hocbf"], out / name)
+        cfg = unpinned(cfg) if jobs > 1 else cfg
+        rows = [{**r, "level": "rotors"} for r in compare(cfg, ["c3bf", "hocbf"], out / name)]
         make_report(out / name / "c3bf")
         shutil.copy(out / name / "c3bf" / "report" / "views.png", DOCS / f"{name}_views.png")
+        # the same scenario with this project's departure, the attitude command level, beside it
+        att = cfg.model_copy(
+            update={"agents": [a.model_copy(update={"command_level": CommandLevel.ATTITUDE}) for a in cfg.agents]}
+        )
+        rows += [{**r, "level": "attitude"} for r in compare(att, ["c3bf"], out / name / "attitude")]
         return name, rows
 
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         results = dict(pool.map(one, names))
     (DOCS / "paper.json").write_text(json.dumps(results, indent=2))
-    (DOCS / "paper.md").write_text("\n".join(markdown(n, results[n]) for n in names))
-    stamp("paper", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"])
+    named = {n: [{**r, "filter": f"{r['filter']} ({r['level']})"} for r in results[n]] for n in names}
+    (DOCS / "paper.md").write_text("\n".join(markdown(n, named[n]) for n in names))
+    stamp("paper", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"], levels=["rotors", "attitude (c3bf)"])
 
 
 def sweeps(out: Path, jobs: int) -> None:
@@ -286,7 +294,8 @@ def _paper_table(path: Path) -> str:
     out = [head, "|" + "---|" * 11]
     for name in sorted(data):
         cells = [name]
-        for r in sorted(data[name], key=lambda r: r["filter"]):  # c3bf, hocbf
+        rotors = [r for r in data[name] if r["level"] == "rotors"]
+        for r in sorted(rotors, key=lambda r: r["filter"]):  # c3bf, hocbf
             cells += [
                 f"{r['collisions']} / {r.get('margin_violations', '-')}",
                 num(r["min_clearance_m"], ".3f"),
@@ -296,6 +305,32 @@ def _paper_table(path: Path) -> str:
             ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
+
+
+def _levels_table(path: Path) -> str:
+    """EXPERIMENTS.md section 1's comparison of the command levels: per scenario, C3BF with the
+    paper's rotor thrusts as inputs against the attitude level (roll, pitch, yaw rate, thrust)."""
+    data = json.loads(path.read_text())
+    head = ["scenario"] + [
+        f"{lv} {col}"
+        for lv in ("rotors", "attitude")
+        for col in ("contacts / inside", "closest [m]", "time to goal [s]", "infeasible ticks", "min h [m^2/s]")
+    ]
+    rows = []
+    for name in sorted(data):
+        cells = [name]
+        for lv in ("rotors", "attitude"):
+            (r,) = [r for r in data[name] if r["filter"] == "c3bf" and r["level"] == lv]
+            closest = r["min_clearance_m"] if r["min_clearance_m"] is not None else r["min_separation_m"]
+            cells += [
+                f"{r['collisions']} / {r['margin_violations']}",
+                _maybe(closest, ".3f"),
+                _maybe(r["max_time_to_goal_s"], ".2f"),
+                str(r["infeasible_ticks"]),
+                _maybe(r["min_h"], ".4f"),
+            ]
+        rows.append(cells)
+    return _table(head, rows)
 
 
 def _liveness_table(path: Path) -> str:
@@ -621,6 +656,7 @@ GENERATED = {
     "compare": (DOCS / "compare.json", _compare_table),
     "faults": (DOCS / "bench_faults.jsonl", _faults_table),
     "paper": (DOCS / "paper.json", _paper_table),
+    "paper_levels": (DOCS / "paper.json", _levels_table),
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
     **{f"liveness_{n}": (DOCS / f"liveness_{n}.jsonl", _variant_table) for n in LIVENESS_VARIANTS},
     "liveness_lab": (DOCS / "liveness_lab.jsonl", _lab_table),

@@ -2,7 +2,8 @@
 
 Eight drones (by default) on a 2 m circle fly a back-and-forth swap for ``--minutes`` of
 realtime flight: each flies to its antipode and back again, leg after leg, until the end
-(``configs/circle_8.yaml``: neighbours from the world's roster, control at 100 Hz). Every
+(``configs/circle_8.yaml``: the lab world, each agent's own state bundled by the relay, control
+at 100 Hz; ``--source world``: the world's roster, in the ideal world it needs). Every
 ``--report-s`` of wall time it prints one JSON line of what each process and the run did
 in that interval; at the end one more line, whether the recording is whole and readable
 to its last message.
@@ -71,6 +72,7 @@ def soak_config(minutes: float, agents: int, source: str) -> ScenarioConfig:
         "time": {"mode": "realtime"},
         "neighbours": {"source": source},
         "agents": out,
+        **({"world": {"realism": "ideal"}} if source == "world" else {}),  # the roster's exact states
     }
     return load(ROOT / "configs" / "circle_8.yaml", over)
 
@@ -189,7 +191,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=60.0, help="realtime flight [min]")
     ap.add_argument("--report-s", type=float, default=60.0, help="wall time between report lines [s]")
     ap.add_argument("--agents", type=int, default=8)
-    ap.add_argument("--source", choices=("world", "agents"), default="world", help="neighbours.source")
+    ap.add_argument("--source", choices=("world", "agents"), default="agents", help="neighbours.source")
     ap.add_argument("--out", type=Path, default=Path("runs/bench_soak"))
     run(ap.parse_args())
 

@@ -179,6 +179,7 @@ def _kill_the_hoverer(start_run, name: str, on_lost: str) -> dict:
             {"id": "hover", "start": [2.0, 0.0, 1.0], "goal": [2.0, 0.0, 1.0]},
         ],
         failure={"on_agent_death": "firmware", "on_lost": on_lost},
+        world={"realism": "ideal"},  # the held drone stays exactly on cf1's line (in the lab it drifts off it)
     )
     h = start_run(cfg, name)
     h.wait_sim_time(1.0)

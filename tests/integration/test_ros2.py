@@ -57,9 +57,24 @@ class Poses:
                 self.cond.wait(left)
 
 
+def leave_ros2() -> None:
+    """Close zenoh-ros2-sdk's session, while the run's router still runs: closed after the router
+    had gone, it blocked for ever now and then, and every Zenoh session opened in this process
+    after it too. Bounded: a close that does not return in 15 s fails the test."""
+    if sdk.ZenohSession._instance is None:
+        return
+    closing = threading.Thread(target=sdk.ZenohSession._instance.close, daemon=True)
+    closing.start()
+    closing.join(15.0)
+    sdk.ZenohSession._instance = None
+    assert not closing.is_alive(), "zenoh-ros2-sdk's session did not close within 15 s"
+
+
 @pytest.fixture
 def ros2_client(monkeypatch):
-    """zenoh-ros2-sdk configured from a run's ros2.env (set by the test through ``join``)."""
+    """zenoh-ros2-sdk configured from a run's ros2.env (set by the test through ``join``); a
+    test leaves (:func:`leave_ros2`) before it finishes its run, and the fixture after a failure
+    (before ``start_run`` finishes the runs)."""
     sdk.get_registry().messages_dir = MSGS  # no network: the upstream definitions shipped with the tests
 
     def join(h) -> None:
@@ -68,8 +83,7 @@ def ros2_client(monkeypatch):
         sdk.ZenohSession.get_instance(h.cfg.network.host, h.cfg.network.port)
 
     yield join
-    if sdk.ZenohSession._instance is not None:
-        sdk.ZenohSession._instance.close()
+    leave_ros2()
 
 
 def wait_topics(h, want: dict[str, str], timeout_s: float = 30.0) -> dict[str, list[str]]:
@@ -82,7 +96,15 @@ def wait_topics(h, want: dict[str, str], timeout_s: float = 30.0) -> dict[str, l
 
 
 def test_a_ros2_client_sees_steers_and_lands_the_swarm(start_run, ros2_client):
-    cfg = scenario("ros2_swap_2.yaml", duration_s=120.0, stop_when_all_reached=False, time={"mode": "lockstep"})
+    # the ideal world: in the lab's a drone with more thrust than its filter's model lands only to
+    # where the floor's row holds it, about 0.2 m above its floor (CHANGELOG, Known issues)
+    cfg = scenario(
+        "ros2_swap_2.yaml",
+        duration_s=120.0,
+        stop_when_all_reached=False,
+        time={"mode": "lockstep"},
+        world={"realism": "ideal"},
+    )
     h = start_run(cfg, "ros2")
     ros2_client(h)
     want = {
@@ -118,6 +140,7 @@ def test_a_ros2_client_sees_steers_and_lands_the_swarm(start_run, ros2_client):
     floor = cfg.agents[0].filter.floor_z_m
     t_land, x_land = poses.wait(lambda x: x[2] < floor + 0.05, 60.0, "landed to the floor")
     assert np.linalg.norm(x_land[:2] - goal[:2]) < 0.15  # straight down from where it was
+    leave_ros2()
     h.finish("test done")
 
     # every pose the client took is the recorded measurement of cf1 at the same sim time
@@ -153,35 +176,44 @@ def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run, ros2_c
     ros2_client(h)  # the bridge's subscription to /cf1/goal is declared (its liveliness token) before any put
     listed = wait_topics(h, {"/cf1/goal": "geometry_msgs/msg/PoseStamped"})
     assert listed.get("/cf1/goal") == ["geometry_msgs/msg/PoseStamped"], listed
+    leave_ros2()
     keys = tp.Keys(h.run)
     topics = {(t.kind, t.agent): t.key(0) for t in run_topics("", ["cf1", "cf2"])}
     ros = _ros2_session(h, "ros2")
-    watch = h.session  # the launcher hears everything of the run and of the domain
-    heard = {
-        "pose": tp.open_channel(watch, topics[(Kind.POSE, "cf1")]),
-        "command": tp.open_channel(watch, keys.command("cf1")),
-        "to_agent": tp.open_channel(watch, keys.ros2_goal("cf1")),
-        "goal": tp.open_channel(watch, topics[(Kind.GOAL, "cf1")]),
-    }
-    forged = b"\x00\x01\x00\x00forged"
-    for _ in range(3):  # each forgery from the ROS 2 participant's own session, with its credentials
-        ros.put(topics[(Kind.POSE, "cf1")], forged)  # a drone's pose: the bridge's topic
-        ros.put(keys.command("cf1"), forged)  # a command for cf1: the run's key
-        ros.put(keys.ros2_goal("cf1"), encode("goal", h.run, "ros2-bridge", 1, 0.0, 0, action="goal", x=np.zeros(3)))
-        ros.put(topics[(Kind.GOAL, "cf1")], b"\x00\x01\x00\x00")  # its own topic: allowed (the bridge drops it)
-    # what the router let through has arrived once the genuine traffic after it has (one link, in order)
-    for name in ("pose", "command"):
-        got, deadline = [], time.monotonic() + 30.0
-        while len(got) < 30 and time.monotonic() < deadline:
-            s = tp.wait_sample(heard[name], deadline)
-            if s is not None:
-                got.append(tp.payload(s))
-        assert len(got) >= 30, f"no genuine {name} messages"
-        assert forged not in got, f"a forged {name} went through"
-    assert not list(tp.drain(heard["to_agent"])), "the participant reached an agent's goal key"
-    s = tp.wait_sample(heard["goal"], time.monotonic() + 10.0)
-    assert s is not None, "the participant's goal topic was refused"
-    ros.close()
+    try:
+        watch = h.session  # the launcher hears everything of the run and of the domain
+        heard = {
+            "pose": tp.open_channel(watch, topics[(Kind.POSE, "cf1")]),
+            "command": tp.open_channel(watch, keys.command("cf1")),
+            "to_agent": tp.open_channel(watch, keys.ros2_goal("cf1")),
+            "goal": tp.open_channel(watch, topics[(Kind.GOAL, "cf1")]),
+        }
+        # its own topic, allowed (the bridge drops it), put until the launcher hears it: then the router
+        # knows the launcher's subscriptions, declared before it on the same link, and would route a forgery
+        s, deadline = None, time.monotonic() + 10.0
+        while s is None and time.monotonic() < deadline:
+            ros.put(topics[(Kind.GOAL, "cf1")], b"\x00\x01\x00\x00")
+            s = tp.wait_sample(heard["goal"], time.monotonic() + 0.2)
+        assert s is not None, "the participant's goal topic was refused"
+        forged = b"\x00\x01\x00\x00forged"
+        for _ in range(3):  # each forgery from the ROS 2 participant's own session, with its credentials
+            ros.put(topics[(Kind.POSE, "cf1")], forged)  # a drone's pose: the bridge's topic
+            ros.put(keys.command("cf1"), forged)  # a command for cf1: the run's key
+            as_bridge = encode("goal", h.run, "ros2-bridge", 1, 0.0, 0, action="goal", x=np.zeros(3))
+            ros.put(keys.ros2_goal("cf1"), as_bridge)
+            ros.put(topics[(Kind.GOAL, "cf1")], b"\x00\x01\x00\x00")  # its own topic: allowed (the bridge drops it)
+        # what the router let through has arrived once the genuine traffic after it has (one link, in order)
+        for name in ("pose", "command"):
+            got, deadline = [], time.monotonic() + 30.0
+            while len(got) < 30 and time.monotonic() < deadline:
+                s = tp.wait_sample(heard[name], deadline)
+                if s is not None:
+                    got.append(tp.payload(s))
+            assert len(got) >= 30, f"no genuine {name} messages"
+            assert forged not in got, f"a forged {name} went through"
+        assert not list(tp.drain(heard["to_agent"])), "the participant reached an agent's goal key"
+    finally:  # closed while the router runs (a session left open on a killed router stalled the next open)
+        ros.close()
     h.finish("test done")
     log = (h.out / "logs" / "ros2.log").read_text()
     assert "dropped a message on /cf1/goal" in log, log[-2000:]

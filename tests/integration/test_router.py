@@ -54,7 +54,7 @@ def _crossing(network=None, **over):
         duration_s=14.0,
         agents=agents,
         defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
-        world={"realism": "ideal"},  # in the lab world the routes do not yet fly bit for bit alike (CHANGELOG)
+        world={"realism": "ideal"},  # (in the lab world a bundled state is two link delays late, a direct one one)
         **{"neighbours": {"source": "agents", "cell_m": 1.0, **over}, **net},
     )
 

@@ -24,10 +24,11 @@ file ends with its footer, the world said done, no stream has a hole: metrics.js
 ``readable_to_s`` (sim time of the last message the file gives back, read to its end),
 ``duration_s``, ``messages``, ``lost_messages``, ``recording_mb``, ``metrics_s`` (wall time
 [s] the launcher took to compute metrics.json), ``launcher_peak_rss_mb`` (this process's
-largest resident memory, reached computing them: the whole file is read into memory),
-``rss_growth_pct`` (per process, its
-resident memory at the last report against the first's) and ``on_time_drift_pct`` (the
-last report's on-time fraction less the first's, in percent).
+largest resident memory, reached computing them: the file is streamed, the per-tick arrays kept),
+``compared_reports`` (the first report and the last one taken while every process ran),
+``rss_growth_pct`` (per process, its resident memory at the second of those against the
+first's) and ``on_time_drift_pct`` (that report's on-time fraction less the first's, in
+percent).
 """
 
 from __future__ import annotations
@@ -158,7 +159,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     metrics_s = time.monotonic() - t_metrics
     m = json.loads((h.out / "metrics.json").read_text())
     n, until, footer = read_through(h.out / "run.mcap")
-    first, last = rep.lines[0], rep.lines[-1]
+    first = rep.lines[0]
+    # the last report whose processes were all still running (the run's end stops them)
+    last = next((ln for ln in reversed(rep.lines) if all(math.isfinite(v) for v in ln["rss_mb"].values())), first)
     end = {
         "end": True,
         "stop_reason": reason,
@@ -171,6 +174,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "recording_mb": round((h.out / "run.mcap").stat().st_size / 2**20, 1),
         "metrics_s": round(metrics_s, 1),
         "launcher_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "compared_reports": [first["report"], last["report"]],
         "rss_growth_pct": {
             p: round(100.0 * (last["rss_mb"][p] / first["rss_mb"][p] - 1.0), 2)
             for p in first["rss_mb"]

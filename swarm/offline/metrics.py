@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from array import array
 from collections import defaultdict
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -253,42 +254,87 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
 
+TICK_WINDOW = 1000  # ticks: a tick's barrier figures are taken once measurements this much newer arrive
+
+
+class _TickFigures:
+    """The per-tick figures of :func:`compute` (the smallest separation and clearance, and
+    :class:`SafetyFigures`), taken tick by tick in tick order as the measurements arrive."""
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        self.bar = SafetyFigures(cfg)
+        self.index = {aid: i for i, aid in enumerate(self.bar.ids)}
+        self.min_sep, self.min_clear = math.inf, math.inf  # [m]
+        self.items: list[dict[str, Any]] = []  # the obstacles last recorded
+
+    def take(
+        self,
+        pending: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]],
+        obstacles_at: dict[int, Any],
+        before: int | None,
+    ) -> None:
+        """Take (and remove) the ticks of ``pending`` older than ``before`` (all: None), in
+        tick order, with the obstacles recorded at each (removed with them)."""
+        for k in sorted(k for k in pending if before is None or k < before):
+            self.items = obstacles_at.pop(k, self.items)
+            bodies = {aid: b for aid, b in pending.pop(k).items() if aid in self.index}
+            if not bodies:
+                continue
+            obs = items_to_arrays(self.items)
+            x, c, cd = (np.array([b[f] for b in bodies.values()]) for f in range(3))
+            self.min_sep = min(self.min_sep, min_pair_distance(c))
+            if len(obs):
+                self.min_clear = min(self.min_clear, float(surface_clearance(c, obs).min()))
+            ids = [str(i.get("id", j)) for j, i in enumerate(self.items)]
+            self.bar.add([self.index[aid] for aid in bodies], x, c, cd, obs, ids)
+        for k in [k for k in obstacles_at if before is None or k < before]:
+            del obstacles_at[k]  # recorded at a tick without measurements: never used
+
+
 def compute(
     cfg: ScenarioConfig,
-    records: list[dict[str, Any]],
+    records: Iterable[dict[str, Any]],
     recorder_dropped: int = 0,
     said: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
-    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``);
-    ``said``: each process's summary line (:func:`swarm.runs.ledger.summaries`): what it
-    sent, to find what the recording lacks at the end of a stream, and what it dropped from
-    whom, to name the offenders."""
+    """Metrics of one run. ``records`` are decoded messages (``swarm.net.messages.to_json``)
+    in file order, read once: a stream (:class:`swarm.runs.runfiles.RecordingStream`) keeps
+    an hour's recording out of memory. The barrier figures are taken a tick at a time once
+    the measurements are :data:`TICK_WINDOW` ticks past it. ``said``: each process's summary
+    line (:func:`swarm.runs.ledger.summaries`): what it sent, to find what the recording lacks
+    at the end of a stream, and what it dropped from whom, to name the offenders."""
     ledger = Ledger.of(cfg)
     silence = Silence()
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
-    meas: dict[str, list[tuple[float, int, np.ndarray, np.ndarray]]] = defaultdict(list)
-    by_tick: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
+    meas: dict[str, array] = defaultdict(lambda: array("d"))  # per agent: t [s], k, x (3) [m], v (3) [m/s]
+    pending: dict[int, dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]] = defaultdict(dict)  # (x, c, c')
     obstacles_at: dict[int, Any] = {}
     last_report: dict[str, dict[str, Any]] = {}
     min_row_h: dict[str, float] = defaultdict(lambda: math.inf)
-    solve_us: dict[str, list[float]] = defaultdict(list)
-    estimates: dict[str, list[tuple[int, np.ndarray]]] = defaultdict(list)  # world.realism.sensing
-    statuses: list[dict[str, Any]] = []
+    solve_us: dict[str, array] = defaultdict(lambda: array("d"))
+    estimates: dict[str, array] = defaultdict(lambda: array("d"))  # per agent: k, x (3) [m] (world.realism.sensing)
+    final: dict[str, Any] = {}  # the last status
+    live_ever: set[str] = set()
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
     dead_contacts: list[dict[str, Any]] = []  # of a dead agent's drone
     stalls: list[dict[str, Any]] = []
+    figures = _TickFigures(cfg)
+    newest_k = -1
     for r in records:
         kind = r["kind"]
         if "topic" in r and "seq" in r:  # as recorded (not one of the measurements a clock carries)
             ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
             silence.see(r)
         if kind == "measurement":
-            aid = measurement_agent(r)
+            aid, k = measurement_agent(r), int(r["k"])
             x, v = np.asarray(r["x"], dtype=float), np.asarray(r["v"], dtype=float)
-            meas[aid].append((r["t"], r["k"], x, v))
+            meas[aid].extend((float(r["t"]), k, *x.tolist(), *v.tolist()))
             q, w = np.asarray(r["q"], dtype=float), np.asarray(r.get("w", (0.0, 0.0, 0.0)), dtype=float)
             c, cd, _ = body_centre(x, v, q, w, l_m.get(aid, 0.0))  # (no body rate recorded: taken as 0)
-            by_tick[r["k"]][aid] = (x, c, cd)
+            pending[k][aid] = (x, c, cd)
+            if k > newest_k:
+                newest_k = k
+                figures.take(pending, obstacles_at, before=k - TICK_WINDOW)
         elif kind == "obstacles":
             obstacles_at[r["k"]] = r["items"]
         elif kind == "command":
@@ -296,38 +342,24 @@ def compute(
             min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
             if len(r.get("est", ())) == 6:
-                estimates[r["src"]].append((r["k"], np.asarray(r["est"][:3], dtype=float)))
+                estimates[r["src"]].extend((int(r["k"]), *(float(e) for e in r["est"][:3])))
         elif kind == "status":
-            statuses.append(r)
+            final = r
+            live_ever.update(r["live"])
         elif kind == "collision":
             (dead_contacts if r.get("dead") else collisions).append(r)
         elif kind == "stall":
             stalls.append({"t_s": r["t"], "k": r["k"], "agents": r["agents"], "wait_s": r["wait_s"]})
-
-    min_sep, min_clear = math.inf, math.inf
-    bar = SafetyFigures(cfg)
-    index = {aid: i for i, aid in enumerate(bar.ids)}
-    items: list[dict[str, Any]] = []
-    for k in sorted(by_tick):
-        bodies = {aid: b for aid, b in by_tick[k].items() if aid in index}
-        items = obstacles_at.get(k, items)
-        obs = items_to_arrays(items)
-        if not bodies:
-            continue
-        x, c, cd = (np.array([b[f] for b in bodies.values()]) for f in range(3))
-        min_sep = min(min_sep, min_pair_distance(c))
-        if len(obs):
-            min_clear = min(min_clear, float(surface_clearance(c, obs).min()))
-        bar.add([index[aid] for aid in bodies], x, c, cd, obs, [str(i.get("id", j)) for j, i in enumerate(items)])
+    figures.take(pending, obstacles_at, before=None)
+    bar, min_sep, min_clear, index = figures.bar, figures.min_sep, figures.min_clear, figures.index
 
     quiet = silence.longest_s
     agents: dict[str, Any] = {}
     for a in cfg.agents:
-        m = sorted(meas.get(a.id, []), key=lambda e: e[1])
-        xs = np.array([e[2] for e in m]) if m else np.zeros((0, 3))
-        vs = np.array([e[3] for e in m]) if m else np.zeros((0, 3))
+        m = np.frombuffer(meas.get(a.id, array("d")), dtype=float).reshape(-1, 8)
+        m = m[np.argsort(m[:, 1], kind="stable")]  # (ticks, 8): t, k, x, v in tick order
+        ts, ks, xs, vs = m[:, 0], m[:, 1].astype(int), m[:, 2:5], m[:, 5:8]
         goal = np.asarray(a.final_goal)
-        ts = np.array([e[0] for e in m])
         motion = _motion(ts, vs, np.asarray(a.path(), dtype=float))
         dl = cfg.deadlock
         stuck = deadlock_at(ts, xs, vs, goal, cfg.goal_tolerance_m, speed_mps=dl.speed_mps, hold_s=dl.hold_s)
@@ -335,11 +367,13 @@ def compute(
         d = np.linalg.norm(xs - goal, axis=1) if len(xs) else np.zeros(0)
         hit = np.flatnonzero(d <= cfg.goal_tolerance_m)
         st = last_report.get(a.id, {})
-        truth = {e[1]: e[2] for e in m}
-        est_err = np.array([float(np.linalg.norm(x - truth[k])) for k, x in estimates.get(a.id, ()) if k in truth])
+        est = np.frombuffer(estimates.get(a.id, array("d")), dtype=float).reshape(-1, 4)  # k, x [m]
+        at = np.searchsorted(ks, est[:, 0].astype(int), side="right") - 1  # the tick's (last) measurement
+        known = (at >= 0) & (ks[np.maximum(at, 0)] == est[:, 0].astype(int)) if len(ks) else np.zeros(len(est), bool)
+        est_err = np.linalg.norm(est[known, 1:] - xs[at[known]], axis=1)
         agents[a.id] = {
             "reached_goal": bool(hit.size),
-            "time_to_goal_s": float(m[hit[0]][0]) if hit.size else None,
+            "time_to_goal_s": float(ts[hit[0]]) if hit.size else None,
             "path_length_m": float(np.sum(np.linalg.norm(np.diff(xs, axis=0), axis=1))) if len(xs) > 1 else 0.0,
             "straight_line_m": float(np.linalg.norm(goal - np.asarray(a.start))),
             "max_path_deviation_m": path_deviation(xs, np.asarray(a.path(), dtype=float)),
@@ -347,7 +381,7 @@ def compute(
             "min_row_h": _finite_or_none(min_row_h[a.id]),
             "infeasible_ticks": int(st.get("infeasible", 0)),
             "dropped_messages": int(st.get("dropped", 0)),
-            "last_tick": int(m[-1][1]) if m else None,
+            "last_tick": int(ks[-1]) if len(ks) else None,
             "deadlock_at_s": stuck,
             "longest_silence_s": quiet.get(a.id, 0.0),  # live without a command (sim time)
             "solve_us_mean": float(us.mean()) if us.size else None,  # filter call per tick [us]
@@ -357,9 +391,7 @@ def compute(
             "estimate_error_max_m": float(est_err.max()) if est_err.size else None,
             **motion,
         }
-    final = statuses[-1] if statuses else {}
     gaps = ledger.gaps(sent_counts(said or {}), int(final["k"]) if final.get("done") else None)
-    live_ever = {x for s in statuses for x in s["live"]}
     lost = sorted(live_ever - set(final.get("live", [])))
     return {
         "scenario": cfg.name,

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import sys
 import threading
 import time
@@ -24,6 +23,7 @@ import click
 
 from swarm.config import ConfigError, ScenarioConfig, dump, load
 from swarm.errors import InputError
+from swarm.shutdown import StopSignals
 
 
 def _overrides(mode: str | None, port: int | None = None) -> dict[str, Any]:
@@ -48,29 +48,6 @@ _SECRETS = click.option(
     type=click.Path(file_okay=False, path_type=Path),
     help="the run's credentials folder (swarm run makes one; swarm secrets writes one)",
 )
-
-
-class _StopSignals:
-    """While entered, Ctrl-C, ``kill`` and a closed terminal (SIGINT, SIGTERM, SIGHUP) set
-    :attr:`now` instead of killing the launcher: the children run in their own process
-    groups, so a launcher that just died would leave them flying."""
-
-    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-    def __init__(self) -> None:
-        self.now = False
-        self._old: dict[int, Any] = {}
-
-    def _set(self, signum: int, frame: Any) -> None:
-        self.now = True
-
-    def __enter__(self) -> _StopSignals:
-        self._old = {sig: signal.signal(sig, self._set) for sig in self.SIGNALS}
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._old.items():
-            signal.signal(sig, handler)
 
 
 def _status_info(st: dict[str, Any]) -> str:
@@ -100,7 +77,7 @@ def run_scenario(
 
     from swarm.runs.launch import RunHandle
 
-    with _StopSignals() as interrupted:
+    with StopSignals() as interrupted:
         handle = RunHandle.start(
             cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted.now, secrets=secrets, live_port=live_port
         )

@@ -47,6 +47,7 @@ from mcap.stream_reader import StreamReader
 
 from swarm.config import ScenarioConfig, load
 from swarm.runs.launch import RunHandle
+from swarm.shutdown import StopSignals
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = os.sysconf("SC_PAGE_SIZE")
@@ -142,20 +143,21 @@ class Reporter:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     cfg = soak_config(args.minutes, args.agents, args.source)
-    h = RunHandle.start(cfg, args.out)
-    h.wait_sim_time(0.0, timeout_s=cfg.time.start_timeout_s + 60.0)
-    rep = Reporter(h)
-    reason = None
-    next_at = rep.t0 + args.report_s
-    while reason is None:
-        reason = h.poll(wait_s=0.2)
-        if time.monotonic() >= next_at:
-            rep.report()
-            next_at += args.report_s
-    if rep.lines[-1:] and rep.lines[-1]["wall_s"] < (time.monotonic() - rep.t0) - 1.0:
-        rep.report()  # the last part interval
-    t_metrics = time.monotonic()
-    h.finish(reason)  # as `swarm run` does: the processes end, metrics.json is written
+    with StopSignals() as interrupted:  # (Ctrl-C or kill: the run is stopped, not left flying)
+        h = RunHandle.start(cfg, args.out)
+        h.wait_sim_time(0.0, timeout_s=cfg.time.start_timeout_s + 60.0)
+        rep = Reporter(h)
+        reason = None
+        next_at = rep.t0 + args.report_s
+        while reason is None:
+            reason = h.poll(wait_s=0.2) or ("interrupted" if interrupted.now else None)
+            if time.monotonic() >= next_at:
+                rep.report()
+                next_at += args.report_s
+        if not rep.lines or rep.lines[-1]["wall_s"] < (time.monotonic() - rep.t0) - 1.0:
+            rep.report()  # the last part interval
+        t_metrics = time.monotonic()
+        h.finish(reason)  # as `swarm run` does: the processes end, metrics.json is written
     metrics_s = time.monotonic() - t_metrics
     m = json.loads((h.out / "metrics.json").read_text())
     n, until, footer = read_through(h.out / "run.mcap")

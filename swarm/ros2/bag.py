@@ -21,7 +21,7 @@ import numpy as np
 from swarm.ros2 import convert
 from swarm.ros2.interfaces import serialize, store
 from swarm.ros2.topics import TYPES, Kind, Topic, run_topics
-from swarm.runs.runfiles import read_config, read_records
+from swarm.runs.runfiles import RecordingStream, read_config
 
 BAG_DIR = "ros2_bag"
 
@@ -58,7 +58,7 @@ def write_bag(run_dir: Path, out: Path | None = None) -> tuple[Path, int]:
         bag = _Bag(writer, run_topics(r.namespace, ids))
         tick: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # drone -> (x, q) of the clock read last
         tick_t = 0.0  # its sim time [s]
-        for rec in read_records(run_dir / "run.mcap"):
+        for rec in RecordingStream(run_dir / "run.mcap"):
             kind, t = rec.get("kind"), float(rec.get("t", 0.0))
             if kind == "clock":
                 if tick:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +27,10 @@ from swarm.geometry import items_to_arrays, surface_clearance
 from swarm.net.messages import measurement_agent
 from swarm.offline.metrics import SUMMARY_KEYS
 from swarm.rotation import quat_to_R
-from swarm.runs.runfiles import read_config, read_records, write_metrics
+from swarm.runs.runfiles import RecordingStream, read_config, write_metrics
 
 
-def _series(cfg: ScenarioConfig, records: list[dict[str, Any]]) -> dict[str, Any]:
+def _series(cfg: ScenarioConfig, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
     """Per-agent time series from the recorded messages."""
     l_m = {a.id: a.airframe.params().l_m for a in cfg.agents}
     out: dict[str, Any] = {
@@ -91,7 +92,7 @@ class Report:
         cfg = self.cfg = read_config(run_dir)
         metrics_path = run_dir / "metrics.json"
         self.metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else write_metrics(run_dir)
-        s = self.s = _series(cfg, read_records(run_dir / "run.mcap"))
+        s = self.s = _series(cfg, RecordingStream(run_dir / "run.mcap"))
         self.out = run_dir / "report"
         self.agents = [a.id for a in cfg.agents if s["x"].get(a.id)]
         self.lengths = {o.id: o.length_m for o in cfg.obstacles}

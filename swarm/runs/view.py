@@ -28,7 +28,7 @@ import rerun as rr
 
 from swarm.net.messages import CLOCK_XVR
 from swarm.runs.foxglove_scene import CYLINDER_LENGTH_M, quat_z_to
-from swarm.runs.runfiles import read_records
+from swarm.runs.runfiles import RecordingStream
 
 TRAIL_S = 5.0  # s of trail per drone
 VIEW_HZ = 25.0  # clocks drawn per second of sim time (the recorded rate is the control rate)
@@ -70,7 +70,7 @@ def _obstacles(items: list[dict]) -> None:
 def write_rrd(run_dir: Path, out: Path | None = None) -> Path:
     """``run_dir/run.mcap`` as a Rerun recording at ``out`` (default ``run_dir/view.rrd``)."""
     out = out or run_dir / "view.rrd"
-    records = read_records(run_dir / "run.mcap")
+    records = RecordingStream(run_dir / "run.mcap")  # (read once: an hour of flight does not fit in memory)
     rec = rr.RecordingStream("c3swarm", recording_id=run_dir.name)
     with rec:
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

@@ -38,6 +38,12 @@ if TYPE_CHECKING:
 
 
 _NO_ESTIMATE = np.zeros(0)
+_NO_DISTURBANCE = np.zeros(3)
+
+MAX_DISTURBANCE_FRACTION = 0.3
+"""The largest disturbance an agent takes off its command, per axis, as a fraction of g: twice
+the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an estimate gone
+wrong cannot tip the drone over."""
 
 
 @dataclass(frozen=True)
@@ -46,7 +52,9 @@ class StepResult:
 
     level: CommandLevel
     command: FloatArray  # (4,): attitude level roll [rad], pitch [rad], yaw rate [rad/s], thrust [N]; rotors f [N]
-    u: FloatArray  # the filter's command: F (3,) [N, world] at the attitude level, f (4,) [N] at the rotor level
+    # what is flown: F (3,) [N, world] at the attitude level (the filter's, less m x the estimated
+    # disturbance), f (4,) [N] at the rotor level
+    u: FloatArray
     status: FilterStatus  # OK also when the agent flies unfiltered
     filter: FilterResult | None  # None: unfiltered (filter.enabled false) or motors off
     row_ids: list[str]  # the name of each filter row, in the filter's row order
@@ -207,11 +215,15 @@ class AgentStep:
         neighbours' rows are the caller's at ``t_s + lead_s``."""
         model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
         now = state  # (the state at t_s, published; a lead moves the one filtered)
+        d_w = _NO_DISTURBANCE
         if est is not None:
             for f in frames or ():
                 est.frame(f)
             e = est.estimate(t_s)
             est_out = np.concatenate([e.x_w, e.v_w])  # (reported at the tick's time)
+            if level is CommandLevel.ATTITUDE:
+                lim = MAX_DISTURBANCE_FRACTION * model.params.g_mps2
+                d_w = np.clip(e.d_w, -lim, lim)
             state = now = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
             if lead > 0.0:
                 e = est.estimate(t_s + lead)
@@ -253,6 +265,8 @@ class AgentStep:
         pub_x, pub_v = (
             (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
         )
+        if d_w is not _NO_DISTURBANCE:
+            u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
         if est is not None or lead > 0.0:
             self._a_w = self._accel_w(state, u)

@@ -42,7 +42,7 @@ from swarm.net.sources import BundleSource, CellSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
-from swarm.runs.quantiles import Quantiles
+from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
 from swarm.safety.obstacles import NamedObstacles
 from swarm.shutdown import StopFlag
@@ -167,7 +167,7 @@ class AgentProcess:
         self.world_seen = False
         self.pending: list[Message] = []  # measurements not yet acted on
         self.seq = 0
-        self.tick_s = Quantiles()  # wall time [s] from measurement taken up to command sent
+        self.tick_s = timing_sketch()  # wall time [s] from measurement taken up to command sent
         self.waited_s = 0.0  # lockstep: wall time spent waiting for neighbours / clock
         self.msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
         self.reported_gone: set[str] = set()
@@ -452,9 +452,9 @@ class AgentProcess:
         counter = self.counter
         return {
             "id": self.id,
-            "ticks": ts.count,
-            "compute_median_ms": 1e3 * (ts.percentile(50) or 0.0),  # (within 1.2 %: swarm.runs.quantiles)
-            "compute_p99_ms": 1e3 * (ts.percentile(99) or 0.0),
+            "ticks": int(ts.count),
+            "compute_median_ms": 1e3 * (ts.get_quantile_value(0.5) or 0.0),  # (within 1 %)
+            "compute_p99_ms": 1e3 * (ts.get_quantile_value(0.99) or 0.0),
             "waited_s": self.waited_s,
             "cpu_s": time.process_time(),
             "startup_cpu_s": self.startup_cpu_s,

@@ -15,7 +15,12 @@ capture time (its arrival time less the latency the agent knows), and predicted 
 from there to the time asked for. Process noise is the firmware's, ``procNoiseAcc_xy``
 0.5 m/s^2 and ``procNoiseAcc_z`` 1.0 m/s^2 (``kalman_core_params_defaults.h``) added per
 its 100 Hz prediction step (``(sigma dt)^2`` to velocity variance per step), here as the
-equivalent white-acceleration density ``q = sigma^2 x 10 ms``. Attitude: the last frame's,
+equivalent white-acceleration density ``q = sigma^2 x 10 ms``. Beyond the firmware's
+filter, each axis may also estimate a disturbance, the acceleration the drone has beyond
+the one commanded (thrust and mass off the model, a steady wind): a third state, a random
+walk (``disturbance_walk_mps2``), so the estimate acts on the velocity and position it
+predicts and the agent can take it off its command (``swarm.step``), as the firmware's own
+position controllers do with their integral terms. Attitude: the last frame's,
 turned forward over its age by the body rates; the rates are the drone's gyro when the
 caller has it, else the frames' attitude differences, low-passed (as ``swarm.world.mocap``
 does for real drones).
@@ -155,6 +160,12 @@ class EstimatorParams:
     """The firmware's ``stdDevInitialVelocity``: the drone starts at rest."""
     rate_filter_s: float = 0.02
     """Time constant of the low-pass on body rates from frame differences [s]."""
+    disturbance_walk_mps2: float = 0.0
+    """How fast the disturbance the filter estimates may change: the standard deviation of its
+    random walk over one second [m/s^2] (0, with ``initial_disturbance_std_mps2`` 0: no disturbance estimate)."""
+    initial_disturbance_std_mps2: float = 0.0
+    """The standard deviation of the disturbance at the start [m/s^2]: before any frame, how far the
+    drone's acceleration may be off the one its commands ask for (thrust and mass off the model)."""
 
     @property
     def r2_m2(self) -> float:
@@ -166,6 +177,11 @@ class EstimatorParams:
         """(3,) white-acceleration spectral density per axis [(m/s^2)^2 s]."""
         xy, z = self.process_accel_xy_mps2, self.process_accel_z_mps2
         return np.array([xy * xy, xy * xy, z * z]) * FIRMWARE_PREDICT_S
+
+    @property
+    def walk_density(self) -> FloatArray:
+        """(3,) the disturbance's random-walk spectral density per axis [(m/s^2)^2 / s]."""
+        return np.full(3, self.disturbance_walk_mps2**2)
 
 
 class Estimate(NamedTuple):
@@ -179,21 +195,35 @@ class Estimate(NamedTuple):
     pos_std_m: FloatArray  # (3,) the filter's standard deviation of each coordinate
     vel_std_mps: FloatArray  # (3,)
     age_s: float  # since the capture of the last frame fused (as the agent reckons it)
+    d_w: FloatArray  # (3,) m/s^2, world: the acceleration the drone has beyond the one commanded (0: not estimated)
 
 
 @njit(cache=True)
-def _predict(X, P, a, dt, qd):
-    """Per axis k: (p, v) of X[k] and P[k] (2, 2) forward by dt under acceleration a[k]
-    and white acceleration of density qd[k] (in place)."""
+def _predict(X, P, a, dt, qd, qw):
+    """Per axis k: (p, v, d) of X[k] and P[k] (3, 3) forward by dt under the commanded
+    acceleration a[k] plus the disturbance d, white acceleration of density qd[k] on v and a
+    random walk of density qw[k] on d (in place). With d and its variances 0 it is the
+    (position, velocity) filter exactly."""
     dt2 = dt * dt
+    dt3 = dt2 * dt
     for k in range(3):
-        X[k, 0] += X[k, 1] * dt + 0.5 * a[k] * dt2
-        X[k, 1] += a[k] * dt
+        acc = a[k] + X[k, 2]
+        X[k, 0] += X[k, 1] * dt + 0.5 * acc * dt2
+        X[k, 1] += acc * dt
         p00, p01, p11 = P[k, 0, 0], P[k, 0, 1], P[k, 1, 1]
-        n00 = p00 + 2.0 * dt * p01 + dt2 * p11 + qd[k] * dt2 * dt / 3.0
+        p02, p12, p22 = P[k, 0, 2], P[k, 1, 2], P[k, 2, 2]
+        # F P F' + Q with F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]]
+        n00 = p00 + 2.0 * dt * p01 + dt2 * p11 + qd[k] * dt3 / 3.0
+        n00 += dt2 * p02 + dt3 * p12 + 0.25 * dt2 * dt2 * p22 + qw[k] * dt3 * dt2 / 20.0
         n01 = p01 + dt * p11 + qd[k] * dt2 / 2.0
+        n01 += 0.5 * dt2 * p12 + dt * p02 + dt2 * p12 + 0.5 * dt3 * p22 + qw[k] * dt2 * dt2 / 8.0
         n11 = p11 + qd[k] * dt
+        n11 += 2.0 * dt * p12 + dt2 * p22 + qw[k] * dt3 / 3.0
+        n02 = p02 + dt * p12 + 0.5 * dt2 * p22 + qw[k] * dt3 / 6.0
+        n12 = p12 + dt * p22 + qw[k] * dt2 / 2.0
+        n22 = p22 + qw[k] * dt
         P[k, 0, 0], P[k, 0, 1], P[k, 1, 0], P[k, 1, 1] = n00, n01, n01, n11
+        P[k, 0, 2], P[k, 2, 0], P[k, 1, 2], P[k, 2, 1], P[k, 2, 2] = n02, n02, n12, n12, n22
 
 
 @njit(cache=True)
@@ -201,15 +231,22 @@ def _update(X, P, z, r2):
     """Per axis: the Kalman update with a position measurement z[k] of variance r2."""
     for k in range(3):
         s = P[k, 0, 0] + r2
-        k0, k1 = P[k, 0, 0] / s, P[k, 0, 1] / s
+        k0, k1, k2 = P[k, 0, 0] / s, P[k, 0, 1] / s, P[k, 0, 2] / s
         y = z[k] - X[k, 0]
         X[k, 0] += k0 * y
         X[k, 1] += k1 * y
+        X[k, 2] += k2 * y
         p00, p01, p11 = P[k, 0, 0], P[k, 0, 1], P[k, 1, 1]
+        p02, p12, p22 = P[k, 0, 2], P[k, 1, 2], P[k, 2, 2]
         P[k, 0, 0] = (1.0 - k0) * p00
         P[k, 0, 1] = (1.0 - k0) * p01
         P[k, 1, 0] = P[k, 0, 1]
         P[k, 1, 1] = p11 - k1 * p01
+        P[k, 0, 2] = (1.0 - k0) * p02
+        P[k, 2, 0] = P[k, 0, 2]
+        P[k, 1, 2] = p12 - k1 * p02
+        P[k, 2, 1] = P[k, 1, 2]
+        P[k, 2, 2] = p22 - k2 * p02
 
 
 @dataclass
@@ -223,8 +260,8 @@ class Estimator:
     x0_w: FloatArray  # (3,) m, world: the start, at rest
     q0: FloatArray  # (4,)
     t0_s: float = 0.0
-    X: FloatArray = field(init=False)  # (3, 2): per axis position, velocity at t_fused_s
-    P: FloatArray = field(init=False)  # (3, 2, 2)
+    X: FloatArray = field(init=False)  # (3, 3): per axis position [m], velocity [m/s], disturbance [m/s^2] at t_fused_s
+    P: FloatArray = field(init=False)  # (3, 3, 3)
     t_fused_s: float = field(init=False)
     stale: int = field(init=False, default=0)  # frames older than the last fused, dropped
     _seq: int = field(init=False, default=-1)
@@ -234,11 +271,12 @@ class Estimator:
     _Omega_b: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
-        self.X = np.zeros((3, 2))
+        self.X = np.zeros((3, 3))
         self.X[:, 0] = np.asarray(self.x0_w, float)
-        self.P = np.zeros((3, 2, 2))
+        self.P = np.zeros((3, 3, 3))
         self.P[:, 0, 0] = self.p.r2_m2
         self.P[:, 1, 1] = self.p.initial_velocity_std_mps**2
+        self.P[:, 2, 2] = self.p.initial_disturbance_std_mps2**2
         self.t_fused_s = self.t0_s
         self._cmds = [(self.t0_s, np.zeros(3))]
         self._q = np.asarray(self.q0, float) / np.linalg.norm(self.q0)
@@ -259,13 +297,13 @@ class Estimator:
             self._cmds.append((t_s, a))
 
     def _propagate(self, X: FloatArray, P: FloatArray, t0: float, t1: float) -> None:
-        qd = self.p.q_density
+        qd, qw = self.p.q_density, self.p.walk_density
         cmds = self._cmds
         for k, (ts, a) in enumerate(cmds):
             end = cmds[k + 1][0] if k + 1 < len(cmds) else math.inf
             lo, hi = max(ts, t0), min(end, t1)
             if hi > lo:
-                _predict(X, P, a, hi - lo, qd)
+                _predict(X, P, a, hi - lo, qd, qw)
 
     def _advance(self, t_s: float) -> None:
         """Predict the filter's own state to ``t_s`` and forget the commands before it."""
@@ -317,6 +355,7 @@ class Estimator:
             np.sqrt(P[:, 0, 0]),
             np.sqrt(P[:, 1, 1]),
             t_s - self.t_fused_s,
+            X[:, 2].copy(),
         )
 
 
@@ -327,13 +366,14 @@ def steady_std(p: EstimatorParams, rate_hz: float, drop_fraction: float, latency
     frames drop), the largest over the axes. The margins the agents' filter keeps for the noise
     of motion capture are multiples of them (``swarm.tuning``)."""
     period = 1.0 / rate_hz
-    X = np.zeros((3, 2))
-    P = np.zeros((3, 2, 2))
+    X = np.zeros((3, 3))
+    P = np.zeros((3, 3, 3))
     P[:, 0, 0] = p.r2_m2
     P[:, 1, 1] = p.initial_velocity_std_mps**2
-    zero, qd = np.zeros(3), p.q_density
+    P[:, 2, 2] = p.initial_disturbance_std_mps2**2
+    zero, qd, qw = np.zeros(3), p.q_density, p.walk_density
     for _ in range(2000):  # the Riccati recursion to its fixed point (the filter's time constant is ~10 frames)
-        _predict(X, P, zero, period, qd)
+        _predict(X, P, zero, period, qd, qw)
         _update(X, P, zero, p.r2_m2)
-    _predict(X, P, zero, latency_s + period * (2.0 if drop_fraction > 0 else 1.0), qd)
+    _predict(X, P, zero, latency_s + period * (2.0 if drop_fraction > 0 else 1.0), qd, qw)
     return float(np.sqrt(P[:, 0, 0].max())), float(np.sqrt(P[:, 1, 1].max()))

@@ -69,6 +69,15 @@ PRESETS: dict[str, dict[str, Any]] = {
             "latency_s": 0.010,
             # Crazyswarm2's warning limit for broadcasts received (min_broadcast_receive_rate: 0.9)
             "drop_fraction": 0.1,
+            "estimator": {
+                # at the start, the thrust-to-mass departure of a drone of this preset: g x the
+                # motors' spreads combined, sqrt(0.05^2 + 0.03^2) = 5.8 % of g (at hover, 1 sigma)
+                "initial_disturbance_std_mps2": 0.57,
+                # a time constant of about 0.5 s (a step found 63 % in 0.51 s, 90 % in 1.03 s, with
+                # 0.014 m/s^2 of noise from these frames: docs/design.md): ten times the attitude
+                # loop's and the motors' lags, whose transients it so leaves alone, and under a take-off
+                "disturbance_walk_mps2": 0.2,
+            },
         },
         "comms": {
             # Zenoh over a switched LAN (TCP: nothing lost), well under a tick: used the next tick,
@@ -161,6 +170,10 @@ class EstimatorSettings(Strict):
     process_accel_xy_mps2: float = Field(0.5, gt=0, le=100, allow_inf_nan=False)
     process_accel_z_mps2: float = Field(1.0, gt=0, le=100, allow_inf_nan=False)
     rate_filter_s: float = Field(0.02, ge=0, le=1, allow_inf_nan=False)  # low-pass of body rates from frames
+    # the disturbance the agent estimates and takes off its command (swarm.realism.sensing): how fast
+    # it may change (its random walk's std over 1 s) and how large it may be at the start; 0, 0: none
+    disturbance_walk_mps2: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
+    initial_disturbance_std_mps2: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)
 
 
 class SensingSettings(Strict):
@@ -192,6 +205,8 @@ class SensingSettings(Strict):
             process_accel_xy_mps2=e.process_accel_xy_mps2,
             process_accel_z_mps2=e.process_accel_z_mps2,
             rate_filter_s=e.rate_filter_s,
+            disturbance_walk_mps2=e.disturbance_walk_mps2,
+            initial_disturbance_std_mps2=e.initial_disturbance_std_mps2,
         )
 
 

@@ -66,10 +66,11 @@ def test_frames_are_seeded_per_drone_whatever_the_swarm():
     assert a != run(MocapSensor(LAB, 5, 2), 5)
 
 
-def track(est: Estimator, sensor: MocapSensor, seconds: float, a_cmd_of_t):
+def track(est: Estimator, sensor: MocapSensor, seconds: float, a_cmd_of_t, on_tick=lambda e: None):
     """Fly one drone along the Lissajous curve below (up to 1.2 m/s, 3.6 m/s^2) while its agent
     commands ``a_cmd_of_t`` at 120 Hz, with frames fused as they arrive; the estimate's
-    errors (position [m], velocity [m/s]) at each control tick, per axis."""
+    errors (position [m], velocity [m/s]) at each control tick, per axis (``on_tick`` is
+    given each tick's estimate)."""
     pos_err, vel_err = [], []
     frames: list = []
     for k in range(round(seconds / PHYS)):
@@ -81,6 +82,7 @@ def track(est: Estimator, sensor: MocapSensor, seconds: float, a_cmd_of_t):
                 est.frame(f)
             frames = []
             e = est.estimate(t)
+            on_tick(e)
             pos_err.append(np.abs(e.x_w - x))
             vel_err.append(np.abs(e.v_w - lissajous_v(t)))
             est.command(t, a_cmd_of_t(t))
@@ -133,6 +135,38 @@ def test_error_of_the_estimate_when_the_command_is_off_by_a_push():
     pos, vel = pos[120:], vel[120:]
     assert np.percentile(pos, 95) < 0.0055 and pos.max() < 0.01
     assert np.percentile(vel, 95) < 0.12 and vel.max() < 0.16
+
+
+def test_a_disturbance_estimate_finds_the_push_and_takes_the_lag_away():
+    """The same push with the disturbance state the lab preset gives the agents: the estimate of
+    the push settles on it and the estimate's error falls back to the predictable flight's
+    (measured DISTURBANCE_FIGURES)."""
+    from swarm.realism.settings import RealismSettings
+
+    lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()
+    push = np.array([1.0, -0.5, 0.8])  # m/s^2
+    sensor = MocapSensor(LAB, 1, seed=6)
+    est = Estimator(lab, lissajous(0.0), Q0)
+    est.X[:, 1] = lissajous_v0()
+    ds = []
+    pos, vel = track(est, sensor, 10.0, lambda t: lissajous_a(t) - push, on_tick=lambda e: ds.append(e.d_w))
+    d = np.array(ds)  # (ticks, 3) m/s^2
+    settled = np.flatnonzero(np.abs(d - push).max(axis=1) > 0.2)
+    assert settled[-1] < 240  # within 2 s
+    assert np.abs(d[360:] - push).max() < 0.15  # after 3 s
+    pos, vel = pos[360:], vel[360:]
+    assert np.percentile(pos, 95) < 0.0018 and pos.max() < 0.004
+    assert np.percentile(vel, 95) < 0.03 and vel.max() < 0.07
+
+
+def test_no_disturbance_state_is_the_two_state_filter_exactly():
+    """With the disturbance's variances 0 the estimate is the (position, velocity) filter's to the
+    bit: the third state stays 0 and adds nothing."""
+    sensor = MocapSensor(LAB, 1, seed=5)
+    est = estimator(v0=lissajous_v0())
+    ds = []
+    track(est, sensor, 2.0, lambda t: lissajous_a(t) - 1.0, on_tick=lambda e: ds.append(e.d_w))
+    assert not np.any(ds) and not np.any(est.P[:, 2, :]) and not np.any(est.P[:, :, 2])
 
 
 def test_the_estimate_converges_from_a_wrong_velocity():

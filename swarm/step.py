@@ -142,13 +142,14 @@ class AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
         (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
-        ``realism.sensing`` its estimator, starting at rest at its start; with ``control_hz`` its
-        command's lead in that world."""
+        ``realism.sensing`` a simulated drone's estimator, starting at rest at its start (a real
+        drone acts on the states the world relays from the real motion capture); with
+        ``control_hz`` its command's lead in that world."""
         level = agent.command_level if level is None else level
         lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
         path_w, route = path_for(agent, still)
         estimator = None
-        if realism is not None and realism.sensing.enabled:
+        if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
             half = 0.5 * agent.yaw_rad
             estimator = realism.estimator(
                 np.asarray(agent.start, float), np.array([0.0, 0.0, math.sin(half), math.cos(half)])

@@ -202,5 +202,10 @@ class FirmwareBody:
         return self.s[0:3]
 
     @property
+    def resting(self) -> bool:
+        """On the floor with every motor's command zero."""
+        return bool(self.s[2] <= 0.0 and not self.pwm.any())
+
+    @property
     def q(self) -> FloatArray:
         return self.s[6:10]

@@ -44,7 +44,8 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
 The drone counts as ready, and answers probes, once the firmware has its gyro bias and
 the monitor is logging. With ``--until-handed-back`` the process ends when every drone has
 been handed back by its client (``send_notify_setpoint_stop``, CRTP port 7 channel 1, as
-crtp_commander.c reads it), or has been silent for 3 s after talking; SIGTERM ends it too.
+crtp_commander.c reads it), or rests on the floor, motors off, with its client silent for 3 s
+after talking (:meth:`FirmwareDrone.done`); SIGTERM ends it too.
 """
 
 from __future__ import annotations
@@ -288,6 +289,15 @@ class FirmwareDrone:
         self.cl_sock.bind(("127.0.0.1", self.port))
         self.cl_sock.setblocking(False)
 
+    def done(self, now: float) -> bool:
+        """Its client is done with it: it handed the drone back, or fell silent for
+        :data:`HANDED_BACK_SILENT_S` after talking while the drone rests on the floor with its
+        motors off. A client that stalls mid-flight does not count: the relay carries the other
+        drones' links, and ending it would refuse them (cflib's UDP socket is connected: its
+        next receive fails with ``ConnectionRefusedError``)."""
+        silent = self.talked_s > -math.inf and now - self.talked_s > HANDED_BACK_SILENT_S
+        return self.handed_back or (silent and self.body.resting)
+
     def start(self, log: IO[bytes] | int) -> None:
         """Start the firmware, a UDP client of :attr:`fw_sock` (it dies with this process)."""
         self.log = log
@@ -517,9 +527,7 @@ def run(drones: list[FirmwareDrone], mocap_port: int, stop: threading.Event, unt
                 d.check_boot(now)
                 if d.proc is not None and d.proc.poll() is not None:
                     raise RuntimeError(f"the firmware of {d.name} exited with {d.proc.returncode}")
-            if until_handed_back and all(
-                d.handed_back or (d.talked_s > -math.inf and now - d.talked_s > HANDED_BACK_SILENT_S) for d in drones
-            ):
+            if until_handed_back and all(d.done(now) for d in drones):
                 break
         wait = t0 + (k + 1) * dt - time.monotonic()
         if wait > 0:

@@ -68,6 +68,13 @@ def _firmware_scenario(cf2: Path, **over: object) -> ScenarioConfig:
     return scenario("mixed_firmware.yaml", **{**base, **over})
 
 
+def _log_tails(out: Path, lines: int = 12) -> dict[str, list[str]]:
+    """The last lines of the real drones' agents' logs and of the firmware relay's (what a failure
+    shows: a link error, a guard's stop)."""
+    logs = [out / "logs" / f"agent-{name}.log" for name in REAL] + sorted((out / "logs").glob("*sitl*.log"))
+    return {p.name: p.read_text(errors="replace").splitlines()[-lines:] for p in logs if p.exists()}
+
+
 def _trace(out: Path, name: str) -> FirmwareTrace:
     return read_trace(out / "firmware" / f"{name}.jsonl")
 
@@ -83,7 +90,7 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
     h = start_run(cfg, "fw")
     assert h.wait() == "completed", h.result
     m = json.loads((h.out / "metrics.json").read_text())
-    assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07
+    assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07, (m["collision_pairs"], _log_tails(h.out))
     assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
     crossed = max(m["agents"][s]["time_to_goal_s"] for s in ("sim1", "sim2"))
     cal = cfg.agents[0].crazyflie.thrust.map  # the agents' calibration: the simulated motors' own map

@@ -96,15 +96,8 @@ def wait_topics(h, want: dict[str, str], timeout_s: float = 30.0) -> dict[str, l
 
 
 def test_a_ros2_client_sees_steers_and_lands_the_swarm(start_run, ros2_client):
-    # the ideal world: in the lab's a drone with more thrust than its filter's model lands only to
-    # where the floor's row holds it, about 0.2 m above its floor (CHANGELOG, Known issues)
-    cfg = scenario(
-        "ros2_swap_2.yaml",
-        duration_s=120.0,
-        stop_when_all_reached=False,
-        time={"mode": "lockstep"},
-        world={"realism": "ideal"},
-    )
+    # (the shipped config's lab world: the drones' thrust off their model, which the agents estimate)
+    cfg = scenario("ros2_swap_2.yaml", duration_s=120.0, stop_when_all_reached=False, time={"mode": "lockstep"})
     h = start_run(cfg, "ros2")
     ros2_client(h)
     want = {

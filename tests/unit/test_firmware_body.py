@@ -5,6 +5,7 @@ firmware's force-torque distribution inverted, the IMU scales sensors_sitl.c rea
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -172,3 +173,26 @@ def test_a_zero_attitude_setpoint_is_levelling_out_only_once_the_client_is_silen
     flying, zero = 0b0001_1110, (0.0, 0.0, 0.0, 36_000.0)
     assert fw_state(flying, *zero, setpoint_age_s=0.01) is FwState.FLYING  # a vertical climb, sent so
     assert fw_state(flying, *zero, setpoint_age_s=0.52) is FwState.LEVEL_OUT
+
+
+def test_the_relay_outlives_a_client_that_falls_silent_mid_flight():
+    """``--until-handed-back`` ends the relay once every client is done with its drone: handed
+    back, or silent for 3 s with the drone resting on the floor. A client silent in flight is not
+    done (the relay carries the other drones' links; ending it refuses them)."""
+    from swarm.world.sitl_fw import HANDED_BACK_SILENT_S, FirmwareDrone
+
+    d = FirmwareDrone("real1", 0, [0.0, 0.0, 0.0], 0.0, cf2=Path("/nonexistent"))
+    try:
+        assert not d.done(100.0)  # never talked
+        d.talked_s = 100.0
+        later = 100.0 + HANDED_BACK_SILENT_S + 0.1
+        assert not d.done(100.5) and d.done(later)  # silent, on the floor, motors off
+        d.body.s[2], d.body.pwm[:] = 1.0, 30000.0  # flying
+        assert not d.done(later)
+        d.body.s[2] = 0.0  # on the floor, motors still spinning
+        assert not d.done(later)
+        d.handed_back = True
+        assert d.done(100.5)
+    finally:
+        d.fw_sock.close()
+        d.cl_sock.close()

@@ -272,7 +272,7 @@ class AgentStep:
         if est is not None or lead > 0.0:
             self._a_w = self._accel_w(state, u)
         if est is not None:
-            est.command(t_s + lead, self._a_w)
+            est.command(t_s + lead, self._tilted_accel_w(state, u) if level is CommandLevel.ATTITUDE else self._a_w)
         else:
             est_out = _NO_ESTIMATE
         return StepResult(
@@ -286,6 +286,15 @@ class AgentStep:
         p = self.model.params
         F = u if self.level is CommandLevel.ATTITUDE else (self.model.B[0] @ u) * quat_to_R(state.q)[:, 2]
         return F / p.mass_kg - p.g_mps2 * E3
+
+    def _tilted_accel_w(self, state: QuadState, F_w: FloatArray) -> FloatArray:
+        """The acceleration [m/s^2, world] the thrust vector ``F_w`` gives at once: its magnitude
+        (the collective thrust the setpoint asks, the motors' lag left out) along the body axis
+        ``state`` has now (``|F| / m R e3 - g e3``). The tilt the setpoint asks comes later (the
+        attitude loop's lag, about 0.09 s); so the estimator is predicted with what the drone
+        can do now, and its disturbance state takes no part of the lag for a disturbance."""
+        p = self.model.params
+        return float(np.linalg.norm(F_w)) / p.mass_kg * quat_to_R(state.q)[:, 2] - p.g_mps2 * E3
 
     def motors_off(self, state: QuadState) -> StepResult:
         """The result of a tick with the motors off (a real drone that has landed or been

@@ -140,8 +140,8 @@ def test_error_of_the_estimate_when_the_command_is_off_by_a_push():
 def test_a_disturbance_estimate_finds_the_push_and_takes_the_lag_away():
     """The same push with the disturbance state the lab preset gives the agents: the estimate of
     the push settles on it and the estimate's error falls back to the predictable flight's
-    (measured over seeds 5-9: within 0.2 m/s^2 of the push after 0.20-0.27 s, within 0.13 after
-    3 s; then 95th percentiles 1.3-1.4 mm and 1.9-2.0 cm/s, largest 2.7 mm and 4.5 cm/s)."""
+    (measured over seeds 5-9: within 0.2 m/s^2 of the push after 0.20-0.23 s, within 0.074 after
+    3 s; then 95th percentiles 1.2-1.4 mm and 1.7-1.8 cm/s, largest 2.6 mm and 4.2 cm/s)."""
     from swarm.realism.settings import RealismSettings
 
     lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()

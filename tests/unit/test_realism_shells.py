@@ -68,7 +68,7 @@ def test_a_drone_whose_thrust_is_off_its_model_flies_where_it_is_sent(offset):
     """Thrust 12 % off the agent's model (and each drone's seeded spread on top): with the
     disturbance estimate the lab preset gives the agents, the drone comes within 1 cm of its goal;
     without it, it holds a height off by about g x the departure over its position gain and never
-    does (measured offline, no spread, 1.5 m at 1 m height, within 5 mm: in 2.27-2.48 s for every
+    does (measured offline, no spread, 1.5 m at 1 m height, within 5 mm: in 2.72-3.09 s for every
     offset from -12 % to +12 %; without it at 0.861 m (-12 %) to 1.141 m (+12 %) after 10 s)."""
     over = {"preset": "crazyflie_lab", "motors": {"thrust_coefficient_offset_fraction": offset}}
     off = {**over, "sensing": {"estimator": {"disturbance_walk_mps2": 0.0, "initial_disturbance_std_mps2": 0.0}}}

@@ -41,7 +41,7 @@ _NO_ESTIMATE = np.zeros(0)
 _NO_DISTURBANCE = np.zeros(3)
 
 MAX_DISTURBANCE_FRACTION = 0.3
-"""The largest disturbance an agent takes off its command, per axis, as a fraction of g: twice
+"""The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
 the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an estimate gone
 wrong cannot tip the drone over."""
 

@@ -396,7 +396,8 @@ def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home(
     all four are home without contact or a slip into the safety radius; with every pillar's
     whole cone (the horizon off, as it was at this gain) the two that meet mid-way never are.
     The keep-out ellipsoid keeps those two from climbing one over the other (with the sphere,
-    ``filter.ellipsoid: false``, they slip into their safety radius: CHANGELOG, Known issues)."""
+    ``filter.ellipsoid: false``, they slip into their safety radius; in the ideal world one
+    contact: CHANGELOG, Known issues)."""
     from swarm.offline.closed_loop import outcome
 
     raw = corridor(2)
@@ -407,9 +408,11 @@ def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home(
     still = StaticObstacles.of(list(cfg.obstacles))
     assert all(a.config.obstacle_horizon_s == pytest.approx(6.0) for a in agents)
     assert obstacle_horizon_s(cfg.agents[0], still) == pytest.approx(6.0)
+    # in the world the config says (swarm scenario writes the lab's), as its margins are sized for
     log = simulate_swarm(
         QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m,
+        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m, realism=cfg.world.realism,
+        seed=cfg.seed,
     )  # fmt: skip
     o = outcome(cfg, log)
     assert log.all_reached, log.time_to_goal_s

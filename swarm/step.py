@@ -38,7 +38,6 @@ if TYPE_CHECKING:
 
 
 _NO_ESTIMATE = np.zeros(0)
-_NO_DISTURBANCE = np.zeros(3)
 
 MAX_DISTURBANCE_FRACTION = 0.3
 """The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
@@ -122,7 +121,7 @@ class AgentStep:
         self.att = AttitudeController(model)
         self.estimator = estimator
         self.lead_s = lead_s
-        self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included)
+        self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included) (no estimator)
         self._follows = follows(route)
         self.min_h = math.inf
         self.infeasible = 0
@@ -216,7 +215,7 @@ class AgentStep:
         neighbours' rows are the caller's at ``t_s + lead_s``."""
         model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
         now = state  # (the state at t_s, published; a lead moves the one filtered)
-        d_w = _NO_DISTURBANCE
+        d_w: FloatArray | None = None  # m/s^2, world: the disturbance taken off the command
         if est is not None:
             for f in frames or ():
                 est.frame(f)
@@ -266,14 +265,15 @@ class AgentStep:
         pub_x, pub_v = (
             (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
         )
-        if d_w is not _NO_DISTURBANCE:
+        if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
-        if est is not None or lead > 0.0:
-            self._a_w = self._accel_w(state, u)
         if est is not None:
-            est.command(t_s + lead, self._tilted_accel_w(state, u) if level is CommandLevel.ATTITUDE else self._a_w)
+            a_w = self._tilted_accel_w(state, u) if level is CommandLevel.ATTITUDE else self._accel_w(state, u)
+            est.command(t_s + lead, a_w)
         else:
+            if lead > 0.0:
+                self._a_w = self._accel_w(state, u)  # (the next tick's lead moves the state by it)
             est_out = _NO_ESTIMATE
         return StepResult(
             level, command, u, status, res, row_ids, held, pub_x, pub_v, self.solo, self.arrived, self.min_h,

@@ -151,11 +151,12 @@ def liveness_variants(out: Path, jobs: int) -> None:
 
 
 def liveness_lab(out: Path, jobs: int) -> None:
-    """The liveness benchmark's quick points in the Crazyflie lab's world (``world.realism:
-    crazyflie_lab``) and, from the same code, in the ideal world, side by side."""
+    """The liveness benchmark's points (section 4's: two seeds per perturbed scene) in the Crazyflie
+    lab's world (``world.realism: crazyflie_lab``) and, from the same code, in the ideal world, side
+    by side."""
     del out
     for realism, name in (("crazyflie_lab", "liveness_lab"), ("ideal", "liveness_lab_ideal")):
-        args = ["--quick", "--jobs", str(jobs), "--no-orca", "--realism", realism]
+        args = ["--seeds", "2", "--jobs", str(jobs), "--no-orca", "--realism", realism]
         _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / f"{name}.jsonl")
         stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
 

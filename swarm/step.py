@@ -141,7 +141,7 @@ class AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
         (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
-        ``realism.sensing`` a simulated drone's estimator, starting at rest at its start (a real
+        ``realism.sensing`` a simulated drone's estimator, starting at its start with its start velocity (a real
         drone acts on the states the world relays from the real motion capture); with
         ``control_hz`` its command's lead in that world."""
         level = agent.command_level if level is None else level
@@ -151,7 +151,9 @@ class AgentStep:
         if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
             half = 0.5 * agent.yaw_rad
             estimator = realism.estimator(
-                np.asarray(agent.start, float), np.array([0.0, 0.0, math.sin(half), math.cos(half)])
+                np.asarray(agent.start, float),
+                np.array([0.0, 0.0, math.sin(half), math.cos(half)]),
+                v0_w=np.asarray(agent.start_velocity, float),
             )
         return cls(
             QuadModel(agent.quad_params()),

@@ -297,7 +297,11 @@ def simulate_swarm(
             tiebreak=a.tiebreak,
             filtered=a.filtered,
             goal_tolerance_m=goal_tolerance_m,
-            estimator=r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0])) if r is not None and sensing else None,
+            estimator=(
+                r.estimator(a.start_w, np.array([0.0, 0.0, 0.0, 1.0]), v0_w=a.start_velocity_w)
+                if r is not None and sensing
+                else None
+            ),
             lead_s=lead,
         )
         for a in agents

@@ -157,7 +157,7 @@ class EstimatorParams:
     process_accel_xy_mps2: float = 0.5
     process_accel_z_mps2: float = 1.0
     initial_velocity_std_mps: float = 0.01
-    """The firmware's ``stdDevInitialVelocity``: the drone starts at rest."""
+    """The firmware's ``stdDevInitialVelocity``: the start velocity (at rest on a real drone) is known this well."""
     rate_filter_s: float = 0.02
     """Time constant of the low-pass on body rates from frame differences [s]."""
     disturbance_walk_mps2: float = 0.0
@@ -257,9 +257,10 @@ class Estimator:
     state to act on, :meth:`command` with the acceleration it then commands."""
 
     p: EstimatorParams
-    x0_w: FloatArray  # (3,) m, world: the start, at rest
+    x0_w: FloatArray  # (3,) m, world: the start
     q0: FloatArray  # (4,)
     t0_s: float = 0.0
+    v0_w: FloatArray | None = None  # (3,) m/s, world: the velocity at the start (None: at rest), known to within initial_velocity_std_mps
     X: FloatArray = field(init=False)  # (3, 3): per axis position [m], velocity [m/s], disturbance [m/s^2] at t_fused_s
     P: FloatArray = field(init=False)  # (3, 3, 3)
     t_fused_s: float = field(init=False)
@@ -273,6 +274,8 @@ class Estimator:
     def __post_init__(self) -> None:
         self.X = np.zeros((3, 3))
         self.X[:, 0] = np.asarray(self.x0_w, float)
+        if self.v0_w is not None:
+            self.X[:, 1] = np.asarray(self.v0_w, float)
         self.P = np.zeros((3, 3, 3))
         self.P[:, 0, 0] = self.p.r2_m2
         self.P[:, 1, 1] = self.p.initial_velocity_std_mps**2

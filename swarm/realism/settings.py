@@ -278,10 +278,12 @@ class RealismSettings(Strict):
 
         return MocapSensor(self.sensing.mocap_params(), n, seed)
 
-    def estimator(self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0) -> Estimator:
+    def estimator(self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0, v0_w: FloatArray | None = None) -> Estimator:
+        """A drone's estimator, starting at ``x0_w`` (3,) [m, world] with attitude ``q0`` at
+        ``t0_s`` [s], moving at ``v0_w`` (3,) [m/s, world] (None: at rest)."""
         from swarm.realism.sensing import Estimator
 
-        return Estimator(self.sensing.estimator_params(), x0_w, q0, t0_s)
+        return Estimator(self.sensing.estimator_params(), x0_w, q0, t0_s, v0_w)
 
     def comms_model(self, seed: int, tick_s: float) -> CommsModel:
         from swarm.realism.comms import CommsModel

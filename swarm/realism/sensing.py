@@ -260,7 +260,7 @@ class Estimator:
     x0_w: FloatArray  # (3,) m, world: the start
     q0: FloatArray  # (4,)
     t0_s: float = 0.0
-    v0_w: FloatArray | None = None  # (3,) m/s, world: the velocity at the start (None: at rest), known to within initial_velocity_std_mps
+    v0_w: FloatArray | None = None  # (3,) m/s, world: the start velocity (None: at rest), to initial_velocity_std_mps
     X: FloatArray = field(init=False)  # (3, 3): per axis position [m], velocity [m/s], disturbance [m/s^2] at t_fused_s
     P: FloatArray = field(init=False)  # (3, 3, 3)
     t_fused_s: float = field(init=False)

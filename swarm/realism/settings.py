@@ -278,7 +278,9 @@ class RealismSettings(Strict):
 
         return MocapSensor(self.sensing.mocap_params(), n, seed)
 
-    def estimator(self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0, v0_w: FloatArray | None = None) -> Estimator:
+    def estimator(
+        self, x0_w: FloatArray, q0: FloatArray, t0_s: float = 0.0, v0_w: FloatArray | None = None
+    ) -> Estimator:
         """A drone's estimator, starting at ``x0_w`` (3,) [m, world] with attitude ``q0`` at
         ``t0_s`` [s], moving at ``v0_w`` (3,) [m/s, world] (None: at rest)."""
         from swarm.realism.sensing import Estimator

@@ -240,8 +240,8 @@ def test_a_drone_that_starts_in_motion_is_estimated_from_its_start_velocity():
     lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()
     for v0, told in ((lissajous_v0(), True), (None, False)):
         est = Estimator(lab, lissajous(0.0), Q0, v0_w=v0)
-        ds = []
-        pos, _vel = track(est, MocapSensor(LAB, 1, seed=5), 1.0, lissajous_a, on_tick=lambda e: ds.append(e.d_w))
+        ds: list = []
+        pos, _vel = track(est, MocapSensor(LAB, 1, seed=5), 1.0, lissajous_a, on_tick=lambda e, ds=ds: ds.append(e.d_w))
         if told:
             assert np.percentile(pos, 95) < 0.002 and pos.max() < 0.004
             assert np.abs(ds).max() < 1.0

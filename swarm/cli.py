@@ -406,13 +406,18 @@ def report(run_dir: Path) -> None:
 @click.argument("config")
 @click.option("--filters", default="c3bf,hocbf", help="comma-separated: c3bf, hocbf, none (unfiltered)")
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
+@click.option(
+    "--realism",
+    help="comma-separated world.realism presets to fly side by side (e.g. ideal,crazyflie_lab; default: the config's)",
+)
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
-def compare(config: str, filters: str, mode: str | None, out: Path | None) -> None:
-    """Run one scenario under each filter and print the comparison table."""
+def compare(config: str, filters: str, mode: str | None, realism: str | None, out: Path | None) -> None:
+    """Run one scenario under each filter (in each world) and print the comparison table."""
     from rich.console import Console
     from rich.table import Table
 
-    from swarm.runs.compare import COLUMNS, _fmt
+    from swarm.realism.settings import PRESETS
+    from swarm.runs.compare import _fmt, columns, in_world
     from swarm.runs.compare import compare as run_compare
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
@@ -420,14 +425,25 @@ def compare(config: str, filters: str, mode: str | None, out: Path | None) -> No
     if bad:
         click.echo(f"--filters: unknown filter(s) {bad}; choose from c3bf, hocbf, none", err=True)
         sys.exit(2)
+    worlds = None if realism is None else [w.strip() for w in realism.split(",") if w.strip()]
+    if worlds is not None and (not worlds or any(w not in PRESETS for w in worlds)):
+        click.echo(f"--realism: {realism!r}: choose presets from {', '.join(sorted(PRESETS))}", err=True)
+        sys.exit(2)
     cfg = _load_or_exit(config, _overrides(mode))
+    for w in worlds or ():
+        try:
+            in_world(cfg, w)
+        except ConfigError as exc:
+            click.echo(f"config error: {exc}", err=True)
+            sys.exit(2)
     out = out or Path("runs") / f"compare-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    rows = run_compare(cfg, names, out)
+    rows = run_compare(cfg, names, out, worlds)
     table = Table(title=f"{cfg.name}: filters compared")
-    for _, title in COLUMNS:
+    cols = columns(rows)
+    for _, title in cols:
         table.add_column(title)
     for r in rows:
-        table.add_row(*(_fmt(r[key]) for key, _ in COLUMNS))
+        table.add_row(*(_fmt(r.get(key)) for key, _ in cols))
     Console().print(table)
     click.echo(f"saved: {out / 'compare.md'}")
 

@@ -104,13 +104,15 @@ def stamp(part: str, **settings: object) -> None:
 
 
 def compare_table(out: Path, jobs: int) -> None:
-    """The README's table: one scenario, C3BF, HO-CBF and no filter."""
+    """The README's table: one scenario, C3BF, HO-CBF and no filter, in the ideal world and in the
+    Crazyflie lab's."""
     del jobs
     cfg = load(CONFIGS / "single_static_sphere.yaml")
-    rows = compare(cfg, ["c3bf", "hocbf", "none"], out / "compare")
+    worlds = ["ideal", "crazyflie_lab"]
+    rows = compare(cfg, ["c3bf", "hocbf", "none"], out / "compare", worlds)
     (DOCS / "compare.json").write_text(json.dumps(rows, indent=2))
     (DOCS / "compare.md").write_text(markdown(cfg.name, rows))
-    stamp("compare", config="configs/single_static_sphere.yaml", filters=["c3bf", "hocbf", "none"])
+    stamp("compare", config="configs/single_static_sphere.yaml", filters=["c3bf", "hocbf", "none"], worlds=worlds)
 
 
 def _tool_lines(module: str, args: list[str], dest: Path) -> None:
@@ -254,6 +256,22 @@ def paper(out: Path, jobs: int) -> None:
     stamp("paper", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"], levels=["rotors", "attitude (c3bf)"])
 
 
+def paper_lab(out: Path, jobs: int) -> None:
+    """Section 1's scenarios at the paper's rotor level, C3BF and HO-CBF, in the Crazyflie lab's
+    world (``world.realism: crazyflie_lab``), beside section 1's ideal runs (``paper.json``)."""
+    names = sorted(p.stem for p in (CONFIGS / "paper").glob("*.yaml"))
+
+    def one(name: str) -> tuple[str, list[dict]]:
+        cfg = load(CONFIGS / "paper" / f"{name}.yaml")
+        cfg = unpinned(cfg) if jobs > 1 else cfg
+        return name, compare(cfg, ["c3bf", "hocbf"], out / "paper_lab" / name, ["crazyflie_lab"])
+
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        results = dict(pool.map(one, names))
+    (DOCS / "paper_lab.json").write_text(json.dumps(results, indent=2))
+    stamp("paper_lab", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"], level="rotors", world="crazyflie_lab")
+
+
 def sweeps(out: Path, jobs: int) -> None:
     base = load(CONFIGS / "sweeps" / "head_on.yaml").model_dump(mode="json")
     for name, specs in SWEEPS.items():
@@ -306,6 +324,36 @@ def _paper_table(path: Path) -> str:
             ]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out)
+
+
+def _paper_lab_table(path: Path) -> str:
+    """EXPERIMENTS.md section 5's paper scenarios: per scenario and filter (rotor level), the ideal
+    world's run (``paper.json``) beside the lab's (``path``)."""
+    lab = json.loads(path.read_text())
+    ideal = json.loads((path.parent / "paper.json").read_text())
+    head = ["scenario", "filter"] + [
+        f"{w} {col}"
+        for w in ("ideal", "lab")
+        for col in ("contacts / inside", "closest [m]", "time to goal [s]", "infeasible ticks")
+    ]
+    rows = []
+    for name in sorted(lab):
+        for r in lab[name]:
+            (i,) = [x for x in ideal.get(name, []) if x["filter"] == r["filter"] and x["level"] == "rotors"] or [None]
+            cells = [name, r["filter"]]
+            for x in (i, r):
+                if x is None:
+                    cells += ["-"] * 4
+                    continue
+                closest = x["min_clearance_m"] if x["min_clearance_m"] is not None else x["min_separation_m"]
+                cells += [
+                    f"{x['collisions']} / {x['margin_violations']}",
+                    _maybe(closest, ".3f"),
+                    _maybe(x["max_time_to_goal_s"], ".2f"),
+                    str(x["infeasible_ticks"]),
+                ]
+            rows.append(cells)
+    return _table(head, rows)
 
 
 def _levels_table(path: Path) -> str:
@@ -661,6 +709,7 @@ GENERATED = {
     "liveness": (DOCS / "liveness.jsonl", _liveness_table),
     **{f"liveness_{n}": (DOCS / f"liveness_{n}.jsonl", _variant_table) for n in LIVENESS_VARIANTS},
     "liveness_lab": (DOCS / "liveness_lab.jsonl", _lab_table),
+    "paper_lab": (DOCS / "paper_lab.json", _paper_lab_table),
     "imperfections": (DOCS / "imperfections.jsonl", _imperfection_table),
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
@@ -701,6 +750,7 @@ PARTS = {
     "liveness": liveness,
     "liveness_variants": liveness_variants,
     "liveness_lab": liveness_lab,
+    "paper_lab": paper_lab,
     "imperfections": imperfections,
     "faults": faults,
     "filter": filter_bench,

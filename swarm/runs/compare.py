@@ -1,8 +1,10 @@
-"""``swarm compare CONFIG --filters c3bf,hocbf``: one scenario under several safety filters.
+"""``swarm compare CONFIG --filters c3bf,hocbf [--realism ideal,crazyflie_lab]``: one scenario
+under several safety filters, in one world or side by side in several.
 
 Each filter runs the whole scenario as real processes (every agent switched to that
-barrier; ``none`` flies the reference controller unfiltered). The table, printed and saved
-as ``compare.md`` and ``compare.json`` in the output folder, has per filter: collisions,
+barrier; ``none`` flies the reference controller unfiltered), in each world asked
+(``world.realism``'s presets; none asked: the config's own). The table, printed and saved
+as ``compare.md`` and ``compare.json`` in the output folder, has per filter (and world): collisions,
 closest approach of a body centre to an obstacle surface, closest approach between
 agents, minimum h, the latest time to goal, the largest deviation from the reference
 path, and infeasible ticks. Every run folder is kept under the output folder.
@@ -14,12 +16,14 @@ import json
 from pathlib import Path
 from typing import Any
 
-from swarm.config import ScenarioConfig
+from swarm.config import ScenarioConfig, resolve
 from swarm.runs.launch import RunHandle
 from swarm.runs.point import summarise
 from swarm.safety.barriers import BarrierKind
+from swarm.strict import merge
 
 COLUMNS = (
+    ("world", "world"),
     ("filter", "filter"),
     ("collisions", "contacts"),
     ("margin_violations", "inside the safety radius"),
@@ -46,17 +50,31 @@ def with_filter(cfg: ScenarioConfig, name: str) -> ScenarioConfig:
     return cfg.model_copy(update={"agents": agents})
 
 
-def row(name: str, metrics: dict[str, Any]) -> dict[str, Any]:
+def in_world(cfg: ScenarioConfig, realism: str) -> ScenarioConfig:
+    """The scenario in the world of ``world.realism``'s preset ``realism`` (its margins follow:
+    they are derived from the world, ``swarm.tuning``). Raises :class:`ConfigError` for an
+    unknown preset or a world the config cannot fly (motion capture with the world's roster)."""
+    raw = merge(cfg.model_dump(mode="json"), {"world": {"realism": realism}})
+    return resolve(raw, f"{cfg.name} in world.realism {realism}")
+
+
+def row(name: str, metrics: dict[str, Any], world: str | None = None) -> dict[str, Any]:
     """One table row: the sweep's summary of the run (``swarm.runs.point.summarise``)."""
-    return {"filter": name, **summarise(metrics)}
+    return {"world": world, "filter": name, **summarise(metrics)}
 
 
-def compare(cfg: ScenarioConfig, filters: list[str], out: Path) -> list[dict[str, Any]]:
+def compare(
+    cfg: ScenarioConfig, filters: list[str], out: Path, worlds: list[str] | None = None
+) -> list[dict[str, Any]]:
+    """Run ``cfg`` under each filter, in each of ``worlds`` (None: the config's own world), each
+    run in ``out/<filter>`` (with worlds: ``out/<world>/<filter>``); the rows, also saved."""
+    runs = [(None, cfg)] if worlds is None else [(w, in_world(cfg, w)) for w in worlds]
     rows = []
-    for name in filters:
-        h = RunHandle.start(with_filter(cfg, name), out / name)
-        h.wait()
-        rows.append(row(name, json.loads((h.out / "metrics.json").read_text())))
+    for world, c in runs:
+        for name in filters:
+            h = RunHandle.start(with_filter(c, name), out / name if world is None else out / world / name)
+            h.wait()
+            rows.append(row(name, json.loads((h.out / "metrics.json").read_text()), world))
     (out / "compare.json").write_text(json.dumps(rows, indent=2))
     (out / "compare.md").write_text(markdown(cfg.name, rows))
     return rows
@@ -66,8 +84,14 @@ def _fmt(v: Any) -> str:
     return f"{v:.3f}" if isinstance(v, float) else ("-" if v is None else str(v))
 
 
+def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
+    """The table's columns: the world's only where a row names one."""
+    return tuple(c for c in COLUMNS if c[0] != "world" or any(r.get("world") for r in rows))
+
+
 def markdown(name: str, rows: list[dict[str, Any]]) -> str:
-    head = "| " + " | ".join(title for _, title in COLUMNS) + " |"
-    rule = "|" + "---|" * len(COLUMNS)
-    body = ["| " + " | ".join(_fmt(r[key]) for key, _ in COLUMNS) + " |" for r in rows]
+    cols = columns(rows)
+    head = "| " + " | ".join(title for _, title in cols) + " |"
+    rule = "|" + "---|" * len(cols)
+    body = ["| " + " | ".join(_fmt(r.get(key)) for key, _ in cols) + " |" for r in rows]
     return "\n".join([f"# {name}: filters compared", "", head, rule, *body, ""])

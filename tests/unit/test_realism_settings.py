@@ -88,3 +88,30 @@ def test_settings_build_the_core_objects():
     assert r.wind.params().shared and r.wind.params().gust_std_mps == 0.1
     assert r.comms_model(1, 1 / 120).p.command.loss_fraction == 0.1
     assert r.mocap(3, 1).n == 3
+
+
+def test_swarm_compare_moves_a_scenario_into_another_world_and_refuses_what_it_cannot_fly():
+    """``swarm compare --realism``: the same scenario in each preset's world (the rest of the config
+    unchanged, back and forth exactly); an unknown preset, or the lab's motion capture with the
+    world's roster, refused with the field named, by the command line before anything flies."""
+    from click.testing import CliRunner
+
+    from swarm.cli import cli
+    from swarm.runs.compare import in_world
+
+    ideal = load("configs/single_static_sphere.yaml")
+    lab = in_world(ideal, "crazyflie_lab")
+    assert lab.world.realism == RealismSettings.model_validate("crazyflie_lab") and not lab.world.realism.ideal
+    assert lab.model_copy(update={"world": ideal.world}) == ideal
+    assert in_world(lab, "ideal") == ideal
+    with pytest.raises(ConfigError, match="realism"):
+        in_world(ideal, "mars")
+    roster = load("configs/single_static_sphere.yaml", {"neighbours": {"source": "world"}})
+    with pytest.raises(ConfigError, match="neighbours.source: agents"):
+        in_world(roster, "crazyflie_lab")
+    for args, says in (
+        (["--realism", "ideal,mars"], "choose presets from"),
+        (["--realism", ","], "choose presets from"),
+    ):
+        r = CliRunner().invoke(cli, ["compare", "configs/single_static_sphere.yaml", *args])
+        assert r.exit_code == 2 and says in r.output, r.output

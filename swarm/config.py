@@ -211,6 +211,10 @@ class CrazyflieSettings(_Strict):
     # watchdog: the guard goes silent and the firmware's watchdog levels the drone out with
     # its last thrust after 500 ms and stops and locks it after 2 s (supervisor.c)
     on_agent_loss: Literal["estop", "watchdog"] = "estop"
+    # from the end of the take-off on, the agent estimates the acceleration its drone has beyond its
+    # commands (a thrust map off the motors, a sagging battery, a mass off the model) from the
+    # motion capture and takes it off its thrust (swarm.step.REAL_DRONE_ESTIMATOR); false: it does not
+    disturbance_estimate: bool = True
 
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
 

@@ -25,7 +25,7 @@ import numpy as np
 from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.planning import StaticObstacles
-from swarm.realism.sensing import Estimator, MocapFrame
+from swarm.realism.sensing import Estimator, EstimatorParams, MocapFrame
 from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
@@ -38,6 +38,14 @@ if TYPE_CHECKING:
 
 
 _NO_ESTIMATE = np.zeros(0)
+
+REAL_DRONE_ESTIMATOR = EstimatorParams(
+    position_noise_m=0.001, latency_s=0.0, disturbance_walk_mps2=0.1, initial_disturbance_std_mps2=0.57
+)
+"""What a real Crazyflie's agent estimates its disturbance with (the acceleration its drone has
+beyond its command: a thrust map off the drone's motors, a sagging battery, a mass off the
+model): the ``crazyflie_lab`` preset's estimator (its sources are cited there) on the states the
+world relays from the real motion capture, taken as measured at the tick's time (latency 0)."""
 
 MAX_DISTURBANCE_FRACTION = 0.3
 """The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
@@ -102,6 +110,7 @@ class AgentStep:
         landing: bool = False,
         estimator: Estimator | None = None,
         lead_s: float = 0.0,
+        observer: EstimatorParams | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -111,7 +120,9 @@ class AgentStep:
         (``world.realism.sensing``), never on the state it is given; ``lead_s`` [s]: its command
         acts this much later (``swarm.tuning.command_lead_s``), so it filters its state predicted
         to then (the estimate, or the given state moved by its last command) against rows the
-        caller gives at the same time."""
+        caller gives at the same time. ``observer``: a real drone's estimator of its disturbance
+        alone, from the states it is given (it acts on them), run on the ticks the caller says it
+        is airborne."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -121,6 +132,9 @@ class AgentStep:
         self.att = AttitudeController(model)
         self.estimator = estimator
         self.lead_s = lead_s
+        self.observer = observer
+        self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
+        self._frames = 0  # states fed to it
         self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included) (no estimator)
         self._follows = follows(route)
         self.min_h = math.inf
@@ -148,6 +162,9 @@ class AgentStep:
         lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
         path_w, route = path_for(agent, still)
         estimator = None
+        observer = None
+        if agent.crazyflie is not None and agent.crazyflie.disturbance_estimate:
+            observer = REAL_DRONE_ESTIMATOR
         if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
             half = 0.5 * agent.yaw_rad
             estimator = realism.estimator(
@@ -168,6 +185,7 @@ class AgentStep:
             landing=agent.backend == "crazyflie",
             estimator=estimator,
             lead_s=lead_s,
+            observer=observer,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -207,6 +225,7 @@ class AgentStep:
         tracker: PathTracker | None = None,
         landing: bool = False,
         frames: list[MocapFrame] | None = None,
+        airborne: bool = True,
     ) -> StepResult:
         """The step at sim time ``t_s`` [s] from ``state`` (centre of mass, world), among
         ``obstacles`` and ``neighbours`` (rows at ``t_s``, with their names). ``tracker``:
@@ -214,10 +233,20 @@ class AgentStep:
         rules); ``landing``: filter with the floor off (a real drone landing through it).
         With an estimator the state is its estimate at ``t_s`` from the motion-capture
         ``frames`` that arrived since the last step (``state`` is not read). With a lead the
-        neighbours' rows are the caller's at ``t_s + lead_s``."""
+        neighbours' rows are the caller's at ``t_s + lead_s``. ``airborne`` False (a real drone
+        taking off): its observer rests, and starts afresh from the state of its next airborne tick."""
         model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
         now = state  # (the state at t_s, published; a lead moves the one filtered)
         d_w: FloatArray | None = None  # m/s^2, world: the disturbance taken off the command
+        if self.observer is not None and airborne and est is None:  # (a real drone, on the state it is given)
+            seen = self._observed
+            if seen is None:
+                seen = self._observed = Estimator(self.observer, state.x_w, state.q, t_s, state.v_w)
+            self._frames += 1
+            seen.frame(MocapFrame(0, self._frames, t_s, t_s, state.x_w, state.q))
+            if level is CommandLevel.ATTITUDE:
+                lim = MAX_DISTURBANCE_FRACTION * model.params.g_mps2
+                d_w = np.clip(seen.estimate(t_s).d_w, -lim, lim)
         if est is not None:
             for f in frames or ():
                 est.frame(f)
@@ -270,12 +299,17 @@ class AgentStep:
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
-        if est is not None:
+        if not airborne:
+            self._observed = None
+        tracked = est if est is not None else self._observed
+        if tracked is not None:
             a_w = self._tilted_accel_w(state, u) if level is CommandLevel.ATTITUDE else self._accel_w(state, u)
-            est.command(t_s + lead, a_w)
-        else:
+            tracked.command(t_s + lead, a_w)
+        if est is None:
             if lead > 0.0:
                 self._a_w = self._accel_w(state, u)  # (the next tick's lead moves the state by it)
+                if d_w is not None:
+                    self._a_w = self._a_w + d_w  # (what the drone does with it: the filtered acceleration)
             est_out = _NO_ESTIMATE
         return StepResult(
             level, command, u, status, res, row_ids, held, pub_x, pub_v, self.solo, self.arrived, self.min_h,
@@ -321,12 +355,15 @@ class AgentStep:
         none = NamedObstacles.none()
         est, self.estimator = self.estimator, None  # (its own warm-up below, on a copy)
         self(0.0, QuadState.hover(start_w), none, none)
-        self.estimator = est
-        if est is not None:  # its compiled prediction and update
-            c = copy.deepcopy(est)
-            c.command(0.0, np.zeros(3))
-            c.frame(MocapFrame(0, 0, 0.0, c.p.latency_s + 0.005, np.asarray(start_w, float), c.q0))
-            c.estimate(0.01)
+        self.estimator, self._observed = est, None
+        start = np.asarray(start_w, float)
+        observer = None if self.observer is None else Estimator(self.observer, start, np.array([0.0, 0.0, 0.0, 1.0]))
+        for e in (est, observer):  # their compiled prediction and update (a step at rest calls no prediction)
+            if e is not None:
+                c = copy.deepcopy(e)
+                c.command(0.0, np.zeros(3))
+                c.frame(MocapFrame(0, 0, 0.0, c.p.latency_s + 0.005, start, c.q0))
+                c.estimate(0.01)
         state = QuadState.hover([0.0, 0.0, 1.0])
         state.v_w = np.array([2.0, 0.0, 0.0])  # m/s, straight at the obstacles below
         weight = np.array([0.0, 0.0, self.model.params.weight_N])

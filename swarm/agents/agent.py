@@ -403,9 +403,11 @@ class AgentProcess:
         tracker = self.plan.tracker(state.x_w)
         if tracker is None:  # landed or stopped: motors off
             return self.step.motors_off(state)
+        phase = self.plan.phase
         return self.step(
-            msg.t, state, self.obstacles, neighbours, tracker=tracker, landing=self.plan.phase is Phase.LAND
-        )
+            msg.t, state, self.obstacles, neighbours, tracker=tracker, landing=phase is Phase.LAND,
+            airborne=phase is not Phase.TAKEOFF,
+        )  # fmt: skip
 
     def publish(self, msg: Message, result: StepResult) -> None:
         """This agent's state (by cell, or on its own key) and then its command."""

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from swarm.config import ScenarioConfig
 from swarm.crazyflie_fw import CRAZYSIM
@@ -86,14 +87,23 @@ def _first(t: np.ndarray, mask: np.ndarray, after: float) -> float:
 
 
 def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, cf2, warm_kernels):
-    cfg = _firmware_scenario(cf2)
+    """real1's agent has the simulated motors' own thrust map; real2's the 2026.04 release's linear
+    one, which those motors do not follow (0.2627 N made for a hover's 0.2662 N meant). Each agent
+    estimates its drone's disturbance once it has taken off, so both hold their heights (without
+    the estimate real2 held 8-9 mm low)."""
+    agents = yaml.safe_load((ROOT / "configs" / "mixed_firmware.yaml").read_text())["agents"]
+    for a in agents:
+        if a["id"] == "real2":
+            a["crazyflie"]["thrust"] = {"firmware": "2026.04"}
+    cfg = _firmware_scenario(cf2, agents=agents)
     h = start_run(cfg, "fw")
     assert h.wait() == "completed", h.result
     m = json.loads((h.out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07, (m["collision_pairs"], _log_tails(h.out))
     assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
     crossed = max(m["agents"][s]["time_to_goal_s"] for s in ("sim1", "sim2"))
-    cal = cfg.agents[0].crazyflie.thrust.map  # the agents' calibration: the simulated motors' own map
+    cal = cfg.agents[0].crazyflie.thrust.map  # real1's calibration: the simulated motors' own map
+    assert cfg.agents[1].crazyflie.thrust.map != cal
     for name in REAL:
         tr = _trace(h.out, name)
         t0 = tr.sp_t[0]  # the guard's first setpoint: the drone is in the run
@@ -114,7 +124,9 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         made = tr.body_thrust_N[held].mean()
         in_hold = (tr.sp_t - t0 > t[held][0]) & (tr.sp_t - t0 < t[held][-1])
         meant = np.mean([cal.collective_N(c) for c in tr.sp[in_hold, 3]])
-        assert abs(made / meant - 1.0) < 0.01 and abs(made / WEIGHT_N - 1.0) < 0.01, (made, meant)
+        assert abs(made / WEIGHT_N - 1.0) < 0.01, (made, meant)
+        if name == "real1":  # real2's map asks for more than its motors make: its estimate makes up the rest
+            assert abs(made / meant - 1.0) < 0.01, (made, meant)
         # the setpoints it logs decode as sent: roll, pitch as on the wire, yaw rate negated, thrust
         sent = {(r, p, -y, float(c)) for r, p, y, c in tr.sp}
         flying = np.array([s == "flying" for s in tr.fw_state])

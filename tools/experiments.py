@@ -257,19 +257,24 @@ def paper(out: Path, jobs: int) -> None:
 
 
 def paper_lab(out: Path, jobs: int) -> None:
-    """Section 1's scenarios at the paper's rotor level, C3BF and HO-CBF, in the Crazyflie lab's
-    world (``world.realism: crazyflie_lab``), beside section 1's ideal runs (``paper.json``)."""
+    """Section 1's scenarios with C3BF and HO-CBF at the attitude level (the firmware closes the
+    attitude loop on board, as on a real Crazyflie) in the ideal world and in the Crazyflie lab's
+    (``world.realism: crazyflie_lab``), side by side."""
     names = sorted(p.stem for p in (CONFIGS / "paper").glob("*.yaml"))
+    worlds = ["ideal", "crazyflie_lab"]
 
     def one(name: str) -> tuple[str, list[dict]]:
         cfg = load(CONFIGS / "paper" / f"{name}.yaml")
         cfg = unpinned(cfg) if jobs > 1 else cfg
-        return name, compare(cfg, ["c3bf", "hocbf"], out / "paper_lab" / name, ["crazyflie_lab"])
+        att = cfg.model_copy(
+            update={"agents": [a.model_copy(update={"command_level": CommandLevel.ATTITUDE}) for a in cfg.agents]}
+        )
+        return name, compare(att, ["c3bf", "hocbf"], out / "paper_lab" / name, worlds)
 
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         results = dict(pool.map(one, names))
     (DOCS / "paper_lab.json").write_text(json.dumps(results, indent=2))
-    stamp("paper_lab", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"], level="rotors", world="crazyflie_lab")
+    stamp("paper_lab", configs="configs/paper/*.yaml", filters=["c3bf", "hocbf"], level="attitude", worlds=worlds)
 
 
 def sweeps(out: Path, jobs: int) -> None:
@@ -327,24 +332,20 @@ def _paper_table(path: Path) -> str:
 
 
 def _paper_lab_table(path: Path) -> str:
-    """EXPERIMENTS.md section 5's paper scenarios: per scenario and filter (rotor level), the ideal
-    world's run (``paper.json``) beside the lab's (``path``)."""
-    lab = json.loads(path.read_text())
-    ideal = json.loads((path.parent / "paper.json").read_text())
+    """EXPERIMENTS.md section 5's paper scenarios: per scenario and filter (attitude level), the
+    ideal world's run beside the lab's."""
+    data = json.loads(path.read_text())
     head = ["scenario", "filter"] + [
         f"{w} {col}"
         for w in ("ideal", "lab")
         for col in ("contacts / inside", "closest [m]", "time to goal [s]", "infeasible ticks")
     ]
     rows = []
-    for name in sorted(lab):
-        for r in lab[name]:
-            (i,) = [x for x in ideal.get(name, []) if x["filter"] == r["filter"] and x["level"] == "rotors"] or [None]
-            cells = [name, r["filter"]]
-            for x in (i, r):
-                if x is None:
-                    cells += ["-"] * 4
-                    continue
+    for name in sorted(data):
+        for f in ("c3bf", "hocbf"):
+            cells = [name, f]
+            for world in ("ideal", "crazyflie_lab"):
+                (x,) = [r for r in data[name] if r["filter"] == f and r["world"] == world]
                 closest = x["min_clearance_m"] if x["min_clearance_m"] is not None else x["min_separation_m"]
                 cells += [
                     f"{x['collisions']} / {x['margin_violations']}",

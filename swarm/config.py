@@ -670,6 +670,14 @@ class ScenarioConfig(_Strict):
                 "world.realism.sensing: the agents act on motion-capture estimates, but neighbours.source: world "
                 "gives them every drone's true state (the roster); use neighbours.source: agents"
             )
+        rotors = [a.id for a in self.agents if a.backend == "sim" and a.command_level is CommandLevel.ROTORS]
+        if self.world.realism.sensing.enabled and rotors:
+            raise ValueError(
+                f"agents.{rotors[0]}.command_level: rotors closes the attitude loop in the agent, and with "
+                "world.realism.sensing it would close it on the motion capture's attitude, without a gyro: the "
+                "drones crash (EXPERIMENTS.md section 5); use command_level: attitude (the firmware's loop), "
+                "or world.realism.sensing.enabled: false"
+            )
         return self
 
     @model_validator(mode="after")

@@ -115,3 +115,22 @@ def test_swarm_compare_moves_a_scenario_into_another_world_and_refuses_what_it_c
     ):
         r = CliRunner().invoke(cli, ["compare", "configs/single_static_sphere.yaml", *args])
         assert r.exit_code == 2 and says in r.output, r.output
+
+
+def test_the_rotor_level_is_refused_where_agents_act_on_motion_capture():
+    """The rotor level closes the attitude loop in the agent: on the motion capture's attitude
+    (``world.realism.sensing``), without a gyro, the drones crashed in each of four paper
+    scenarios flown (1-16 contacts; with the lab's other imperfections and ground truth, none).
+    Such a config is refused with the field named, and by ``swarm compare --realism``."""
+    from click.testing import CliRunner
+
+    from swarm.cli import cli
+
+    paper = "configs/paper/static_brake.yaml"
+    assert load(paper).agents[0].command_level.value == "rotors"
+    with pytest.raises(ConfigError, match=r"agents\.cf1\.command_level: rotors closes the attitude loop"):
+        load(paper, {"world": {"realism": "crazyflie_lab"}})
+    ground_truth = load(paper, {"world": {"realism": {"preset": "crazyflie_lab", "sensing": {"enabled": False}}}})
+    assert not ground_truth.world.realism.ideal
+    r = CliRunner().invoke(cli, ["compare", paper, "--realism", "ideal,crazyflie_lab"])
+    assert r.exit_code == 2 and "command_level: rotors" in r.output, r.output

@@ -39,13 +39,17 @@ if TYPE_CHECKING:
 
 _NO_ESTIMATE = np.zeros(0)
 
-REAL_DRONE_ESTIMATOR = EstimatorParams(
-    position_noise_m=0.001, latency_s=0.0, disturbance_walk_mps2=0.1, initial_disturbance_std_mps2=0.57
-)
-"""What a real Crazyflie's agent estimates its disturbance with (the acceleration its drone has
-beyond its command: a thrust map off the drone's motors, a sagging battery, a mass off the
-model): the ``crazyflie_lab`` preset's estimator (its sources are cited there) on the states the
-world relays from the real motion capture, taken as measured at the tick's time (latency 0)."""
+
+def real_drone_estimator() -> EstimatorParams:
+    """What a real Crazyflie's agent estimates its disturbance with (the acceleration its drone has
+    beyond its command: a thrust map off the drone's motors, a sagging battery, a mass off the
+    model): the ``crazyflie_lab`` preset's estimator (its sources are cited there) on the states
+    the world relays from the real motion capture, taken as measured at the tick's time (latency 0)."""
+    from swarm.realism.settings import RealismSettings
+
+    lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()
+    return replace(lab, latency_s=0.0)
+
 
 MAX_DISTURBANCE_FRACTION = 0.3
 """The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
@@ -164,7 +168,7 @@ class AgentStep:
         estimator = None
         observer = None
         if agent.crazyflie is not None and agent.crazyflie.disturbance_estimate:
-            observer = REAL_DRONE_ESTIMATOR
+            observer = real_drone_estimator()
         if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
             half = 0.5 * agent.yaw_rad
             estimator = realism.estimator(

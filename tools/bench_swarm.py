@@ -5,8 +5,9 @@
         [--interest auto|bundle|cells|all] [--busy N]
 
 One line per (agents, mode) on a ``circle_<n>`` antipodal swap at ``--rate`` Hz control
-(physics at 3x), with: ``real_time_factor`` (sim time / wall time), ``on_time_fraction``
-(commands for tick k that reached the world before it published tick k+1),
+(physics at 3x), in the world ``swarm scenario`` writes (``crazyflie_lab``; with ``--sources
+world``, the roster of true states, its motion capture off), with: ``real_time_factor`` (sim
+time / wall time), ``on_time_fraction`` (commands for tick k that reached the world before it published tick k+1),
 ``cpu_percent_per_agent`` (steady-state CPU of one agent process, start-up excluded,
 averaged over agents, as a percentage of one core; ``world_cpu_percent`` likewise), ``p99_tick_latency_ms`` (world
 sends a measurement -> receives that tick's command), ``cpu_us_per_agent_tick`` (an
@@ -64,6 +65,8 @@ def bench_one(
         rotation_rad=0.05, control_hz=rate_hz, physics_hz=3 * rate_hz, duration_s=seconds, mode=mode, neighbours=source
     )
     raw = circle_swap(n, max(2.0, 0.35 * n), settings, name=f"bench_{n}_{mode}")
+    if source == "world":  # the roster is every drone's true state: the world's motion capture off, the rest as it is
+        raw["world"]["realism"] = {"preset": raw["world"]["realism"], "sensing": {"enabled": False}}
     return run_row(raw, n, mode, rate_hz, out / f"circle_{n}_{mode}_{source}", topology, access_control, interest)
 
 

@@ -332,6 +332,18 @@ def _paper_table(path: Path) -> str:
     return "\n".join(out)
 
 
+def _outcome_cells(r: dict) -> list[str]:
+    """A compare row's contacts / inside the safety radius, closest approach (to an obstacle, else
+    between agents) [m], latest time to goal [s] and infeasible ticks, as table cells."""
+    closest = r["min_clearance_m"] if r["min_clearance_m"] is not None else r["min_separation_m"]
+    return [
+        f"{r['collisions']} / {r['margin_violations']}",
+        _maybe(closest, ".3f"),
+        _maybe(r["max_time_to_goal_s"], ".2f"),
+        str(r["infeasible_ticks"]),
+    ]
+
+
 def _paper_lab_table(path: Path) -> str:
     """EXPERIMENTS.md section 5's paper scenarios: per scenario and filter (attitude level), the
     ideal world's run beside the lab's."""
@@ -347,13 +359,7 @@ def _paper_lab_table(path: Path) -> str:
             cells = [name, f]
             for world in ("ideal", "crazyflie_lab"):
                 (x,) = [r for r in data[name] if r["filter"] == f and r["world"] == world]
-                closest = x["min_clearance_m"] if x["min_clearance_m"] is not None else x["min_separation_m"]
-                cells += [
-                    f"{x['collisions']} / {x['margin_violations']}",
-                    _maybe(closest, ".3f"),
-                    _maybe(x["max_time_to_goal_s"], ".2f"),
-                    str(x["infeasible_ticks"]),
-                ]
+                cells += _outcome_cells(x)
             rows.append(cells)
     return _table(head, rows)
 
@@ -372,14 +378,7 @@ def _levels_table(path: Path) -> str:
         cells = [name]
         for lv in ("rotors", "attitude"):
             (r,) = [r for r in data[name] if r["filter"] == "c3bf" and r["level"] == lv]
-            closest = r["min_clearance_m"] if r["min_clearance_m"] is not None else r["min_separation_m"]
-            cells += [
-                f"{r['collisions']} / {r['margin_violations']}",
-                _maybe(closest, ".3f"),
-                _maybe(r["max_time_to_goal_s"], ".2f"),
-                str(r["infeasible_ticks"]),
-                _maybe(r["min_h"], ".4f"),
-            ]
+            cells += [*_outcome_cells(r), _maybe(r["min_h"], ".4f")]
         rows.append(cells)
     return _table(head, rows)
 

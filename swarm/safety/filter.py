@@ -37,7 +37,7 @@ from swarm.model import (
     thrust_vector_input_set,
 )
 from swarm.rotation import BoolArray, FloatArray, IntArray
-from swarm.safety.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, BarrierRows, RowSettings, row_params
+from swarm.safety.barriers import LIVE_W_HI_MPS, LIVE_W_LO_MPS, BarrierKind, H, RowSettings, row_params
 from swarm.safety.constraints import OwnDynamics, Rows, assemble_with, own_affine, rows_kernel
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.safety.qp import QPProblem, QPSolution, QPStatus, make_backend
@@ -141,23 +141,23 @@ _BAD_NONE, _BAD_STATE, _BAD_QUAT, _BAD_UREF = 0, 1, 2, 3
 
 class Prepared(NamedTuple):
     """What :func:`_prepare` hands back: ``bad`` (a ``_BAD_*`` code), ``fixed`` (as
-    :func:`_select` gives it), ``idx`` (the obstacles that got a row), and the rows'
-    arrays as :func:`swarm.safety.constraints.rows_kernel` returns them."""
+    :func:`_select` gives it), ``idx`` (the obstacles that got a row), the rows' values and
+    arrays as :func:`swarm.safety.constraints.rows_kernel` returns them (only what the filter
+    uses: each array handed back costs a Python object), and the buffered rows."""
 
     bad: int
     fixed: int
     idx: IntArray
-    Y: FloatArray
-    coef: FloatArray
+    h: FloatArray  # (n,) each row's barrier value
     inside: BoolArray
-    Lf: FloatArray
     A: FloatArray
     b_all: FloatArray
     c_ref: FloatArray
     ref_ok: bool
     any_inside: bool
     tight: FloatArray
-    sz: FloatArray
+    any_tight: bool  # some row has a buffer (tight > 0)
+    b_tight: FloatArray  # (k + n,) b_all with each barrier row's buffer taken off: the buffered rows
 
 
 @njit(cache=True)
@@ -173,7 +173,8 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
     ``u_ref``'s finiteness (a failure returns its ``_BAD_*`` code at once; the caller
     raises the named error) and the quaternion normalised; then :func:`_select`, the
     floor row, the own dynamics (:func:`swarm.safety.constraints.own_affine`) and
-    :func:`swarm.safety.constraints.rows_kernel` at ``u_ref``. Returns a :class:`Prepared`."""
+    :func:`swarm.safety.constraints.rows_kernel` at ``u_ref``, and the buffered rows' right-hand
+    side. Returns a :class:`Prepared`."""
     air, params, fparams = settings
     lb, ub, C, d = inputs
     fp = fparams[0]
@@ -200,16 +201,15 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
                 bad,
                 0,
                 np.zeros(0, dtype=np.intp),
-                np.zeros((0, 3, 3)),
-                np.zeros((0, 9)),
-                np.zeros(0, dtype=np.bool_),
                 z1,
+                np.zeros(0, dtype=np.bool_),
                 np.zeros((0, m)),
                 z1,
                 z1,
                 False,
                 False,
                 z1,
+                False,
                 z1,
             )
     idx, fixed = _select(obs, x, fp.r2, fp.max_rows)
@@ -217,10 +217,19 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
         j = C.shape[0] - 1
         _floor_row(air[0], fp, C[j], d, j, x[2], v[2], qn, ub)
     xv_b, Aa = own_affine(air, x, v, qn, Om)
-    Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, sz = rows_kernel(
+    _Y, coef, inside, _Lf, A, b_all, c_ref, ref_ok, any_inside, tight, _sz = rows_kernel(
         obs, idx, params, xv_b, Aa, u_ref, lb, ub, C, d
     )
-    return Prepared(0, fixed, idx, Y, coef, inside, Lf, A, b_all, c_ref, ref_ok, any_inside, tight, sz)
+    k = C.shape[0]
+    b_tight = b_all.copy()
+    any_tight = False
+    for i in range(tight.shape[0]):
+        if tight[i] != 0.0:
+            any_tight = True
+            b_tight[k + i] -= tight[i]
+    return Prepared(
+        0, fixed, idx, coef[:, H].copy(), inside, A, b_all, c_ref, ref_ok, any_inside, tight, any_tight, b_tight
+    )
 
 
 def _is_vector(a: object) -> bool:
@@ -499,34 +508,19 @@ class SafetyFilter:
             check_finite("u_ref", u_ref, (m,))
         if prep.fixed > cfg.max_rows:
             raise InputError(f"obstacles: {prep.fixed} obstacles exceed FilterConfig.max_rows = {cfg.max_rows}")
-        rows = Rows(
-            BarrierRows(prep.Y, prep.coef, prep.inside, prep.sz),
-            prep.Lf,
-            prep.A,
-            prep.b_all,
-            prep.c_ref,
-            bool(prep.ref_ok),
-            ins.d.size,
-            bool(prep.any_inside),
-            prep.tight,
-        )
-        call = (t0, prep.idx, rows, ins)  # for whichever QP decides the call (_result)
+        call = (t0, prep, ins)  # for whichever QP decides the call (_result)
         n = prep.idx.shape[0]
         zeros = np.zeros(n)
 
         # Fast path: the reference already satisfies everything (the buffered rows included).
-        if rows.ref_ok:
-            return self._result(call, u_ref, u_ref, FilterStatus.OK, zeros, residuals=(rows.c_ref, 0.0), buffered=True)
+        if prep.ref_ok:
+            return self._result(call, u_ref, u_ref, FilterStatus.OK, zeros, residuals=(prep.c_ref, 0.0), buffered=True)
 
-        G, b = rows.G, rows.b  # barrier rows as G u <= b
-
-        A, bb = rows.A, rows.b_all  # input rows on top of the barrier rows
-        status = FilterStatus.COLLISION if rows.any_inside else FilterStatus.OK
-        has_buffer = bool(rows.buffer.any())
+        A, bb = prep.A, prep.b_all  # input rows on top of the barrier rows (G u <= b)
+        status = FilterStatus.COLLISION if prep.any_inside else FilterStatus.OK
+        has_buffer = bool(prep.any_tight)
         if has_buffer:  # the buffered rows first; the rows themselves only if those cannot all hold
-            bt = bb.copy()
-            bt[ins.d.size :] -= rows.buffer
-            sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bt))
+            sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, prep.b_tight))
             if sol.status is QPStatus.OPTIMAL:
                 return self._result(call, sol.x, u_ref, status, zeros, buffered=True)
         sol = self._solve(QPProblem.trusted(self._H, -2.0 * u_ref, ins.lb, ins.ub, A, bb))  # rows from the kernel
@@ -538,6 +532,7 @@ class SafetyFilter:
         m = self.m
         H, q, lb, ub, A_s = self._slack_arrays(n, ins)
         q[:m] = -2.0 * u_ref
+        G, b = A[ins.d.size :], bb[ins.d.size :]  # the barrier rows alone
         A_s[: ins.d.size, :m] = ins.C  # (the floor row changes every call)
         A_s[ins.d.size :, :m] = G
         sol_s = None
@@ -551,7 +546,7 @@ class SafetyFilter:
         if sol_s is not None:
             u = sol_s[:m]
             slack = np.maximum(G @ u - b, 0.0)
-            st = FilterStatus.COLLISION if rows.any_inside else FilterStatus.INFEASIBLE
+            st = FilterStatus.COLLISION if prep.any_inside else FilterStatus.INFEASIBLE
             return self._result(call, u, u_ref, st, slack)
         u = np.clip(u_ref, ins.lb, ins.ub)
         return self._result(call, u, u_ref, FilterStatus.FAILED, np.maximum(G @ u - b, 0.0))
@@ -588,7 +583,7 @@ class SafetyFilter:
 
     def _result(
         self,
-        call: tuple[float, IntArray, Rows, LinearInputSet],
+        call: tuple[float, Prepared, LinearInputSet],
         u: FloatArray,
         u_ref: FloatArray,
         status: FilterStatus,
@@ -597,28 +592,30 @@ class SafetyFilter:
         residuals: tuple[FloatArray, float] | None = None,
         buffered: bool = False,
     ) -> FilterResult:
-        """The result of the call ``call`` = (its start time [s, perf_counter], the obstacles
-        that got a row, the rows, the input set it used) for the command ``u``: its residuals
-        at the rows (``residuals``: the reference's, already computed over [input rows;
-        barrier rows]) and which rows bind (against the buffered rows where ``u`` holds them)."""
-        t0, idx, rows, ins = call
+        """The result of the call ``call`` = (its start time [s, perf_counter], what
+        :func:`_prepare` built for it, the input set it used) for the command ``u``: its
+        residuals at the rows (``residuals``: the reference's, already computed over [input
+        rows; barrier rows]) and which rows bind (against the buffered rows where ``u`` holds
+        them)."""
+        t0, prep, ins = call
+        k = ins.d.size
         if residuals is not None:
-            c, viol = residuals[0][ins.d.size :], residuals[1]
+            c, viol = residuals[0][k:], residuals[1]
         else:
-            c, viol = _residuals(rows.G, rows.b, u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
-        active = c - rows.buffer <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
+            c, viol = _residuals(prep.A[k:], prep.b_all[k:], u, ins.lb, ins.ub, ins.C, ins.d)  # c = Lg_h u - lower
+        active = c - prep.tight <= ACTIVE_TOL if buffered else c <= ACTIVE_TOL
         return FilterResult(
             u=u,
             u_ref=u_ref,
             status=status,
-            row_index=idx,
-            h=rows.h,
+            row_index=prep.idx,
+            h=prep.h,
             constraint=c,
             active=active,
-            inside=rows.inside,
+            inside=prep.inside,
             slack=slack,
             solve_time_s=time.perf_counter() - t0,
             max_violation=viol,
-            buffer=rows.buffer,
+            buffer=prep.tight,
             buffered=buffered,
         )

@@ -41,17 +41,17 @@ def _run(start_run, cfg, name):
 
 def _crossing(network=None, **over):
     """Two columns of four drones flying through each other at 1.5 m/s along x, through
-    1 m cells: each crosses about ten cell borders, meeting the other column on the way."""
+    1 m cells: each crosses six or seven cell borders, meeting the other column on the way."""
     agents = []
     for i in range(4):
         y = -1.5 + i
-        agents.append({"id": f"e{i}", "start": [0.0, y, 1.0], "goal": [9.0, y + 0.3, 1.0]})
-        agents.append({"id": f"w{i}", "start": [9.0, y + 0.3, 1.2], "goal": [0.0, y, 1.2]})
+        agents.append({"id": f"e{i}", "start": [0.0, y, 1.0], "goal": [6.0, y + 0.3, 1.0]})
+        agents.append({"id": f"w{i}", "start": [6.0, y + 0.3, 1.2], "goal": [0.0, y, 1.2]})
     net = {"network": network} if network else {}
     return scenario(
         "swap_2.yaml",
         name="crossing",
-        duration_s=14.0,
+        duration_s=10.0,
         agents=agents,
         defaults={"speed_mps": 1.5, "filter": {"sensing_radius_m": 2.0}},
         world={"realism": "ideal"},  # (in the lab world a bundled state is two link delays late, a direct one one)

@@ -17,6 +17,7 @@ import pytest
 
 HERE = Path(__file__).resolve().parent
 TURNS = pytest.StashKey["Turns"]()
+KIND = pytest.StashKey[str]()  # an item's folder: "unit" or "integration"
 
 
 def _folder(item: pytest.Item) -> str:
@@ -55,19 +56,20 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
-        item.add_marker(getattr(pytest.mark, _folder(item)))
-    items.sort(key=lambda item: _folder(item) == "integration")  # (stable: unit tests first, each half in order)
+        item.stash[KIND] = _folder(item)
+        item.add_marker(getattr(pytest.mark, item.stash[KIND]))
+    items.sort(key=lambda item: item.stash[KIND] == "integration")  # (stable: unit tests first, each half in order)
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)  # outside pytest-timeout's: waiting for a turn is not the test's time
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):  # type: ignore[no-untyped-def]
     turns = item.config.stash.get(TURNS, None)
-    kind = _folder(item)
+    kind = item.stash[KIND]
     if turns is not None:
         turns.take(kind)
     yield
     if turns is not None and (
-        nextitem is None or _folder(nextitem) != kind or (kind == "integration" and nextitem.path != item.path)
+        nextitem is None or nextitem.stash[KIND] != kind or (kind == "integration" and nextitem.path != item.path)
     ):
         turns.release()  # (after the file's module fixtures are torn down, in this item's teardown)
 

@@ -340,6 +340,15 @@ class TimeSettings(_Strict):
     # held, levelled out with its thrust from 500 ms, motors off from 2 s), or brake: a hover
     # after command_timeout_s, kinder than any firmware, for a machine that stalls its agents
     late_command: Literal["firmware", "brake"] = "firmware"
+    # realtime with real drones: how far [s] the world's clock may fall behind the wall clock.
+    # Real drones do not wait, and their measurements are stamped on the wall clock: a world
+    # further behind flies the ticks it lacks with the commands it holds, unpublished (counted
+    # in metrics.json, skipped_ticks), and goes on towards the wall clock's tick; a real
+    # drone's measurement is stamped at most this far after the world's physics. So no agent
+    # hears of a real drone's state more than about twice this after the newest tick: well
+    # inside the 1 s a neighbour's state may be ahead (swarm.net.statewire.Plausible.ahead_s),
+    # so a late world never hides a real drone from the simulated agents.
+    max_lag_s: float = Field(0.25, gt=0, le=0.5)
     start_timeout_s: float = Field(60.0, gt=0, le=3600)  # wall time to wait for every process to come up
     land_timeout_s: float = Field(15.0, gt=0, le=600)  # after the end: how long real drones get to land
     # swarm run: pin each process to one CPU (the world to the first, the recorder to the

@@ -52,11 +52,15 @@ It sends an emergency stop by itself in three cases:
   a firmware answers nothing it is not asked. Set ``expect_replies`` false to turn this
   check off.
 
-An emergency stop goes out both ways, each three times: the supervisor's command (CRTP
-port 9, from protocol 12, firmware 2025.09) and the older localization packet
+An emergency stop goes out both ways, three times 50 ms apart: the supervisor's command
+(CRTP port 9, from protocol 12, firmware 2025.09) and the older localization packet
 (``Localization.EMERGENCY_STOP``, crtp_localization_service.c). A firmware that does not
 know one form ignores it; in CrazySim's software-in-the-loop build (protocol 7) port 9
 carries the simulator's sensors, so there the localization packet is the one that stops it.
+The repeats are spread because a link without acknowledgements loses packets in bursts: the
+software-in-the-loop firmware queues 5 received packets and drops any that come while the
+queue is full (socketlink.c: ``xQueueCreate(5, ...)``, ``xQueueSend(..., 0)``), so a firmware
+busy for a few milliseconds loses a back-to-back burst whole.
 """
 
 from __future__ import annotations
@@ -76,6 +80,8 @@ import msgpack
 CONNECT_TIMEOUT_S = 3.0  # the drone must answer within this after the link opens
 KEEPALIVE_S = 0.05  # zero-thrust setpoints while the motors are off
 LANDED_AFTER_S = 2.5  # > the supervisor's 2 s flying hysteresis (supervisor.c IS_FLYING_HYSTERESIS_THRESHOLD)
+ESTOP_ROUNDS = 3  # the emergency stop's repeats, ...
+ESTOP_SPACING_S = 0.05  # ... this far apart: a busy firmware drops what comes meanwhile (socketlink.c)
 
 
 def default_socket() -> Path:
@@ -179,12 +185,15 @@ class _Drone:
         return True
 
     def _estop(self, reason: str) -> None:
-        """The emergency stop both ways (supervisor command, legacy localization packet), three times."""
+        """The emergency stop both ways (supervisor command, legacy localization packet),
+        :data:`ESTOP_ROUNDS` times :data:`ESTOP_SPACING_S` apart (returns after the last)."""
         from cflib.crazyflie.localization import Localization
         from cflib.crazyflie.supervisor import CMD_EMERGENCY_STOP, SUPERVISOR_CH_COMMAND
         from cflib.crtp.crtpstack import CRTPPacket, CRTPPort
 
-        for _ in range(3):
+        for i in range(ESTOP_ROUNDS):
+            if i:
+                time.sleep(ESTOP_SPACING_S)
             pk = CRTPPacket()
             pk.set_header(CRTPPort.SUPERVISOR, SUPERVISOR_CH_COMMAND)
             pk.data = struct.pack("<B", CMD_EMERGENCY_STOP)

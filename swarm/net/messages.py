@@ -76,6 +76,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "items": "obs",
         "solo": "ls",
         "frames": "vf",
+        "skipped": "i",
     },
     "status": {
         "rtf": "f",
@@ -107,6 +108,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 #   items            the obstacles at tick k
 #   frames           world.realism.sensing: the motion-capture frames that arrived since the last
 #                    tick, FRAME floats each (FRAME_FIELDS); the tick's own: its drone's alone
+#   skipped          the ticks before k the world flew unpublished (0 but in a realtime run with real
+#                    drones whose world fell behind the wall clock: time.max_lag_s)
 # Real drones' measurements come from the motion-capture relay on their own key.
 CLOCK_XVR, CLOCK_MEAS = 7, 13
 FRAME_FIELDS = ("drone", "seq", "t_arrival", "x", "y", "z", "qx", "qy", "qz", "qw")
@@ -493,6 +496,7 @@ FIELD_DOCS: dict[str, str] = {
     "xvr": "roster: per drone body centre [m], velocity [m/s], radius [m] (7 floats)",
     "meas_ids": "simulated drones of meas",
     "meas": "per simulated drone x [m], v [m/s], q, w [rad/s] (13 floats)",
+    "skipped": "ticks before this one the world flew unpublished (realtime, behind its real drones)",
     "rtf": "real-time factor",
     "min_sep": "closest pair of body centres so far [m]",
     "min_clear": "closest body centre to an obstacle surface so far [m]",

@@ -320,10 +320,13 @@ def compute(
     stalls: list[dict[str, Any]] = []
     figures = _TickFigures(cfg)
     newest_k = -1
+    skipped = 0  # ticks the world flew unpublished (realtime with real drones, behind the wall clock)
     for r in records:
         kind = r["kind"]
+        if kind == "clock":
+            skipped += int(r.get("skipped", 0))
         if "topic" in r and "seq" in r:  # as recorded (not one of the measurements a clock carries)
-            ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")))
+            ledger.see(kind, r["src"], r["seq"], r["k"], kind == "status" and bool(r.get("done")), r.get("skipped", 0))
             silence.see(r)
         if kind == "measurement":
             aid, k = measurement_agent(r), int(r["k"])
@@ -421,6 +424,7 @@ def compute(
         "finished": bool(final.get("done", False)),  # the world's last status said the run is over
         "real_time_factor": float(final.get("rtf", 0.0)),
         "late_ticks": int(final.get("late", 0)),
+        "skipped_ticks": skipped,  # flown unpublished: the world fell time.max_lag_s behind real drones
         "dropped_messages": int(final.get("dropped", 0))
         + sum(v["dropped_messages"] for v in agents.values())
         + recorder_dropped,

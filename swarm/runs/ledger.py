@@ -3,8 +3,9 @@
 The recorder checks every stream it records for holes, as it records (``recorder.json``),
 and ``swarm metrics`` checks the file again (``metrics.json``):
 
-* the world's clock: one per tick, ticks 0, 1, 2, ... with no tick missing, and at the end
-  the status that says the run is done;
+* the world's clock: one per tick, ticks 0, 1, 2, ... with no tick missing (but those a clock
+  says the world flew unpublished before it: its ``skipped``), and at the end the status that
+  says the run is done;
 * each agent's commands: its sequence number advances by the same step for every command
   it sends (1, or 2 where it publishes its state before each command: ``neighbours.source:
   agents``), so a jump of more than one step is that many commands lost, between the ticks
@@ -83,15 +84,16 @@ class Ledger:
             self.streams[name] = s
         return s
 
-    def see(self, kind: str, src: str, seq: int, k: int, done: bool = False) -> None:
+    def see(self, kind: str, src: str, seq: int, k: int, done: bool = False, skipped: int = 0) -> None:
         """One recorded message: its kind, sender, sequence number and tick; ``done``: a
-        status that says the run is over."""
+        status that says the run is over; ``skipped``: a clock's ticks before it that the world
+        flew unpublished (none is missing)."""
         if kind == "status" and done:
             self.done_k = k
         s = self._stream(kind, src)
         if s is None:
             return
-        n = k if s.by_tick else seq
+        n = k - skipped if s.by_tick else seq
         s.seen += 1
         if s.last is not None and n > s.last + s.step:
             missing = (n - s.last) // s.step - 1
@@ -99,7 +101,7 @@ class Ledger:
         elif s.last is not None and n <= s.last:  # late: it fills part of a hole (not on one link)
             self._fill(s, n, k)
             return
-        s.last, s.last_k = n, k
+        s.last, s.last_k = (k if s.by_tick else n), k
 
     @staticmethod
     def _fill(s: _Stream, n: int, k: int) -> None:
@@ -168,11 +170,11 @@ def summaries(logs: Path) -> dict[str, dict[str, Any]]:
 
 def sent_counts(said: dict[str, dict[str, Any]]) -> dict[str, int]:
     """What each process says it sent (``said``: :func:`summaries`): the world's clocks
-    (one per tick, 0 to its last) and each agent's commands."""
+    (one per tick, 0 to its last, but the ticks it flew unpublished) and each agent's commands."""
     out: dict[str, int] = {}
     for name, summary in said.items():
         if name == "world" and isinstance(summary.get("ticks"), int):
-            out["world/clock"] = summary["ticks"] + 1
+            out["world/clock"] = summary["ticks"] + 1 - int(summary.get("skipped_ticks", 0))
         elif name.startswith("agent-") and isinstance(summary.get("ticks"), int):
             out[f"{summary.get('id', name.removeprefix('agent-'))}/command"] = summary["ticks"]
     return out

@@ -174,7 +174,8 @@ class Recorder:
         )
         self.count += 1
         self.sim_t = max(self.sim_t, m.t)
-        self.ledger.see(m.kind, m.src, m.seq, m.k, m.kind == "status" and bool(m["done"]))
+        skipped = int(m["skipped"]) if m.kind == "clock" else 0
+        self.ledger.see(m.kind, m.src, m.seq, m.k, m.kind == "status" and bool(m["done"]), skipped)
         if m.kind == "clock":
             self.clocks += 1
             self._scene(self.scene.on_clock(rec), log_ns, now_ns)

@@ -98,6 +98,7 @@ class RunCounts:
     dead_contacts: int = 0  # contacts of a dead agent's drone (landing, or left to the firmware)
     stalls: int = 0  # lockstep ticks that waited longer than stall_warn_s
     late: int = 0
+    skipped: int = 0  # realtime with real drones: ticks flown unpublished, the world behind the wall clock
     min_sep: float = math.inf
     min_clear: float = math.inf
     touching: set[tuple[str, str]] = field(default_factory=set)
@@ -129,6 +130,8 @@ class World:
         self.relay: MocapRelay | None = None
         self.running = threading.Event()  # the relay publishes only while the run is on
         self._mocap_seq = 10**9  # the relay thread's own sequence numbers
+        self._mocap_t: dict[str, float] = {}  # the relay thread's newest stamp per real drone [s]
+        self.ticks_over = False  # the last tick is flown: real drones' measurements on the wall clock alone
         self.wall0 = time.monotonic()
         self.stop = StopFlag()
 
@@ -161,10 +164,20 @@ class World:
             ).start()
 
     def _on_frame(self, aid: str, est: BodyEstimate) -> None:
-        """The relay's thread: a real drone's measurement, at the capture rate."""
+        """The relay's thread: a real drone's measurement, at the capture rate, stamped on the
+        wall clock, but never more than ``time.max_lag_s`` ahead of the physics while the
+        ticks go on (a world that cannot keep the wall clock, :meth:`catch_up`): the agents
+        take their neighbours' states in the world's time, and no agent may hear of a state
+        far ahead of the newest tick. A frame whose stamp would not be newer than its drone's
+        last is not sent (the world has not moved on: there is nothing newer to say)."""
         if not self.running.is_set():
             return
         t = time.monotonic() - self.wall0
+        if not self.ticks_over:
+            t = min(t, self.physics.t_s + self.cfg.time.max_lag_s)
+        if t <= self._mocap_t.get(aid, -math.inf):
+            return
+        self._mocap_t[aid] = t
         self._mocap_seq += 1
         self.pubs[aid].put(
             encode(
@@ -320,16 +333,17 @@ class World:
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
         return bool(k == self.K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
 
-    def publish(self, k: int, t: float, view: TickView, done: bool, status_every: int) -> None:
-        """Tick k out: the status (every ``status_every`` ticks and the last), the clock, and
-        with neighbours by cells each agent's own tick."""
+    def publish(self, k: int, t: float, view: TickView, done: bool, status_every: int, skipped: int = 0) -> None:
+        """Tick k out: the status (every ``status_every`` ticks and the last), the clock (with
+        the ``skipped`` ticks before it flown unpublished: :meth:`catch_up`), and with
+        neighbours by cells each agent's own tick."""
         slots, names, c = self.slots, self.names, self.counts
         now = time.monotonic()
         if not done:
             for a in view.live:
                 if a not in self.real:  # the relay publishes real drones' measurements at the capture rate
                     slots[a].sent_at[k] = now
-        if done or k % status_every == 0:
+        if done or k % status_every <= skipped:  # (a status tick among the skipped: this one's)
             wall = now - self.wall0
             self._put(
                 self.pub_status,
@@ -363,6 +377,7 @@ class World:
             items=view.items,
             solo=solo,
             frames=frames_wire([(j, f) for j, a in enumerate(view.measured) for f in view.frames.get(a, ())]),
+            skipped=skipped,
         )
         if self.cells:  # each agent's own tick: its measurement and the live agents near it
             expected = np.array([slots[a].alive and not slots[a].dead for a in names])
@@ -439,14 +454,7 @@ class World:
                 # the CPU from the agents computing them)
                 time.sleep(max(0.0, self.wall0 + (k + j / sub) * self.dt_ctrl - time.monotonic()))
                 self.poll_commands(k)
-            self.physics.deliver(k)  # (world.realism.comms: the commands that reach their drones by now)
-            poses = {}
-            for a in self.real:  # real drones: where motion capture saw them last
-                est = self.relay.latest(a) if self.relay else None
-                if est is not None:
-                    poses[a] = (est.x_w, est.q)
-            fs = view.ds if j == 0 and not self.real else None  # (`flown` order: every drone is flown)
-            self._contacts(self.physics.substep(fs, j == 0, poses, view.ds.v_w), k)
+            self._substep(k, j, view)
         if not self.lockstep:
             for a in view.live:
                 sl = self.slots[a]
@@ -454,6 +462,40 @@ class World:
                 self.counts.late += len(stale)
                 for kk in stale:
                     sl.sent_at.pop(kk)
+
+    def catch_up(self, k: int, view: TickView) -> int:
+        """Realtime with real drones: when the wall clock has left tick ``k`` more than
+        ``time.max_lag_s`` behind, fly ticks from k towards the wall clock's with the commands
+        held (physics, contacts, the real drones' poses), unpublished, at most ``max_lag_s``
+        of them at a time (a clock goes out between); their count (0: on time). The real
+        drones do not wait for the world: a world that ran its backlog tick by tick would stay
+        behind them. So a real drone's measurement, stamped at most ``max_lag_s`` after the
+        physics (:meth:`_on_frame`), is at most about twice that after the newest clock."""
+        if self.lockstep or not self.real:
+            return 0
+        behind = int((time.monotonic() - self.wall0) / self.dt_ctrl) - k
+        lag_ticks = int(self.cfg.time.max_lag_s / self.dt_ctrl)
+        if behind <= lag_ticks:
+            return 0
+        n = min(behind, self.K - k, max(1, lag_ticks))
+        self.poll_commands(k)
+        for kk in range(k, k + n):
+            for j in range(self.cfg.time.substeps):
+                self._substep(kk, j, view)
+        self.counts.skipped += n
+        return n
+
+    def _substep(self, k: int, j: int, view: TickView) -> None:
+        """Substep j of tick k: the commands that reach their drones by now, the real drones
+        where motion capture saw them last, every simulated drone flown, the contacts."""
+        self.physics.deliver(k)  # (world.realism.comms)
+        poses = {}
+        for a in self.real:
+            est = self.relay.latest(a) if self.relay else None
+            if est is not None:
+                poses[a] = (est.x_w, est.q)
+        fs = view.ds if j == 0 and not self.real else None  # (`flown` order: every drone is flown)
+        self._contacts(self.physics.substep(fs, j == 0, poses, view.ds.v_w), k)
 
     def _contacts(self, pairs: set[tuple[str, str]], k: int) -> None:
         """Count and publish the contacts that began in this substep."""
@@ -471,15 +513,15 @@ class World:
     def loop(self) -> int:
         """Every tick, phase by phase, until done; returns the last tick."""
         status_every = max(1, round(self.cfg.time.control_hz / STATUS_HZ))
-        k = 0
-        for k in range(self.K + 1):
+        k, skipped = 0, 0
+        while k <= self.K:
             t_phase = time.perf_counter()
             t = k * self.dt_ctrl
             self.pace(k)
             self.poll_liveliness()
             view = self.measure(k, t)
             done = self.is_done(k, view)
-            self.publish(k, t, view, done, status_every)
+            self.publish(k, t, view, done, status_every, skipped)
             if done:
                 break
             t_pub_end = time.perf_counter()
@@ -489,7 +531,9 @@ class World:
             t_wait_end = time.perf_counter()
             self.phase["wait"] += t_wait_end - t_pub_end
             self.step_physics(k, view)
+            skipped = self.catch_up(k + 1, view)
             self.phase["physics"] += time.perf_counter() - t_wait_end
+            k += 1 + skipped
         return k
 
     def land_real_drones(self) -> None:
@@ -512,6 +556,7 @@ class World:
             "dead_agent_contacts": c.dead_contacts,
             "stalls": c.stalls,
             "late": c.late,
+            "skipped_ticks": c.skipped,
             "on_time_fraction": sum(s.on_time for s in slots) / (answered + c.late) if answered + c.late else None,
             "p99_tick_latency_ms": _ms(lat.get_quantile_value(0.99)),  # (within 1 %)
             "median_tick_latency_ms": _ms(lat.get_quantile_value(0.5)),
@@ -542,6 +587,7 @@ class World:
         self.running.set()
         try:
             k = self.loop()
+            self.ticks_over = True
             if self.relay is not None:
                 self.land_real_drones()
         finally:

@@ -94,6 +94,7 @@ class FakeWorld:
                     items=[],
                     solo=[],
                     frames=[],
+                    skipped=0,
                 )
             )
             if self.measuring.is_set():
@@ -292,6 +293,53 @@ def test_mixed_swarm_with_mock_motion_capture(tmp_path):
                 g = (s.roll_deg, s.pitch_deg, s.yawrate_dps, s.thrust)
                 assert any(np.allclose(g[:3], c[:3], atol=1e-4) and g[3] == c[3] for c in sent), (aid, g)
             assert len(st.poses) > 100
+    finally:
+        for st in stand.values():
+            st.close()
+
+
+def test_a_world_starved_of_cpu_keeps_the_wall_clock_and_hides_no_real_drone(tmp_path):
+    """configs/mixed_mock.yaml with the world starved for 3 s mid-run: stopped 75 ms of every
+    100 (SIGSTOP, SIGCONT), as a machine with more work than cores starves it. The real
+    drones do not wait, and their measurements are stamped on the wall clock. A world that
+    ran its backlog tick by tick fell further and further behind them: past 1 s (how far a
+    neighbour's state may be ahead of the newest tick an agent has heard of,
+    ``Plausible.ahead_s``) its simulated agents dropped the real drones' states as from ahead
+    of the run, and flew into them. Now the world flies the ticks it lacks unpublished once
+    it is ``time.max_lag_s`` behind, and goes on at the wall clock's tick: no state is
+    dropped, no clock is missing from the recording."""
+    from swarm.config import load
+    from swarm.net.statewire import AHEAD
+    from swarm.runs.launch import RunHandle
+
+    stand = {"real1": StandIn.start(), "real2": StandIn.start()}
+    try:
+        # the real agents keep their drones through the starved spell (motion capture comes late)
+        cfg = load(ROOT / "configs" / "mixed_mock.yaml", {"time": {"late_command": "brake"}})
+        agents = [
+            a.model_copy(
+                update={"crazyflie": a.crazyflie.model_copy(update={"uri": stand[a.id].uri, "mocap_timeout_s": 2.0})}
+            )
+            if a.id in stand
+            else a
+            for a in cfg.agents
+        ]
+        h = RunHandle.start(cfg.model_copy(update={"agents": agents}), tmp_path / "starved")
+        h.wait_sim_time(1.5)
+        for _ in range(30):  # the starvation itself (what is tested): 3 s at a quarter of the wall clock
+            h.kill("world", signal.SIGSTOP)
+            time.sleep(0.075)
+            h.kill("world", signal.SIGCONT)
+            time.sleep(0.025)
+        reason = h.wait()
+        m = __import__("json").loads((h.out / "metrics.json").read_text())
+        assert reason == "completed", (reason, m.get("exit_codes"))
+        ahead = {name: o for name, o in m["offenders"].items() if AHEAD in o["reasons"]}
+        assert ahead == {}, ahead
+        assert m["skipped_ticks"] >= 100, m["skipped_ticks"]  # of the about 225 ticks it lacked
+        assert m["recording_gaps"] == [] and m["complete"], m["recording_gaps"]
+        assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07, m["collision_pairs"]
+        assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
     finally:
         for st in stand.values():
             st.close()

@@ -79,3 +79,17 @@ def test_what_each_process_says_it_sent_is_read_from_its_summary_line(tmp_path: 
     assert sorted(said) == ["agent-cf1", "router", "world"]
     assert sent_counts(said) == {"world/clock": 737, "cf1/command": 700}
     assert summaries(tmp_path / "nowhere") == {}
+
+
+def test_ticks_a_clock_says_were_flown_unpublished_are_no_gap():
+    """A realtime world behind its real drones flies ticks unpublished (swarm.world.main
+    World.catch_up): the next clock says how many, and the world's summary counts them."""
+    led = Ledger(1)
+    _clocks(led, [0, 1, 2])
+    led.see("clock", "world", 1003, 9, skipped=6)  # ticks 3 to 8 flown unpublished
+    _clocks(led, [10, 11])
+    led.see("clock", "world", 1013, 13)  # 12 lost
+    said = {"world": {"ticks": 13, "skipped_ticks": 6}}
+    assert led.gaps(sent_counts(said), 13) == [Gap("world/clock", 12, 12, 1)]
+    led.see("clock", "world", 1012, 12)  # late: it fills its hole
+    assert led.gaps(sent_counts(said), 13) == []

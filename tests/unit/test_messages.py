@@ -81,6 +81,7 @@ def _clock(**over):
         items=[{"id": "s", "shape": "sphere", "c": [1, 2, 3], "cd": [0, 0, 0], "r": 0.5, "a": [0, 0, 0]}],
         solo=[],
         frames=[],
+        skipped=0,
     )
     return encode("clock", "r", "world", 4, 0.5, 50, **{**body, **over})
 

@@ -402,6 +402,8 @@ class FirmwareDrone:
         elif port == 7 and ch == 0 and data[:1] == b"\x00":  # crtp_commander_generic.c stopType
             self.setpoint_s = now
             self.write({"k": "pkt", "t": now, "what": "stop"})
+        elif port == 6 and ch == 1 and data[:1] == b"\x08" and len(data) == 29:  # ... EXT_POSE: x, y, z, quaternion
+            self.write({"k": "pose", "t": now, "x": struct.unpack("<fff", data[1:13])})
         elif port == 6 and ch == 1 and data[:1] == b"\x03":  # crtp_localization_service.c EMERGENCY_STOP
             self.write({"k": "pkt", "t": now, "what": "estop"})
         elif port == PORT_SIM and ch == 1 and data[:1] == b"\x03":  # the newer supervisor port's form
@@ -558,7 +560,8 @@ class FirmwareTrace:
     supervisor bits, the setpoint it flies: roll, pitch [deg], yaw rate [deg/s], thrust
     command; its position estimate [m]); ``sp_*``: every RPYT setpoint relayed (roll [deg],
     pitch [deg, as on the wire], yaw rate [deg/s, as on the wire], thrust command);
-    ``packets``: (t, what) of stops, emergency stops and the notify-stop; ``end``: the
+    ``pose_*``: every external pose relayed (position [m]); ``packets``: (t, what) of stops,
+    emergency stops and the notify-stop; ``end``: the
     summary the relay wrote last (counters, CPU time, final state, transitions)."""
 
     body_t: np.ndarray
@@ -573,6 +576,8 @@ class FirmwareTrace:
     fw_estimate: np.ndarray  # (n, 3) m
     sp_t: np.ndarray
     sp: np.ndarray  # (n, 4)
+    pose_t: np.ndarray
+    pose_x: np.ndarray  # (n, 3) m
     packets: list[tuple[float, str]]
     end: dict[str, Any]
 
@@ -595,7 +600,7 @@ def _records(path: Path) -> Iterator[dict[str, Any]]:
 
 def read_trace(path: Path) -> FirmwareTrace:
     """Read ``DIR/NAME.jsonl`` as the relay wrote it."""
-    body, fw, sp, pk, end = [], [], [], [], {}
+    body, fw, sp, pose, pk, end = [], [], [], [], [], {}
     for r in _records(path):
         kind = r.get("k")
         if kind == "body":
@@ -604,6 +609,8 @@ def read_trace(path: Path) -> FirmwareTrace:
             fw.append(r)
         elif kind == "sp":
             sp.append(r)
+        elif kind == "pose":
+            pose.append(r)
         elif kind == "pkt":
             pk.append((r["t"], r["what"]))
         elif kind == "end":
@@ -627,6 +634,8 @@ def read_trace(path: Path) -> FirmwareTrace:
         fw_estimate=np.array([[r.get(f"stateEstimateZ.{n}", nan) / 1000.0 for n in "xyz"] for r in fw]).reshape(-1, 3),
         sp_t=np.array([r["t"] for r in sp]),
         sp=np.array([[r["roll"], r["pitch"], r["yaw"], r["thrust"]] for r in sp]).reshape(-1, 4),
+        pose_t=np.array([r["t"] for r in pose]),
+        pose_x=np.array([r["x"] for r in pose]).reshape(-1, 3),
         packets=pk,
         end=end,
     )

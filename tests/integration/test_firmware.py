@@ -134,13 +134,18 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         exact = sum(any(all(abs(a - b) <= 1e-4 * max(1.0, abs(b)) for a, b in zip(v, s, strict=True))
                         for s in sent) for v in logged[::5])  # fmt: skip
         assert exact >= 0.9 * len(logged[::5]), (exact, len(logged[::5]))
-        # its estimate (Kalman, fed the motion capture as an external pose) follows the body while
-        # the agent flies it (from its first thrust to its last: after that no pose comes)
-        body_at = np.column_stack([np.interp(tr.fw_t, tr.body_t, x[:, i]) for i in range(3)])
+        # its estimate (Kalman, fed the motion capture as an external pose) follows the poses it
+        # is fed while the agent flies it (from its first thrust and pose to its last thrust:
+        # after that no pose comes), and they follow the body. Each against the newest pose
+        # relayed by then: the poses reach it through the world, the agent and the guard, late
+        # by what a busy machine makes of that chain.
         thrust_t = tr.sp_t[tr.sp[:, 3] > 0]
-        posed = (tr.fw_t > thrust_t[0]) & (tr.fw_t < thrust_t[-1])
-        err = np.linalg.norm(tr.fw_estimate[posed] - body_at[posed], axis=1)
+        posed = (tr.fw_t > max(thrust_t[0], tr.pose_t[0]) + 0.1) & (tr.fw_t < thrust_t[-1])
+        fed = tr.pose_x[np.searchsorted(tr.pose_t, tr.fw_t[posed]) - 1]
+        err = np.linalg.norm(tr.fw_estimate[posed] - fed, axis=1)
         assert np.median(err) < 0.005 and np.percentile(err, 95) < 0.02, (np.median(err), np.percentile(err, 95))
+        at_pose = np.column_stack([np.interp(tr.pose_t, tr.body_t, x[:, i]) for i in range(3)])
+        assert np.median(np.linalg.norm(tr.pose_x - at_pose, axis=1)) < 0.01  # the poses are the body's
         # the supervisor's view: ready, flying, and ready again (landed), never locked
         states = [s for _, s in tr.transitions()]
         assert states[-1] == "ready" and "flying" in states and "locked" not in states, states

@@ -314,8 +314,9 @@ def test_a_world_starved_of_cpu_keeps_the_wall_clock_and_hides_no_real_drone(tmp
 
     stand = {"real1": StandIn.start(), "real2": StandIn.start()}
     try:
-        # the real agents keep their drones through the starved spell (motion capture comes late)
-        cfg = load(ROOT / "configs" / "mixed_mock.yaml", {"time": {"late_command": "brake"}})
+        # the real agents keep their drones through the starved spell (motion capture comes late);
+        # by 8 s the simulated drones have passed them (real2 near 2 s, real1 near 4.5 s)
+        cfg = load(ROOT / "configs" / "mixed_mock.yaml", {"duration_s": 8.0, "time": {"late_command": "brake"}})
         agents = [
             a.model_copy(
                 update={"crazyflie": a.crazyflie.model_copy(update={"uri": stand[a.id].uri, "mocap_timeout_s": 2.0})}
@@ -339,7 +340,8 @@ def test_a_world_starved_of_cpu_keeps_the_wall_clock_and_hides_no_real_drone(tmp
         assert m["skipped_ticks"] >= 100, m["skipped_ticks"]  # of the about 225 ticks it lacked
         assert m["recording_gaps"] == [] and m["complete"], m["recording_gaps"]
         assert m["collisions"] == 0 and m["min_separation_m"] >= 2 * 0.07, m["collision_pairs"]
-        assert m["agents"]["sim1"]["reached_goal"] and m["agents"]["sim2"]["reached_goal"]
+        for sim in ("sim1", "sim2"):
+            assert m["agents"][sim]["max_path_deviation_m"] > 0.1  # it went around the real drone
     finally:
         for st in stand.values():
             st.close()

@@ -74,9 +74,13 @@ class BundleRelay:
             b.set_live(name, up)
 
     def _take(self, sample: Any) -> None:
-        data = tp.payload(sample)
+        self.take(str(sample.key_expr), tp.payload(sample))
+
+    def take(self, key: str, data: bytes) -> None:
+        """One state message's bytes, as heard on ``key``: checked, and taken or dropped and
+        counted."""
         self.counter.rx_bytes += len(data)
-        sender = self.state_keys.get(str(sample.key_expr))
+        sender = self.state_keys.get(key)
         if sender is None:
             self.counter.drop("state: on no agent's key")
             return

@@ -93,15 +93,16 @@ class Ledger:
         s = self._stream(kind, src)
         if s is None:
             return
-        n = k - skipped if s.by_tick else seq
+        n = k if s.by_tick else seq
+        first = n - skipped  # (a clock stands for its skipped ticks too)
         s.seen += 1
-        if s.last is not None and n > s.last + s.step:
-            missing = (n - s.last) // s.step - 1
-            s.gaps.append(Gap(f"{src}/{kind}", s.last_k + 1, max(s.last_k + 1, k - 1), missing))
+        if s.last is not None and first > s.last + s.step:
+            missing = (first - s.last) // s.step - 1
+            s.gaps.append(Gap(f"{src}/{kind}", s.last_k + 1, max(s.last_k + 1, k - skipped - 1), missing))
         elif s.last is not None and n <= s.last:  # late: it fills part of a hole (not on one link)
             self._fill(s, n, k)
             return
-        s.last, s.last_k = (k if s.by_tick else n), k
+        s.last, s.last_k = n, k
 
     @staticmethod
     def _fill(s: _Stream, n: int, k: int) -> None:

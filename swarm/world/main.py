@@ -122,6 +122,7 @@ class World:
         self.dt_ctrl = 1.0 / cfg.time.control_hz
         self.K = round(cfg.duration_s * cfg.time.control_hz)  # the last tick
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
+        self.lag_ticks = int(cfg.time.max_lag_s * cfg.time.control_hz)  # realtime with real drones: catch_up
         self.counts = RunCounts()
         self.counter = tp.Counter()
         self.seq = 0
@@ -474,10 +475,9 @@ class World:
         if self.lockstep or not self.real:
             return 0
         behind = int((time.monotonic() - self.wall0) / self.dt_ctrl) - k
-        lag_ticks = int(self.cfg.time.max_lag_s / self.dt_ctrl)
-        if behind <= lag_ticks:
+        if behind <= self.lag_ticks:
             return 0
-        n = min(behind, self.K - k, max(1, lag_ticks))
+        n = min(behind, self.K - k, max(1, self.lag_ticks))
         self.poll_commands(k)
         for kk in range(k, k + n):
             for j in range(self.cfg.time.substeps):

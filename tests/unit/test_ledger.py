@@ -93,3 +93,7 @@ def test_ticks_a_clock_says_were_flown_unpublished_are_no_gap():
     assert led.gaps(sent_counts(said), 13) == [Gap("world/clock", 12, 12, 1)]
     led.see("clock", "world", 1012, 12)  # late: it fills its hole
     assert led.gaps(sent_counts(said), 13) == []
+    led = Ledger(1)
+    _clocks(led, [0, 1, 2])
+    led.see("clock", "world", 1004, 10, skipped=6)  # tick 3 lost, 4 to 9 flown unpublished
+    assert led.gaps() == [Gap("world/clock", 3, 3, 1)]

@@ -16,7 +16,17 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   its only peer: it binds 127.0.0.1:PORT for cflib's UDP driver (``udp://127.0.0.1:PORT``)
   and relays cflib's packets to the firmware and the firmware's answers back. The
   firmware's link queue holds 5 packets (``socketlink.c``): at most :data:`FORWARD_PER_TICK`
-  client packets go in per millisecond, behind the sensor packet. A lone null packet
+  client packets go in per millisecond, behind the sensor packet. On a busy machine the
+  firmware still leaves a request unanswered now and then (one in several hundred on a 2-core
+  machine running other tests' swarms, with no drop on either socket: lost inside the
+  firmware, whose link queue drops what comes while it is full), and cflib asks nothing again
+  over UDP (``udpdriver.py``: ``needs_resending`` False): 1 to 7 full connections in 25
+  stalled for good so, none in 50 once the relay asked again. The relay therefore asks again as cflib does over a radio (``Crazyflie.send_packet``: after
+  :data:`RESEND_AFTER_S` without an answer): a client packet on a port and channel the
+  firmware answers (:data:`ANSWERED`) is sent again, up to :data:`RESENDS` times, until the
+  firmware sends something on that port and channel. The firmware and cflib take a repeated
+  request as they do over a radio (cflib ignores an answer it no longer waits for; a log
+  block created twice is "already exists", which ``log.py`` takes as created). A lone null packet
   (``0xFF``, cflib's UDP scan probe) from an address that has sent nothing else is
   answered here once the drone is ready; everything else goes to the firmware, which
   answers what it is asked (a link echo, a log request) and nothing more.
@@ -81,6 +91,11 @@ FORWARD_PER_TICK = 1  # client and monitor packets into the firmware per millise
 # its link queue holds 5, and the task that fills it and the one that empties it share a priority (config.h), so
 # they take turns at the 1 ms tick
 OUTBOX_MAX = 400  # queued client packets beyond this are dropped (counted)
+# (port, channel) the firmware answers (crtp.h ports; param.c, crtp_mem.c, log.c, platformservice.c, crtpservice.c)
+ANSWERED = frozenset({(2, 0), (2, 1), (2, 2), (2, 3), (4, 0), (4, 1), (4, 2), (5, 0), (5, 1), (13, 0), (13, 1),
+                      (15, 0), (15, 1)})  # fmt: skip
+RESEND_AFTER_S = 0.2  # cflib crazyflie/__init__.py send_packet(timeout=0.2)
+RESENDS = 5
 MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
 MONITOR_PERIOD_10MS = 1  # 100 Hz
 HANDED_BACK_SILENT_S = 3.0
@@ -244,6 +259,8 @@ class Counters:
     missed_packets: int = 0  # ... and the sensor packets not sent for it
     client_in: int = 0  # packets from the client
     forwarded: int = 0  # client packets into the firmware
+    resent: int = 0  # requests sent again for want of an answer (RESEND_AFTER_S) ...
+    unanswered: int = 0  # ... and given up after RESENDS
     outbox_dropped: int = 0
     to_client: int = 0  # firmware packets relayed to the client
     probes_answered: int = 0
@@ -270,7 +287,8 @@ class FirmwareDrone:
     calibrated: bool = False  # the firmware found its gyro bias
     ready: bool = False  # calibrated and the monitor logging (then it stays ready)
     monitor: LogMonitor = field(default_factory=LogMonitor)
-    outbox: deque[bytes] = field(default_factory=deque)
+    outbox: deque[tuple[bytes, bool]] = field(default_factory=deque)  # (packet, the client's: else the monitor's)
+    asked: dict[int, tuple[bytes, float, int]] = field(default_factory=dict)  # header: (request, sent s, resends left)
     counters: Counters = field(default_factory=Counters)
     talked_s: float = -math.inf  # monotonic time of the client's newest packet
     setpoint_s: float = -math.inf  # ... and of its newest setpoint (RPYT or the stop)
@@ -367,6 +385,7 @@ class FirmwareDrone:
             if ch == LOG_DATA_CH:
                 self._sample(now, self.monitor.decode(data))
             return
+        self.asked.pop(pk[0] | 0x0C, None)  # (its answer: the link bits set, as a client sends them)
         if self.client is not None:
             try:
                 self.cl_sock.sendto(pk, self.client)
@@ -387,7 +406,7 @@ class FirmwareDrone:
         if len(self.outbox) >= OUTBOX_MAX:
             self.counters.outbox_dropped += 1
             return
-        self.outbox.append(pk)
+        self.outbox.append((pk, True))
 
     def _inspect(self, pk: bytes, now: float) -> None:
         """Record the client's setpoints and stops; watch for the end of the flight."""
@@ -445,11 +464,26 @@ class FirmwareDrone:
         if not self.monitor.running:  # after a client reset the firmware's logging: behind its packets
             req = self.monitor.request(now)
             if req is not None:
-                self.outbox.append(req)
+                self.outbox.append((req, False))
+        for head, (pk, sent_s, left) in list(self.asked.items()):
+            if now - sent_s < RESEND_AFTER_S:
+                continue
+            if left == 0:
+                del self.asked[head]
+                self.counters.unanswered += 1
+                continue
+            self.asked[head] = (pk, math.inf, left - 1)  # (its clock starts again when it goes)
+            self.outbox.appendleft((pk, True))
+            self.counters.resent += 1
         while room > 0 and self.outbox:
-            self._fw_send(self.outbox.popleft())
+            pk, clients = self.outbox.popleft()
+            self._fw_send(pk)
             self.counters.forwarded += 1
             room -= 1
+            if clients and (pk[0] >> 4, pk[0] & 0x03) in ANSWERED:
+                head = pk[0] | 0x0C
+                old = self.asked.get(head)
+                self.asked[head] = (pk, now, old[2] if old is not None and old[0] == pk else RESENDS)
 
     def body_record(self, now: float) -> None:
         b = self.body

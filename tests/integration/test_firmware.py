@@ -237,6 +237,8 @@ def _wait_ready(relay: subprocess.Popen[bytes], timeout_s: float = 60.0) -> floa
 
 
 def _stop(relay: subprocess.Popen[bytes]) -> None:
+    if relay.poll() is not None:
+        return
     os.killpg(relay.pid, signal.SIGTERM)
     try:
         relay.wait(10)
@@ -251,7 +253,7 @@ def firmware_drone(cf2, tmp_path):
     relay = _relay(cf2, tmp_path / "firmware")
     try:
         _wait_ready(relay)
-        yield f"udp://127.0.0.1:{PORT}", tmp_path
+        yield f"udp://127.0.0.1:{PORT}", tmp_path, relay
     finally:
         _stop(relay)
 
@@ -275,8 +277,9 @@ def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_dron
     """The CLI against a protocol-7 firmware (2024): its supervisor's bits come from its log
     (supervisor.info), the check reads back what it decoded (ctrltarget, stabilizer.thrust) and
     leaves it landed, not locked; cflib's full connection reads the simulated motors' constants
-    from its parameters; the older emergency stop locks it."""
-    uri, tmp = firmware_drone
+    from its parameters (through the relay, which asks again what the firmware left unanswered:
+    over UDP cflib does not); the older emergency stop locks it."""
+    uri, tmp, relay = firmware_drone
     env = dict(os.environ, XDG_CACHE_HOME=str(tmp / "cache"))  # the log table's cache: this test's own
     assert uri in swarm_cf("scan", env=env).stdout.split()
     res = swarm_cf("status", uri, env=env)
@@ -307,22 +310,22 @@ def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_dron
         cf.close_link()
     states = swarm_cf("status", uri, env=env).stdout.strip().split(", ")
     assert "Is locked" in states, states
+    _stop(relay)
+    end = read_trace(tmp / "firmware" / "cfA.jsonl").end
+    assert end["unanswered"] == 0, end
 
 
-def _cflib_connect(uri: str, cache: Path, timeout_s: float = 20.0) -> Any:
-    """cflib's full connection (log and parameter tables, every parameter's value). Over UDP
-    cflib asks nothing again (udpdriver.py: needs_resending False), so one lost answer stalls a
-    connection for good: a second try follows a first that is not through in ``timeout_s``."""
+def _cflib_connect(uri: str, cache: Path, timeout_s: float = 30.0) -> Any:
+    """cflib's full connection (log and parameter tables, every parameter's value)."""
     import cflib.crtp
     from cflib.crazyflie import Crazyflie
 
     cflib.crtp.init_drivers()
-    for _ in range(2):
-        cf = Crazyflie(rw_cache=str(cache))
-        done = threading.Event()
-        cf.fully_connected.add_callback(lambda _uri, done=done: done.set())
-        cf.open_link(uri)
-        if done.wait(timeout_s):
-            return cf
+    cf = Crazyflie(rw_cache=str(cache))
+    done = threading.Event()
+    cf.fully_connected.add_callback(lambda _uri: done.set())
+    cf.open_link(uri)
+    if not done.wait(timeout_s):
         cf.close_link()
-    raise AssertionError(f"cflib did not connect to {uri} in two tries of {timeout_s} s")
+        raise AssertionError(f"cflib did not connect to {uri} in {timeout_s} s")
+    return cf

@@ -196,3 +196,68 @@ def test_the_relay_outlives_a_client_that_falls_silent_mid_flight():
     finally:
         d.fw_sock.close()
         d.cl_sock.close()
+
+
+def test_the_relay_asks_again_what_the_firmware_left_unanswered():
+    """The firmware's link queue drops what comes while it is full, and cflib asks nothing again
+    over UDP: the relay sends a request (a port and channel the firmware answers) again after
+    RESEND_AFTER_S without an answer on that port and channel, up to RESENDS times, and counts one
+    given up. An answered request, a setpoint and the relay's own log requests are not sent again.
+    Real sockets: the test holds the firmware's end and the client's."""
+    import socket
+
+    from swarm.world.sitl_fw import RESEND_AFTER_S, RESENDS, FirmwareDrone
+
+    d = FirmwareDrone("real1", 0, [0.0, 0.0, 0.0], 0.0, cf2=Path("/nonexistent"))
+    fw, client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        fw.bind(("127.0.0.1", 0))
+        fw.settimeout(1.0)
+        d.fw_addr, d.ready, d.monitor.stage = fw.getsockname(), True, "running"
+        client.connect(d.cl_sock.getsockname())
+        client.settimeout(1.0)
+        now = 10.0
+
+        def run_for(seconds: float) -> list[bytes]:
+            """The relay's 1 kHz loop for ``seconds`` of its clock; what reached the firmware but
+            the sensor packets."""
+            nonlocal now
+            got = []
+            for _ in range(round(seconds * 1000)):
+                now += 0.001
+                d.poll(now)
+                d.tick(now, 1, 0.001)
+                fw.setblocking(False)
+                while True:
+                    try:
+                        pk = fw.recv(64)
+                    except BlockingIOError:
+                        break
+                    if pk[0] >> 4 != 9:  # (the sensor packet)
+                        got.append(pk)
+                fw.setblocking(True)
+            return got
+
+        toc_item = bytes([0x5C, 2, 0xE7, 0])  # log TOC (port 5, channel 0): item 231
+        setpoint = bytes([0x3C]) + bytes(14)  # an RPYT setpoint (port 3): never answered
+        client.send(toc_item)
+        client.send(setpoint)
+        assert run_for(0.01) == [toc_item, setpoint]  # as they came
+        assert run_for(RESEND_AFTER_S) == [toc_item]  # no answer: asked again, the setpoint not
+        fw.sendto(bytes([0x50, 2, 0xE7, 0, 7]) + b"kalman\0rtFinal\0", d.fw_sock.getsockname())
+        assert run_for(3 * RESEND_AFTER_S) == []  # answered: never again
+        assert client.recv(64)[:4] == bytes([0x50, 2, 0xE7, 0])  # and the client has its answer
+        assert d.counters.resent == 1 and d.counters.unanswered == 0
+
+        version = bytes([0xDD, 0])  # the platform's protocol version (port 13, channel 1): never answered
+        client.send(version)
+        got = run_for((RESENDS + 2) * (RESEND_AFTER_S + 0.01))
+        assert got == [version] * (1 + RESENDS)
+        assert d.counters.resent == 1 + RESENDS and d.counters.unanswered == 1
+
+        d.monitor.restart_block()  # the client reset the firmware's logging: the relay's own request
+        mine = run_for(3 * RESEND_AFTER_S)
+        assert mine and all(pk[0] >> 4 == 5 for pk in mine) and d.asked == {}  # (the monitor asks on its own)
+    finally:
+        for s in (fw, client, d.fw_sock, d.cl_sock):
+            s.close()

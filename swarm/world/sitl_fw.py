@@ -21,13 +21,14 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   machine running other tests' swarms, with no drop on either socket: lost inside the
   firmware, whose link queue drops what comes while it is full), and cflib asks nothing again
   over UDP (``udpdriver.py``: ``needs_resending`` False): 1 to 7 full connections in 25
-  stalled for good so, none in 50 once the relay asked again. The relay therefore asks again as cflib does over a radio (``Crazyflie.send_packet``: after
+  stalled for good so, none in 50 once the relay asked again. The relay therefore asks
+  again as cflib does over a radio (``Crazyflie.send_packet``: after
   :data:`RESEND_AFTER_S` without an answer): a client packet on a port and channel the
   firmware answers (:data:`ANSWERED`) is sent again, up to :data:`RESENDS` times, until the
   firmware sends something on that port and channel. The firmware and cflib take a repeated
   request as they do over a radio (cflib ignores an answer it no longer waits for; a log
-  block created twice is "already exists", which ``log.py`` takes as created). A lone null packet
-  (``0xFF``, cflib's UDP scan probe) from an address that has sent nothing else is
+  block created twice is "already exists", which ``log.py`` takes as created). A lone null
+  packet (``0xFF``, cflib's UDP scan probe) from an address that has sent nothing else is
   answered here once the drone is ready; everything else goes to the firmware, which
   answers what it is asked (a link echo, a log request) and nothing more.
 * **Its body.** The firmware sends four motor PWM values on CRTP port 9 every stabilizer

@@ -19,7 +19,7 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   client packets go in per millisecond, behind the sensor packet. On a busy machine the
   firmware still leaves a request unanswered now and then (one in several hundred on a 2-core
   machine running other tests' swarms, with no drop on either socket: lost inside the
-  firmware, whose link queue drops what comes while it is full), and cflib asks nothing again
+  firmware, where exactly was not found), and cflib asks nothing again
   over UDP (``udpdriver.py``: ``needs_resending`` False): 1 to 7 full connections in 25
   stalled for good so, none in 50 once the relay asked again. The relay therefore asks
   again as cflib does over a radio (``Crazyflie.send_packet``: after

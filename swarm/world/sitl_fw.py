@@ -288,7 +288,7 @@ class FirmwareDrone:
     calibrated: bool = False  # the firmware found its gyro bias
     ready: bool = False  # calibrated and the monitor logging (then it stays ready)
     monitor: LogMonitor = field(default_factory=LogMonitor)
-    outbox: deque[tuple[bytes, bool]] = field(default_factory=deque)  # (packet, the client's: else the monitor's)
+    outbox: deque[tuple[bytes, bool]] = field(default_factory=deque)  # (packet, a new request of the client's)
     asked: dict[int, tuple[bytes, float, int]] = field(default_factory=dict)  # header: (request, sent s, resends left)
     counters: Counters = field(default_factory=Counters)
     talked_s: float = -math.inf  # monotonic time of the client's newest packet
@@ -407,7 +407,7 @@ class FirmwareDrone:
         if len(self.outbox) >= OUTBOX_MAX:
             self.counters.outbox_dropped += 1
             return
-        self.outbox.append((pk, True))
+        self.outbox.append((pk, (pk[0] >> 4, pk[0] & 0x03) in ANSWERED))
 
     def _inspect(self, pk: bytes, now: float) -> None:
         """Record the client's setpoints and stops; watch for the end of the flight."""
@@ -473,18 +473,16 @@ class FirmwareDrone:
                 del self.asked[head]
                 self.counters.unanswered += 1
                 continue
-            self.asked[head] = (pk, math.inf, left - 1)  # (its clock starts again when it goes)
-            self.outbox.appendleft((pk, True))
+            self.asked[head] = (pk, now, left - 1)
+            self.outbox.appendleft((pk, False))  # (first: it goes now)
             self.counters.resent += 1
         while room > 0 and self.outbox:
-            pk, clients = self.outbox.popleft()
+            pk, request = self.outbox.popleft()
             self._fw_send(pk)
             self.counters.forwarded += 1
             room -= 1
-            if clients and (pk[0] >> 4, pk[0] & 0x03) in ANSWERED:
-                head = pk[0] | 0x0C
-                old = self.asked.get(head)
-                self.asked[head] = (pk, now, old[2] if old is not None and old[0] == pk else RESENDS)
+            if request:
+                self.asked[pk[0] | 0x0C] = (pk, now, RESENDS)
 
     def body_record(self, now: float) -> None:
         b = self.body

@@ -302,11 +302,10 @@ def test_a_world_starved_of_cpu_keeps_the_wall_clock_and_hides_no_real_drone(tmp
     """configs/mixed_mock.yaml with the world starved mid-run (from 1.5 s to 4.5 s of its own
     time): seven processes spin on the world's CPU, as a machine with more work than cores
     starves it. The real drones do not wait, and their measurements are stamped on the wall
-    clock. A world that
-    ran its backlog tick by tick fell further and further behind them: past 1 s (how far a
-    neighbour's state may be ahead of the newest tick an agent has heard of,
-    ``Plausible.ahead_s``) its simulated agents dropped the real drones' states as from ahead
-    of the run, and flew into them. Now the world flies the ticks it lacks unpublished once
+    clock. A world that ran its backlog tick by tick fell further and further behind them:
+    past 1 s (how far a neighbour's state may be ahead of the newest tick an agent has heard
+    of, ``Plausible.ahead_s``) its simulated agents dropped the real drones' states as from
+    ahead of the run, and flew into them. Now the world flies the ticks it lacks unpublished once
     it is ``time.max_lag_s`` behind, and goes on at the wall clock's tick: no state is
     dropped, no clock is missing from the recording."""
     from swarm.config import load

@@ -137,6 +137,35 @@ class RealDrone:
         self.link.close()
 
 
+def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> AgentStep:
+    return AgentStep.of_agent(
+        cfg.agent(agent_id), still, cfg.goal_tolerance_m,
+        realism=cfg.world.realism, control_hz=cfg.time.control_hz,
+    )  # fmt: skip
+
+
+def _warm_up(step: AgentStep, source: Any, agent_id: str, start_w: FloatArray) -> None:
+    """The first tick loads numba's compiled code and pays every other first-call cost
+    (about a second): pay it now, before the world can see this agent, so that no real
+    tick does."""
+    step.warm_up(start_w)
+    encode_command("", agent_id, 0, 0.0, 0, CommandBody.zero(step.level.value))
+    warm_up()
+    roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.ones(1, dtype=bool))
+    if isinstance(source, BundleSource):
+        source.warm_up()
+
+
+def warm_kernels(cfg: ScenarioConfig) -> None:
+    """An agent's warm-up for the first simulated agent of ``cfg``, in this process and with
+    no session: the fork server (swarm.runs.forkserver) does it once, so that the agents it
+    forks find every compiled kernel loaded (or compiled, on a cold cache)."""
+    sim = next((a.id for a in cfg.agents if a.backend == "sim"), None)
+    if sim is not None:
+        step = _step_of(cfg, sim, StaticObstacles.of(list(cfg.obstacles)))
+        _warm_up(step, pick(cfg, sim, "warm-up", tp.Counter()), sim, np.asarray(cfg.agent(sim).start))
+
+
 class AgentProcess:
     """The agent process: one :class:`swarm.step.AgentStep` and its neighbour source
     (:func:`swarm.net.sources.pick`, chosen once) wired to a Zenoh session, and a real drone's
@@ -149,9 +178,7 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = AgentStep.of_agent(
-            me, self.still, cfg.goal_tolerance_m, realism=cfg.world.realism, control_hz=cfg.time.control_hz
-        )
+        self.step = _step_of(cfg, agent_id, self.still)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
         self.source = pick(cfg, agent_id, run, self.counter)
@@ -172,19 +199,8 @@ class AgentProcess:
         self.msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
         self.reported_gone: set[str] = set()
         self.acted_k = -1  # lockstep: the newest tick acted on
-        self._warm_up(np.asarray(me.start, float))
+        _warm_up(self.step, self.source, agent_id, np.asarray(me.start, float))
         self.plan = FlightPlan(me) if self.real else None  # a real drone's phases (after the warm-up)
-
-    def _warm_up(self, start_w: np.ndarray) -> None:
-        """The first tick loads numba's compiled code and pays every other first-call cost
-        (about a second): pay it now, before the world can see this agent, so that no real
-        tick does."""
-        self.step.warm_up(start_w)
-        encode_command("", self.id, 0, 0.0, 0, CommandBody.zero(self.step.level.value))
-        warm_up()
-        roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.ones(1, dtype=bool))
-        if isinstance(self.source, BundleSource):
-            self.source.warm_up()
 
     def open(self, conf: Any) -> None:
         """The session, its subscribers and publishers, and this agent's liveliness."""

@@ -28,6 +28,7 @@ from swarm.config import ScenarioConfig, dump
 from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode
+from swarm.runs import forkserver
 from swarm.runs.foxglove_layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
 
@@ -103,7 +104,7 @@ class _ListGroup:
         os.write(self.fd, b"%d\n" % os.getpid())
 
 
-def _signal_group(p: subprocess.Popen[bytes], sig: int) -> None:
+def _signal_group(p: subprocess.Popen[bytes] | forkserver.Child, sig: int) -> None:
     try:
         os.killpg(p.pid, sig)
     except (ProcessLookupError, PermissionError):
@@ -156,7 +157,7 @@ class RunHandle:
     def __init__(self, cfg: ScenarioConfig, out: Path, run: str, secrets: Path | None = None) -> None:
         self.cfg, self.out, self.run = cfg, out, run
         self.secrets = secrets  # the run's credentials (swarm.net.access), None with network.access_control off
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.procs: dict[str, subprocess.Popen[bytes] | forkserver.Child] = {}
         self.progress = Progress()
         self.reason: str | None = None
         self.result: dict[str, Any] = {}  # metrics.json as finish() wrote it
@@ -212,6 +213,8 @@ class RunHandle:
                 h._stop_all()
                 raise
         expect = ["--expect", "recorder"]
+        if "router" in h.procs:  # its liveliness comes once the relay listens to the agents' states
+            expect += ["--expect", "router"]
         if cfg.ros2.enabled:  # the ROS 2 bridge (swarm.ros2.bridge), and what a ROS 2 participant needs to join
             from swarm.ros2.participant import write_env
 
@@ -225,6 +228,9 @@ class RunHandle:
             ["-m", "swarm.cli", "world", *common, *expect, *(["--gui"] if gui else [])],
             cpus.get("world"),
         )
+        server = forkserver.shared()
+        if server is not None:  # the agents' kernels, loaded once in the server before it forks them
+            server.warm(cfg_path)
         try:
             for i, a in enumerate(cfg.agents):
                 if cancelled():  # stopped while the first agent came up: start no more
@@ -319,11 +325,17 @@ class RunHandle:
             sub.undeclare()
 
     def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
-        log = open(self.out / "logs" / f"{name}.log", "wb")  # owned by the child
+        """``python *args`` as the run's process ``name``: forked from this launcher's fork
+        server (swarm.runs.forkserver), or, where there is none, started from scratch."""
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         env.pop(CPU_ENV, None)
         if cpu is not None:
             env[CPU_ENV] = str(cpu)  # the child pins itself and its threads first thing (swarm.cli)
+        server = forkserver.shared()
+        if server is not None:
+            self.procs[name] = server.spawn(args, self.out / "logs" / f"{name}.log", env, self.out / GROUPS_FILE)
+            return
+        log = open(self.out / "logs" / f"{name}.log", "wb")  # owned by the child
         groups = os.open(self.out / GROUPS_FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:  # each child leads its group and lists it itself, before it runs (swarm.runs.reaper)
             self.procs[name] = subprocess.Popen(
@@ -343,7 +355,7 @@ class RunHandle:
         return self._session
 
     def exited(self) -> dict[str, int]:
-        return {n: p.returncode for n, p in self.procs.items() if p.poll() is not None}
+        return {n: code for n, p in self.procs.items() if (code := p.poll()) is not None}
 
     @property
     def wall_limit_s(self) -> float:

@@ -35,7 +35,9 @@ def _run(start_run, cfg, name):
     assert h.wait() == "completed"
     m = json.loads((h.out / "metrics.json").read_text())
     _, agents = summaries(h.out)
-    assert len(agents) == len(cfg.agents)
+    silent = {a.id for a in cfg.agents} - {a["id"] for a in agents}
+    tails = {i: (h.out / "logs" / f"agent-{i}.log").read_text()[-1500:] for i in sorted(silent)}
+    assert not silent, (m["exit_codes"], tails)  # each agent's log ends with its summary
     return h, m, {a["id"]: a for a in agents}
 
 

@@ -1,0 +1,42 @@
+"""A process for tests/integration/test_forkserver.py, run as ``python -m
+tests.integration.forkchild WHAT [ARG]``: it reports what it is and then does WHAT (exit with
+ARG, raise, or wait for a signal)."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+
+def main(argv: list[str]) -> int:
+    what = argv[0]
+    print(
+        "FACTS "
+        + json.dumps(
+            {
+                "argv": argv,
+                "name": __name__,
+                "pid": os.getpid(),
+                "pgid": os.getpgid(0),
+                "sid": os.getsid(0),
+                "env": dict(os.environ),
+                "stdin": sys.stdin.read(),
+                "threads": len(os.listdir("/proc/self/task")),
+            }
+        )
+    )
+    print("to stderr", file=sys.stderr)
+    if what == "exit":
+        return int(argv[1])
+    if what == "raise":
+        raise RuntimeError("raised on purpose")
+    if what == "wait":
+        while True:
+            time.sleep(0.05)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,126 @@
+"""The fork server (swarm.runs.forkserver) starts a run's processes as ``subprocess.Popen``
+would have, only without each importing numpy, numba and Zenoh again: held against Popen
+itself (the same module from scratch) for what a process sees of itself and how it ends."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from swarm.runs import forkserver
+from swarm.runs.launch import RunHandle
+from swarm.runs.reaper import GROUPS_FILE, process_groups
+
+from .conftest import scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+CHILD = ["-m", "tests.integration.forkchild"]
+
+
+@pytest.fixture
+def server():
+    s = forkserver.ForkServer.start()  # (its own: the tests below kill it)
+    yield s
+    assert s.proc.stdin is not None
+    s.proc.stdin.close()
+    s.proc.wait(10)
+
+
+def _facts(log: Path) -> dict:
+    line = next(ln for ln in log.read_text().splitlines() if ln.startswith("FACTS "))
+    return json.loads(line.removeprefix("FACTS "))
+
+
+def _popen(args: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[bytes]:
+    """What the launcher did before the fork server (and does with ``SWARM_FORKSERVER=0``)."""
+    with open(log, "wb") as f:
+        return subprocess.Popen(
+            [sys.executable, *args], stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            start_new_session=True, env=env, cwd=ROOT,
+        )  # fmt: skip
+
+
+def _wait_for_facts(log: Path) -> None:
+    deadline = time.monotonic() + 30
+    while not (log.exists() and "FACTS " in log.read_text()):
+        assert time.monotonic() < deadline, log
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize(
+    ("what", "sig"),
+    [(["exit", "0"], None), (["exit", "3"], None), (["raise"], None), (["wait"], signal.SIGTERM),
+     (["wait"], signal.SIGINT), (["wait"], signal.SIGKILL)],
+)  # fmt: skip
+def test_a_forked_process_sees_and_ends_as_one_started_from_scratch(server, tmp_path, what, sig):
+    env = {**{k: v for k, v in os.environ.items() if k != "HOME"}, "ONLY_THIS": "1", "PYTHONUNBUFFERED": "1"}
+    forked = server.spawn([*CHILD, *what], tmp_path / "forked.log", env, tmp_path / GROUPS_FILE)
+    scratch = _popen([*CHILD, *what], tmp_path / "scratch.log", env)
+    if sig is not None:
+        for log, pid in ((tmp_path / "forked.log", forked.pid), (tmp_path / "scratch.log", scratch.pid)):
+            _wait_for_facts(log)
+            os.killpg(pid, sig)  # (its own group, as the launcher signals it)
+    assert forked.wait(30) == scratch.wait(30)
+    f, s = _facts(tmp_path / "forked.log"), _facts(tmp_path / "scratch.log")
+    assert f["pid"] == f["pgid"] == f["sid"] == forked.pid  # a session and process group of its own
+    assert process_groups(tmp_path) == [forked.pid]  # listed for the reaper before it ran
+    for key in ("argv", "name", "env", "stdin", "threads"):
+        assert f[key] == s[key], key
+    assert f["env"]["ONLY_THIS"] == "1" and "HOME" not in f["env"]  # its own environment, not the server's
+    forked_log, scratch_log = ((tmp_path / n).read_text() for n in ("forked.log", "scratch.log"))
+    assert forked_log.count("to stderr") == scratch_log.count("to stderr") == 1
+    if what == ["raise"]:
+        assert "RuntimeError: raised on purpose" in forked_log
+
+
+def test_with_its_server_gone_a_childs_end_is_still_seen(server, tmp_path):
+    child = server.spawn([*CHILD, "wait"], tmp_path / "c.log", dict(os.environ), tmp_path / GROUPS_FILE)
+    _wait_for_facts(tmp_path / "c.log")
+    server.proc.kill()
+    server.proc.wait(10)
+    assert child.poll() is None  # it runs on
+    os.killpg(child.pid, signal.SIGKILL)
+    assert child.wait(10) == 1  # (its code went with the server: unknown)
+
+
+def test_a_changed_environment_gets_a_new_server_and_the_old_one_ends_its_children(tmp_path, monkeypatch):
+    old = forkserver.shared()
+    assert old is not None and forkserver.shared() is old
+    child = old.spawn([*CHILD, "wait"], tmp_path / "c.log", dict(os.environ), tmp_path / GROUPS_FILE)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # what a server's imports read
+    new = forkserver.shared()
+    assert new is not None and new is not old and old.alive()
+    _wait_for_facts(tmp_path / "c.log")
+    os.killpg(child.pid, signal.SIGTERM)
+    assert child.wait(10) == -signal.SIGTERM  # still reported by the server that forked it
+    monkeypatch.setenv(forkserver.DISABLE_ENV, "0")
+    assert forkserver.shared() is None
+
+
+def _parent(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+@pytest.mark.parametrize("forked", [True, False])
+def test_a_run_forks_its_processes_from_the_server_unless_told_not_to(tmp_path, monkeypatch, forked):
+    if not forked:
+        monkeypatch.setenv(forkserver.DISABLE_ENV, "0")
+    h = RunHandle.start(scenario("swap_2.yaml", duration_s=0.3), tmp_path / "run")
+    try:
+        parents = {name: _parent(p.pid) for name, p in h.procs.items()}
+        server = forkserver.shared()
+        expected = server.proc.pid if forked and server is not None else os.getpid()
+        assert set(parents.values()) == {expected}, parents
+        assert h.wait() == "completed"
+    finally:
+        if h.reason is None:
+            h.finish("test teardown")
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert set(m["exit_codes"].values()) == {0}, m["exit_codes"]

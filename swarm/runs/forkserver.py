@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import gc
 import importlib
 import io
 import json
@@ -146,6 +147,7 @@ def serve() -> int:
         importlib.import_module(name)
     sys.stdout.flush()
     ctypes.CDLL(None).fflush(None)  # (C's buffered stdout, or each child would write it again)
+    gc.freeze()  # what is here now, the children's collector never walks (nor copies, by touching it)
 
     def say(**msg: Any) -> None:
         os.write(proto_fd, json.dumps(msg).encode() + b"\n")
@@ -164,6 +166,7 @@ def serve() -> int:
                 msg = json.loads(line)
                 if "warm" in msg:
                     _warm(msg["warm"])
+                    gc.freeze()
                     continue
                 req = Request(**msg)
                 pid = os.fork()

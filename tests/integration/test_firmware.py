@@ -294,7 +294,9 @@ def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_dron
     lines = res.stdout.strip().splitlines()
     assert res.returncode == 0 and len(lines) == 4 and all(line.startswith("ok") for line in lines), res
     assert "pitch -10" in lines[1] and "yaw 30" in lines[2]
-    states = swarm_cf("status", uri, env=env).stdout.strip().split(", ")
+    res = swarm_cf("status", uri, env=env)
+    assert res.returncode == 0, res.stdout + res.stderr
+    states = res.stdout.strip().split(", ")
     assert "Can fly" in states and "Is locked" not in states, states  # the check let the supervisor land it
 
     from cflib.crazyflie.localization import Localization

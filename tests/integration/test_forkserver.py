@@ -24,8 +24,17 @@ ROOT = Path(__file__).resolve().parents[2]
 CHILD = ["-m", "tests.integration.forkchild"]
 
 
+@pytest.fixture(autouse=True)
+def _ctrl_c_as_a_terminal_gives_it():
+    """SIGINT at its default, as in a terminal: a shell's background job (a CI script's) starts
+    with it ignored, and every process started from it, forked or not, would ignore it too."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
 @pytest.fixture
-def server():
+def server(_ctrl_c_as_a_terminal_gives_it):
     s = forkserver.ForkServer.start()  # (its own: the tests below kill it)
     yield s
     assert s.proc.stdin is not None

@@ -1,13 +1,15 @@
 """A process for tests/integration/test_forkserver.py, run as ``python -m
-tests.integration.forkchild WHAT [ARG]``: it reports what it is and then does WHAT (exit with
-ARG, raise, or wait for a signal)."""
+tests.integration.forkchild WHAT [ARG]``: it reports what it is, says it is ready (its pid, in a
+datagram to the abstract Unix socket named by ``FORKCHILD_READY``), and then does WHAT (exit
+with ARG, raise, or wait for a signal)."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
+import socket
 import sys
-import time
 
 
 def main(argv: list[str]) -> int:
@@ -28,13 +30,16 @@ def main(argv: list[str]) -> int:
         )
     )
     print("to stderr", file=sys.stderr)
+    if "FORKCHILD_READY" in os.environ:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as ready:
+            ready.sendto(b"%d" % os.getpid(), "\0" + os.environ["FORKCHILD_READY"])
     if what == "exit":
         return int(argv[1])
     if what == "raise":
         raise RuntimeError("raised on purpose")
     if what == "wait":
         while True:
-            time.sleep(0.05)
+            signal.pause()
     return 0
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -56,11 +57,21 @@ def _popen(args: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen[
         )  # fmt: skip
 
 
-def _wait_for_facts(log: Path) -> None:
-    deadline = time.monotonic() + 30
-    while not (log.exists() and "FACTS " in log.read_text()):
-        assert time.monotonic() < deadline, log
-        time.sleep(0.02)
+@pytest.fixture
+def ready():
+    """An abstract Unix socket each child tells its pid once it runs (``FORKCHILD_READY``), and
+    the wait for those pids."""
+    name = f"c3swarm-forkchild-{os.getpid()}-{time.monotonic_ns()}"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        sock.bind("\0" + name)
+        sock.settimeout(30.0)
+
+        def wait(*pids: int) -> None:
+            heard: set[int] = set()
+            while not set(pids) <= heard:
+                heard.add(int(sock.recv(64)))  # (socket.timeout after 30 s: the child never ran)
+
+        yield name, wait
 
 
 @pytest.mark.parametrize(
@@ -68,13 +79,15 @@ def _wait_for_facts(log: Path) -> None:
     [(["exit", "0"], None), (["exit", "3"], None), (["raise"], None), (["wait"], signal.SIGTERM),
      (["wait"], signal.SIGINT), (["wait"], signal.SIGKILL)],
 )  # fmt: skip
-def test_a_forked_process_sees_and_ends_as_one_started_from_scratch(server, tmp_path, what, sig):
+def test_a_forked_process_sees_and_ends_as_one_started_from_scratch(server, ready, tmp_path, what, sig):
+    name, wait_ready = ready
     env = {**{k: v for k, v in os.environ.items() if k != "HOME"}, "ONLY_THIS": "1", "PYTHONUNBUFFERED": "1"}
+    env["FORKCHILD_READY"] = name
     forked = server.spawn([*CHILD, *what], tmp_path / "forked.log", env, tmp_path / GROUPS_FILE)
     scratch = _popen([*CHILD, *what], tmp_path / "scratch.log", env)
     if sig is not None:
-        for log, pid in ((tmp_path / "forked.log", forked.pid), (tmp_path / "scratch.log", scratch.pid)):
-            _wait_for_facts(log)
+        wait_ready(forked.pid, scratch.pid)
+        for pid in (forked.pid, scratch.pid):
             os.killpg(pid, sig)  # (its own group, as the launcher signals it)
     assert forked.wait(30) == scratch.wait(30)
     f, s = _facts(tmp_path / "forked.log"), _facts(tmp_path / "scratch.log")
@@ -89,9 +102,11 @@ def test_a_forked_process_sees_and_ends_as_one_started_from_scratch(server, tmp_
         assert "RuntimeError: raised on purpose" in forked_log
 
 
-def test_with_its_server_gone_a_childs_end_is_still_seen(server, tmp_path):
-    child = server.spawn([*CHILD, "wait"], tmp_path / "c.log", dict(os.environ), tmp_path / GROUPS_FILE)
-    _wait_for_facts(tmp_path / "c.log")
+def test_with_its_server_gone_a_childs_end_is_still_seen(server, ready, tmp_path):
+    name, wait_ready = ready
+    env = dict(os.environ, FORKCHILD_READY=name)
+    child = server.spawn([*CHILD, "wait"], tmp_path / "c.log", env, tmp_path / GROUPS_FILE)
+    wait_ready(child.pid)
     server.proc.kill()
     server.proc.wait(10)
     assert child.poll() is None  # it runs on
@@ -99,14 +114,16 @@ def test_with_its_server_gone_a_childs_end_is_still_seen(server, tmp_path):
     assert child.wait(10) == 1  # (its code went with the server: unknown)
 
 
-def test_a_changed_environment_gets_a_new_server_and_the_old_one_ends_its_children(tmp_path, monkeypatch):
+def test_a_changed_environment_gets_a_new_server_and_the_old_one_ends_its_children(ready, tmp_path, monkeypatch):
+    name, wait_ready = ready
     old = forkserver.shared()
     assert old is not None and forkserver.shared() is old
-    child = old.spawn([*CHILD, "wait"], tmp_path / "c.log", dict(os.environ), tmp_path / GROUPS_FILE)
+    env = dict(os.environ, FORKCHILD_READY=name)
+    child = old.spawn([*CHILD, "wait"], tmp_path / "c.log", env, tmp_path / GROUPS_FILE)
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # what a server's imports read
     new = forkserver.shared()
     assert new is not None and new is not old and old.alive()
-    _wait_for_facts(tmp_path / "c.log")
+    wait_ready(child.pid)
     os.killpg(child.pid, signal.SIGTERM)
     assert child.wait(10) == -signal.SIGTERM  # still reported by the server that forked it
     monkeypatch.setenv(forkserver.DISABLE_ENV, "0")

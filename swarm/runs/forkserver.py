@@ -42,7 +42,7 @@ import sys
 import time
 import traceback
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -258,21 +258,21 @@ class ForkServer:
             if block_s > 0:
                 time.sleep(block_s)
 
+    def _send(self, msg: dict[str, Any]) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps(msg).encode() + b"\n")
+        self.proc.stdin.flush()
+
     def warm(self, config: Path) -> None:
         """Have the server load the kernels the agents of the run ``config`` (its file) run,
         before it forks them (:func:`_warm`; processes asked for after wait for it)."""
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps({"warm": str(config)}).encode() + b"\n")
-        self.proc.stdin.flush()
+        self._send({"warm": str(config)})
 
     def spawn(self, args: list[str], log: Path, env: dict[str, str], groups: Path) -> Child:
         """``python *args`` (``args`` starts with ``-m MODULE``) forked from the server."""
         if args[:1] != ["-m"] or len(args) < 2:
             raise ValueError(f"the fork server runs modules (-m MODULE ...), not {args[:2]}")
-        req = Request(args[1], args[2:], str(log), env, str(groups))
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps(req.__dict__).encode() + b"\n")
-        self.proc.stdin.flush()
+        self._send(asdict(Request(args[1], args[2:], str(log), env, str(groups))))
         deadline = time.monotonic() + 300.0  # (the server's imports, the first time; a warm-up on a cold cache)
         while not self._started:
             if self.proc.poll() is not None or time.monotonic() > deadline:

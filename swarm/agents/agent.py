@@ -203,7 +203,7 @@ class AgentProcess:
         self.plan = FlightPlan(me) if self.real else None  # a real drone's phases (after the warm-up)
 
     def open(self, conf: Any) -> None:
-        """The session, its subscribers and publishers, and this agent's liveliness."""
+        """The session, its subscribers and publishers (not yet its liveliness: :meth:`run`)."""
         keys, cfg = self.keys, self.cfg
         self.session = session = tp.open_session(conf)
         self.meas_key, self.tick_key = keys.measurement(self.id), keys.tick(self.id)
@@ -229,9 +229,7 @@ class AgentProcess:
             self.source.follow(self.cell_subs, start_b[0])
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
         self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
-        self.token = tp.declare_liveliness(session, keys.alive(self.id))
         self.startup_cpu_s = time.process_time()
-        self.world_deadline = time.monotonic() + cfg.time.start_timeout_s  # the world must show up by then
 
     def retarget(self, x_w: FloatArray, goal_w: FloatArray) -> None:
         """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
@@ -485,12 +483,15 @@ class AgentProcess:
         }
 
     def run(self, conf: Any) -> int:
-        """Open, connect a real drone, fly until the run ends or a rule stops it, report; 2
-        when the drone was not reached."""
+        """Open, connect a real drone, declare this agent live, fly until the run ends or a
+        rule stops it, report; 2 when the drone was not reached. The world starts once every
+        agent is live, so an agent whose drone cannot be reached fails the run before its first
+        tick (``RunHandle.poll``), not in the middle of it."""
         self.open(conf)
         if not self.connect_drone():
-            self.token.undeclare()
             return 2
+        self.token = tp.declare_liveliness(self.session, self.keys.alive(self.id))
+        self.world_deadline = time.monotonic() + self.cfg.time.start_timeout_s  # the world must show up by then
         try:
             self.loop()
         finally:

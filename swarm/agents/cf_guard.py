@@ -49,7 +49,8 @@ It sends an emergency stop by itself in three cases:
   cflib's radio driver polls, which the radio acknowledges; on a link without
   acknowledgements (``udp://`` to a software-in-the-loop firmware, ``usb://``) a link
   echo (CRTP port 15 channel 0), which the firmware sends back (crtpservice.c ``linkEcho``):
-  a firmware answers nothing it is not asked. Set ``expect_replies`` false to turn this
+  a firmware answers nothing it is not asked (``swarm.world.sitl_fw`` answers it itself, as
+  the drone's radio chip would acknowledge it). Set ``expect_replies`` false to turn this
   check off.
 
 An emergency stop goes out both ways, three times 50 ms apart: the supervisor's command

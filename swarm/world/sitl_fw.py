@@ -29,8 +29,13 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   request as they do over a radio (cflib ignores an answer it no longer waits for; a log
   block created twice is "already exists", which ``log.py`` takes as created). A lone null
   packet (``0xFF``, cflib's UDP scan probe) from an address that has sent nothing else is
-  answered here once the drone is ready; everything else goes to the firmware, which
-  answers what it is asked (a link echo, a log request) and nothing more.
+  answered here once the drone is ready. A link echo (CRTP port 15 channel 0, the link guard's
+  poll) is answered here too, at once, while the firmware process runs, as a Crazyflie's radio
+  chip acknowledges every packet in its interrupt handler whatever the main MCU is busy with
+  (crazyflie2-nrf-firmware ``src/esb.c``, ``esbInterruptHandler``); the firmware's own echo
+  comes from its lowest-priority task (``crtpservice.c``), which a busy machine left
+  unscheduled for half a second. Everything else goes to the firmware, which answers what it
+  is asked (a log request, a parameter) and nothing more.
 * **Its body.** The firmware sends four motor PWM values on CRTP port 9 every stabilizer
   tick; they fly a Crazyflie body (``swarm.world.fw_body``: the firmware's quadratic motor
   map, yaw torque and motor layout, the simulated rotors' lag, the project's rigid body,
@@ -265,6 +270,7 @@ class Counters:
     outbox_dropped: int = 0
     to_client: int = 0  # firmware packets relayed to the client
     probes_answered: int = 0
+    echoes_answered: int = 0  # link echoes answered here, as the radio acknowledges (FirmwareDrone.firmware_runs)
 
 
 @dataclass
@@ -329,6 +335,11 @@ class FirmwareDrone:
             stderr=subprocess.STDOUT,
             preexec_fn=_die_with_parent,
         )
+
+    def firmware_runs(self) -> bool:
+        """Its firmware process is up (it said hello) and has not ended: what a Crazyflie's radio
+        needs to acknowledge a packet (its power on), whatever its firmware is busy with."""
+        return self.fw_addr is not None and self.proc is not None and self.proc.poll() is None
 
     def check_boot(self, now: float) -> None:
         """Restart a firmware that has not found its gyro bias :data:`BOOT_TIMEOUT_S` after its
@@ -403,6 +414,10 @@ class FirmwareDrone:
         self.client = addr
         self.talked_s = now
         self.counters.client_in += 1
+        if pk[:1] == bytes([header(PORT_LINK, 0)]) and self.firmware_runs():  # a link echo: the radio's answer
+            self.cl_sock.sendto(pk, addr)
+            self.counters.echoes_answered += 1
+            return
         self._inspect(pk, now)
         if len(self.outbox) >= OUTBOX_MAX:
             self.counters.outbox_dropped += 1

@@ -60,8 +60,7 @@ def warm_kernels() -> None:
 
 def _firmware_scenario(cf2: Path, **over: object) -> ScenarioConfig:
     """configs/mixed_firmware.yaml (14 s) with the test's firmware, run to its end (the simulated
-    drones brake on a late command: a stalled CI machine is not what this tests). Their crossing
-    took 6.3 to 9.9 s in ten runs on a 2-core machine: the hold measured after it ends by 11 s."""
+    drones brake on a late command: a stalled CI machine is not what this tests)."""
     base: dict[str, object] = {
         "stop_when_all_reached": False,
         "time": {"late_command": "brake", "start_timeout_s": 120.0},
@@ -87,22 +86,22 @@ def _first(t: np.ndarray, mask: np.ndarray, after: float) -> float:
     return float(t[hit[0]]) if hit.size else math.nan
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="a known defect (CHANGELOG, Known issues): on a busy 2-core machine a firmware drone now and "
-    "then leaves its hold (in a clean-checkout CI run real1 climbed to 1.43 m on the setpoints it was "
-    "sent; in others the crossing took 12.2 s of 11) or its link guard stops it",
-)
 def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, cf2, warm_kernels):
     """real1's agent has the simulated motors' own thrust map; real2's the 2026.04 release's linear
     one, which those motors do not follow (0.2627 N made for a hover's 0.2662 N meant). Each agent
     estimates its drone's disturbance once it has taken off, so both hold their heights (without
-    the estimate real2 held 8-9 mm low)."""
+    the estimate real2 held 8-9 mm low).
+
+    Each simulated drone's path runs through a firmware drone's hold, and both filter: on a busy
+    machine a simulated drone brakes on its late commands, the firmware drone does most of the
+    avoiding (up to 0.43 m above its hold, back at about 0.2 m/s) and the crossing ended up to
+    12.2 s in. So the run is 18 s: the crossing must end by 13 s, and the hold is measured over the
+    1.5 s before the landing."""
     agents = yaml.safe_load((ROOT / "configs" / "mixed_firmware.yaml").read_text())["agents"]
     for a in agents:
         if a["id"] == "real2":
             a["crazyflie"]["thrust"] = {"firmware": "2026.04"}
-    cfg = _firmware_scenario(cf2, agents=agents)
+    cfg = _firmware_scenario(cf2, agents=agents, duration_s=18.0)
     h = start_run(cfg, "fw")
     assert h.wait() == "completed", h.result
     m = json.loads((h.out / "metrics.json").read_text())
@@ -122,7 +121,7 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         # the hold's last 1.5 s before the landing (the simulated drones are through by then: crossed)
         end = t[np.flatnonzero(x[:, 2] > 0.9)[-1]] - 0.5
         held = (t > end - 1.5) & (t < end)
-        assert held.sum() > 100 and crossed < cfg.duration_s - 3.0, (name, held.sum(), crossed)
+        assert held.sum() > 100 and crossed < cfg.duration_s - 5.0, (name, held.sum(), crossed)
         z = x[held, 2]
         # within 2.5 cm, 1 cm on average: the issue's own measurement against this firmware held 1-2.4 cm
         assert np.abs(z - 1.0).max() < 0.025 and abs(z.mean() - 1.0) < 0.01, (name, z.min(), z.max(), z.mean())
@@ -326,6 +325,38 @@ def test_swarm_cf_scan_status_check_and_cflib_against_the_firmware(firmware_dron
     _stop(relay)
     end = read_trace(tmp / "firmware" / "cfA.jsonl").end
     assert end["unanswered"] == 0, end
+
+
+def test_the_relay_answers_a_link_echo_as_the_radio_does_while_its_firmware_runs(firmware_drone):
+    """A Crazyflie's radio chip acknowledges every packet in its interrupt handler, whatever the
+    main MCU's firmware is busy with (crazyflie2-nrf-firmware src/esb.c, esbInterruptHandler), so
+    the link guard's poll is answered by the relay playing that radio: at once, also while the
+    firmware process is stopped (on a busy machine its lowest-priority task, which echoes,
+    crtpservice.c, went unscheduled for 0.5 s and the guard stopped a drone flying fine), and not
+    at all once the firmware has ended."""
+    uri, tmp, relay = firmware_drone
+    fw = int(Path(f"/proc/{relay.pid}/task/{relay.pid}/children").read_text().split()[0])
+    echo = bytes([0xFC]) + b"echo"  # port 15 (link), channel 0, as cflib's CRTPPacket sets the header
+
+    def answered(timeout_s: float) -> bytes | None:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as link:
+            link.settimeout(timeout_s)
+            link.sendto(echo, ("127.0.0.1", PORT))
+            try:
+                return link.recv(64)
+            except TimeoutError:
+                return None
+
+    assert answered(1.0) == echo
+    os.kill(fw, signal.SIGSTOP)  # its firmware stalled: the radio still acknowledges
+    try:
+        assert answered(1.0) == echo
+    finally:
+        os.kill(fw, signal.SIGCONT)
+    os.kill(fw, signal.SIGKILL)  # its firmware gone (power off): no answer
+    assert answered(1.0) is None
+    _stop(relay)
+    assert read_trace(tmp / "firmware" / "cfA.jsonl").end["echoes_answered"] == 2
 
 
 def _cflib_connect(uri: str, cache: Path, timeout_s: float = 30.0) -> Any:

@@ -618,6 +618,7 @@ class FirmwareTrace:
     body_pwm: np.ndarray
     body_thrust_N: np.ndarray
     fw_t: np.ndarray
+    fw_clock_s: np.ndarray  # the firmware's own clock at each sample (its log's timestamp) [s]
     fw_state: list[str]
     fw_info: np.ndarray
     fw_setpoint: np.ndarray  # (n, 4): roll, pitch, yaw rate, thrust
@@ -671,6 +672,7 @@ def read_trace(path: Path) -> FirmwareTrace:
         body_pwm=np.array([r["pwm"] for r in body]).reshape(-1, 4),
         body_thrust_N=np.array([r["thrust_N"] for r in body]),
         fw_t=np.array([r["t"] for r in fw]),
+        fw_clock_s=np.array([r.get("t_fw_ms", nan) / 1000.0 for r in fw]),
         fw_state=[r["state"] for r in fw],
         fw_info=np.array([int(r.get("supervisor.info", 0)) for r in fw], dtype=int),
         fw_setpoint=np.array(

@@ -93,20 +93,6 @@ def test_circle_8_realtime_completes_without_collision_with_each_process_on_its_
     assert m["min_separation_m"] > 2 * BODY
 
 
-def test_eight_agents_start_in_time_on_a_cold_compile_cache(start_run, tmp_path, monkeypatch):
-    """After an install or a code change numba's on-disk cache is empty: the first agent
-    compiles the kernels (9 to 32 s of CPU, by machine and hour) and the others load them.
-    Eight agents that each compiled at once would need four times that on two cores, past
-    this start timeout."""
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-cache"))  # the children's cache, empty
-    cfg = scenario("circle_8.yaml", duration_s=0.5, time={"start_timeout_s": 75.0})
-    h = start_run(cfg)
-    assert h.wait() == "completed"
-    assert any((tmp_path / "numba-cache").rglob("*.nbi"))  # the kernels were compiled there
-    m = json.loads((h.out / "metrics.json").read_text())
-    assert set(m["exit_codes"].values()) == {0}
-
-
 @pytest.mark.parametrize("source", ["agents", "world"])  # a star with and without the bundle relay
 def test_killed_agent_is_seen_gone_and_the_others_fly_on(start_run, source):
     cfg = scenario(

@@ -113,10 +113,17 @@ def run_scenario(
 
 
 def _pin_cpu() -> None:
-    """Pin this process to the CPU ``swarm run`` chose for it (``time.pin_cpus``): every
-    thread it has now (numpy's BLAS threads start at import) and, through inheritance,
-    the ones it starts later (Zenoh's)."""
+    """Set up a process of a run: pin it to the CPU ``swarm run`` chose for it
+    (``time.pin_cpus``), every thread it has now (numpy's BLAS threads start at import)
+    and, through inheritance, the ones it starts later (Zenoh's); and on SIGUSR1 write every
+    thread's stack to its log (the launcher asks so of a process that did not end on SIGTERM,
+    before it kills it)."""
+    import faulthandler
+    import signal
+
     from swarm.runs.launch import CPU_ENV
+
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
 
     cpu = os.environ.get(CPU_ENV)
     if cpu:

@@ -481,6 +481,12 @@ class RunHandle:
             if p.poll() is None:
                 _signal_group(p, signal.SIGTERM)
         if not self._wait_procs(list(self.procs), 5.0):
+            stuck = [n for n, p in self.procs.items() if p.poll() is None]
+            for n in stuck:  # its threads' stacks into its log first (swarm.cli._pin_cpu), then killed
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.procs[n].pid, signal.SIGUSR1)
+            time.sleep(0.2)
+            print(f"{', '.join(stuck)} did not end on SIGTERM in 5 s: killed (stacks in the logs)", file=sys.stderr)
             for p in self.procs.values():
                 if p.poll() is None:
                     _signal_group(p, signal.SIGKILL)

@@ -150,3 +150,21 @@ def test_a_run_forks_its_processes_from_the_server_unless_told_not_to(tmp_path, 
             h.finish("test teardown")
     m = json.loads((h.out / "metrics.json").read_text())
     assert set(m["exit_codes"].values()) == {0}, m["exit_codes"]
+
+
+def test_a_run_s_process_that_outlives_sigterm_leaves_every_thread_s_stack_in_its_log(
+    ready, start_run, monkeypatch, capsys
+):
+    """The launcher stops a run with SIGTERM and kills what is left after 5 s; what is left first
+    writes its threads' stacks to its log (SIGUSR1, faulthandler: swarm.cli), so a process that
+    hangs at its end says where."""
+    name, wait_ready = ready
+    h = start_run(scenario("swap_2.yaml", duration_s=1.0), "stubborn")
+    monkeypatch.setenv("FORKCHILD_READY", name)
+    h._spawn("stubborn", [*CHILD, "stubborn"])
+    wait_ready(h.procs["stubborn"].pid)
+    h.finish("test")
+    assert h.procs["stubborn"].returncode == -signal.SIGKILL
+    log = (h.out / "logs" / "stubborn.log").read_text()
+    assert "most recent call first" in log and "forkchild.py" in log, log
+    assert "stubborn did not end on SIGTERM in 5 s" in capsys.readouterr().err  # it alone

@@ -52,6 +52,23 @@ def _ms(s: float | None) -> float | None:
     return None if s is None else s * 1e3
 
 
+def mocap_stamp(wall_s: float, physics_s: float, max_lag_s: float, behind_at_end_s: float | None) -> float:
+    """The world's time [s] of a real drone's motion-capture frame taken ``wall_s`` after the
+    run's start: the wall clock, but at most ``max_lag_s`` ahead of the physics at ``physics_s``
+    while the ticks go on; once they are over (``behind_at_end_s`` given: :func:`behind_at_end`)
+    the wall clock less what the world was behind it then, so the stamps go on from where they
+    were at the wall clock's pace, without a jump."""
+    if behind_at_end_s is None:
+        return min(wall_s, physics_s + max_lag_s)
+    return wall_s - behind_at_end_s
+
+
+def behind_at_end(wall_s: float, physics_s: float, max_lag_s: float) -> float:
+    """How far [s] the last frame's stamp (:func:`mocap_stamp`) was behind the wall clock when
+    the last tick was flown, ``wall_s`` after the run's start, with the physics at ``physics_s``."""
+    return max(0.0, wall_s - physics_s - max_lag_s)
+
+
 @dataclass
 class AgentSlot:
     """What the world holds for one agent: its liveliness, the ticks it was sent and how it
@@ -132,7 +149,8 @@ class World:
         self.running = threading.Event()  # the relay publishes only while the run is on
         self._mocap_seq = 10**9  # the relay thread's own sequence numbers
         self._mocap_t: dict[str, float] = {}  # the relay thread's newest stamp per real drone [s]
-        self.ticks_over = False  # the last tick is flown: real drones' measurements on the wall clock alone
+        self.ticks_over = False  # the last tick is flown: real drones' measurements on the wall clock alone ...
+        self.behind_at_end_s = 0.0  # ... less what the world was behind it then [s]
         self.wall0 = time.monotonic()
         self.stop = StopFlag()
 
@@ -169,13 +187,17 @@ class World:
         wall clock, but never more than ``time.max_lag_s`` ahead of the physics while the
         ticks go on (a world that cannot keep the wall clock, :meth:`catch_up`): the agents
         take their neighbours' states in the world's time, and no agent may hear of a state
-        far ahead of the newest tick. A frame whose stamp would not be newer than its drone's
-        last is not sent (the world has not moved on: there is nothing newer to say)."""
+        far ahead of the newest tick. Once the ticks are over (the real drones land) the stamps
+        go on at the wall clock's pace from where they were, not from the wall clock itself: a
+        world that ended seconds behind it would otherwise stamp the next frame seconds after the
+        last, and a landing drone's agent take that jump as its own (its flight plan's time,
+        its disturbance estimate: such drones lurched 0.4-0.7 m sideways as they landed). A frame
+        whose stamp would not be newer than its drone's last is not sent (the world has not
+        moved on: there is nothing newer to say)."""
         if not self.running.is_set():
             return
-        t = time.monotonic() - self.wall0
-        if not self.ticks_over:
-            t = min(t, self.physics.t_s + self.cfg.time.max_lag_s)
+        t = mocap_stamp(time.monotonic() - self.wall0, self.physics.t_s, self.cfg.time.max_lag_s,
+                        self.behind_at_end_s if self.ticks_over else None)  # fmt: skip
         if t <= self._mocap_t.get(aid, -math.inf):
             return
         self._mocap_t[aid] = t
@@ -587,6 +609,8 @@ class World:
         self.running.set()
         try:
             k = self.loop()
+            wall_s = time.monotonic() - self.wall0
+            self.behind_at_end_s = behind_at_end(wall_s, self.physics.t_s, self.cfg.time.max_lag_s)
             self.ticks_over = True
             if self.relay is not None:
                 self.land_real_drones()

@@ -127,6 +127,11 @@ def test_firmware_drones_take_off_hold_let_the_others_cross_and_land(start_run, 
         assert np.abs(z - 1.0).max() < 0.025 and abs(z.mean() - 1.0) < 0.01, (name, z.min(), z.max(), z.mean())
         assert np.abs(yaw[held]).max() < 1.0  # it turned to its yaw
         assert x[-1, 2] == 0.0  # landed, on the floor
+        # straight down: a world that ended behind the wall clock once stamped the landing's first
+        # pose seconds after the last, and the drones lurched 0.4-0.7 m sideways as they landed
+        landing = t > end
+        start = np.asarray(cfg.agent(name).start[:2])
+        assert np.hypot(*(x[landing, :2] - start).T).max() < 0.05, (name, np.hypot(*(x[landing, :2] - start).T).max())
         # the thrust it made (its motors' PWM through their map) against the thrust meant (the setpoints')
         made = tr.body_thrust_N[held].mean()
         in_hold = (tr.sp_t - t0 > t[held][0]) & (tr.sp_t - t0 < t[held][-1])

@@ -190,8 +190,8 @@ class World:
         far ahead of the newest tick. Once the ticks are over (the real drones land) the stamps
         go on at the wall clock's pace from where they were, not from the wall clock itself: a
         world that ended seconds behind it would otherwise stamp the next frame seconds after the
-        last, and a landing drone's agent take that jump as its own (its flight plan's time,
-        its disturbance estimate: such drones lurched 0.4-0.7 m sideways as they landed). A frame
+        last, and a landing drone's agent would take that jump as its own (its flight plan's
+        time, its disturbance estimate). A frame
         whose stamp would not be newer than its drone's last is not sent (the world has not
         moved on: there is nothing newer to say)."""
         if not self.running.is_set():

@@ -33,8 +33,8 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   poll) is answered here too, at once, while the firmware process runs, as a Crazyflie's radio
   chip acknowledges every packet in its interrupt handler whatever the main MCU is busy with
   (crazyflie2-nrf-firmware ``src/esb.c``, ``esbInterruptHandler``); the firmware's own echo
-  comes from its lowest-priority task (``crtpservice.c``), which a busy machine left
-  unscheduled for half a second. Everything else goes to the firmware, which answers what it
+  comes from its lowest-priority task (``crtpservice.c``), which a busy machine can leave
+  unscheduled past the guard's timeout. Everything else goes to the firmware, which answers what it
   is asked (a log request, a parameter) and nothing more.
 * **Its body.** The firmware sends four motor PWM values on CRTP port 9 every stabilizer
   tick; they fly a Crazyflie body (``swarm.world.fw_body``: the firmware's quadratic motor

@@ -39,6 +39,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
 import warnings
@@ -216,6 +217,9 @@ class ForkServer:
     children: dict[int, Child] = field(default_factory=dict)  # started, not yet reaped
     _started: list[Child] = field(default_factory=list)  # said, not yet handed to spawn
     _buf: bytes = b""
+    # one thread at a time talks to the server: a spawn's request and its pid are one exchange
+    # (a sweep's runs start their processes from threads of one launcher)
+    _lock: threading.RLock = field(default_factory=threading.RLock)
 
     @classmethod
     def start(cls) -> ForkServer:
@@ -234,6 +238,10 @@ class ForkServer:
         """Read what the server said (waiting up to ``block_s`` for it): children started
         and children's exits. With the server gone, a child that no longer exists has
         ended with an unknown code (1)."""
+        with self._lock:
+            self._pump(block_s)
+
+    def _pump(self, block_s: float) -> None:
         assert self.proc.stdout is not None
         fd = self.proc.stdout.fileno()
         if self.proc.returncode is None and select.select([fd], [], [], block_s)[0]:
@@ -260,8 +268,9 @@ class ForkServer:
 
     def _send(self, msg: dict[str, Any]) -> None:
         assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps(msg).encode() + b"\n")
-        self.proc.stdin.flush()
+        with self._lock:
+            self.proc.stdin.write(json.dumps(msg).encode() + b"\n")
+            self.proc.stdin.flush()
 
     def warm(self, config: Path) -> None:
         """Have the server load the kernels the agents of the run ``config`` (its file) run,
@@ -272,16 +281,18 @@ class ForkServer:
         """``python *args`` (``args`` starts with ``-m MODULE``) forked from the server."""
         if args[:1] != ["-m"] or len(args) < 2:
             raise ValueError(f"the fork server runs modules (-m MODULE ...), not {args[:2]}")
-        self._send(asdict(Request(args[1], args[2:], str(log), env, str(groups))))
-        deadline = time.monotonic() + 300.0  # (the server's imports, the first time; a warm-up on a cold cache)
-        while not self._started:
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"the fork server did not start {args[1]} (exit code {self.proc.returncode})")
-            self.pump(0.1)
-        return self._started.pop(0)
+        with self._lock:  # (the pid the server says next is this request's)
+            self._send(asdict(Request(args[1], args[2:], str(log), env, str(groups))))
+            deadline = time.monotonic() + 300.0  # (the server's imports, the first time; a warm-up on a cold cache)
+            while not self._started:
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"the fork server did not start {args[1]} (exit code {self.proc.returncode})")
+                self.pump(0.1)
+            return self._started.pop(0)
 
 
 _SHARED: ForkServer | None = None
+_SHARED_LOCK = threading.Lock()
 VOLATILE = ("PYTEST_CURRENT_TEST", "ZENOH_RUNTIME")
 """Variables that change in a launcher without changing what a server imports (pytest's for
 each test; Zenoh's runtime, read at a process's first session: each child gets its own)."""
@@ -299,9 +310,10 @@ def shared() -> ForkServer | None:
     global _SHARED
     if os.environ.get(DISABLE_ENV) == "0" or not hasattr(os, "fork"):
         return None
-    if _SHARED is None or not _SHARED.alive() or _SHARED.env != _environ():
-        _SHARED = ForkServer.start()
-    return _SHARED
+    with _SHARED_LOCK:
+        if _SHARED is None or not _SHARED.alive() or _SHARED.env != _environ():
+            _SHARED = ForkServer.start()
+        return _SHARED
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -100,6 +101,21 @@ def test_a_forked_process_sees_and_ends_as_one_started_from_scratch(server, read
     assert forked_log.count("to stderr") == scratch_log.count("to stderr") == 1
     if what == ["raise"]:
         assert "RuntimeError: raised on purpose" in forked_log
+
+
+def test_children_asked_for_from_many_threads_at_once_are_each_their_own(server, tmp_path):
+    """A sweep's runs start their processes from threads of one launcher: each thread's child is
+    the process it asked for (its pid, and so the group it signals), not another thread's."""
+    env = dict(os.environ)
+
+    def spawn(i: int) -> tuple[int, forkserver.Child]:
+        return i, server.spawn([*CHILD, "exit", "0"], tmp_path / f"c{i}.log", env, tmp_path / GROUPS_FILE)
+
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        children = list(pool.map(spawn, range(48)))
+    for i, child in children:
+        assert child.wait(30) == 0
+        assert _facts(tmp_path / f"c{i}.log")["pid"] == child.pid, i
 
 
 def test_with_its_server_gone_a_childs_end_is_still_seen(server, ready, tmp_path):

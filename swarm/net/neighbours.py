@@ -354,7 +354,14 @@ class NeighbourTable:
         if not slots:
             return
         rec = records if len(keep) == len(records) else records[keep]
-        sl = np.array(slots, dtype=np.int64)
+        for reason in self.store_records(rec, np.array(slots, dtype=np.int64)):
+            counter.drop(reason)
+
+    def store_records(self, rec: np.ndarray, sl: np.ndarray) -> list[str]:
+        """The :data:`swarm.net.statewire.STATE` records ``rec`` into the slots ``sl`` (int64,
+        one per record), each that :attr:`limits` allows (the module docstring); the reasons of
+        the others, each noted in :attr:`rejected`. Compiled calls check and write them all."""
+        dropped: list[str] = []
         if self.limits is not None:
             verdict = np.empty(len(sl), dtype=np.int8)
             fields = (rec["seq"], rec["t"], rec["x"], rec["v"], rec["r"])
@@ -363,12 +370,13 @@ class NeighbourTable:
                 for n in np.flatnonzero(verdict > 0).tolist():
                     reason = _VERDICTS[verdict[n]]
                     assert reason is not None
-                    counter.drop(reason)
+                    dropped.append(reason)
                     self._reject(self.names[sl[n]], reason)
                 ok = verdict == 0
                 rec, sl = rec[ok], sl[ok]
         states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
         _store(self.s.fields(), sl, states)
+        return dropped
 
     def _horizon_s(self) -> float:
         """No neighbour's state is newer [s, sim time] (none known before the first tick heard of)."""
@@ -484,7 +492,9 @@ class HeardNeighbours:
         self.lists: dict[int, list[str]] = {}  # tick -> the agents tick k waits for (the world's list)
         self.missed = 0  # listed neighbours whose state was not there when used
         self.id, self.comms = agent_id, comms
-        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None]] = DelayLine()
+        # a state held until its tick: as fields (take), or as its record (take_records)
+        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None] | bytes]
+        self.line = DelayLine()
         self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
         self.states_lost = 0  # comms: states that never reach this agent
         self.delay_ticks = 0  # comms: ticks of delay beyond the next tick, summed over the states delivered
@@ -520,11 +530,56 @@ class HeardNeighbours:
         self.delay_ticks += max(0, d - 1)
         self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo, seq))
 
+    def take_records(self, records: np.ndarray, names: list[str], bundled: bool = False) -> None:
+        """With a ``comms`` model: checked :data:`swarm.net.statewire.STATE` records, of the
+        neighbours ``names`` (one per record, each known, in the order they came), as
+        :meth:`take` takes each, their fates in one compiled pass."""
+        comms = self.comms
+        assert comms is not None, "take_records holds states for their fates: comms only"
+        ks = records["k"]
+        d = comms.fates(names, self.id, MessageKind.STATE, ks)
+        if bundled:
+            d_bundle = comms.fates(["router"] * len(names), self.id, MessageKind.BUNDLE, ks)
+            d = np.where((d == LOST) | (d_bundle == LOST), LOST, d + d_bundle)
+        heard, line = self.heard, self.line
+        for i, (name, k, fate) in enumerate(zip(names, ks.tolist(), d.tolist(), strict=True)):
+            heard[name] = max(heard.get(name, -1), k)
+            if fate == LOST:
+                self.states_lost += 1
+                continue
+            self.delay_ticks += max(0, fate - 1)
+            line.put(k, max(1, fate), records[i : i + 1].tobytes())
+
     def _deliver(self, k: int) -> None:
-        """The held states due by tick ``k`` into the table (comms)."""
-        if self.comms is not None:
-            for name, t_s, kk, x_w, v_w, radius_m, solo, seq in self.line.due(k):
-                self.table.update(name, t_s, kk, x_w, v_w, radius_m, solo, seq)
+        """The held states due by tick ``k`` into the table (comms), in order: fields one by
+        one, runs of records in one compiled call."""
+        if self.comms is None:
+            return
+        table, run = self.table, []
+        for item in self.line.due(k):
+            if isinstance(item, bytes):
+                run.append(item)
+                continue
+            self.deliver(run)
+            run = []
+            table.update(*item)
+        self.deliver(run)
+
+    def deliver(self, records: list[bytes]) -> None:
+        """State records (each as its sender published it), delivered now, into the table (a
+        gone neighbour's skipped)."""
+        if not records:
+            return
+        table = self.table
+        rec = np.frombuffer(b"".join(records), dtype=statewire.STATE)
+        slots, keep = [], []
+        for n, src in enumerate(rec["src"].tolist()):
+            name = src.decode()
+            if name not in table.gone:
+                slots.append(table._slot(name))
+                keep.append(n)
+        if slots:
+            table.store_records(rec if len(keep) == len(rec) else rec[keep], np.array(slots, dtype=np.int64))
 
     def _latest_k(self, name: str) -> int:
         """The newest tick of ``name``'s states this agent has received (on the wire)."""

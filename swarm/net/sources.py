@@ -28,7 +28,7 @@ from swarm.net import transport as tp
 from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message
 from swarm.net.neighbours import HELD_TICKS, HeardNeighbours, NearNeighbours, NeighbourTable, roster_arrays
-from swarm.realism.comms import CommsModel
+from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.tuning import prediction_bounds
@@ -269,7 +269,9 @@ class BundleSource(_NearSource):
         by the names the world gives): their compiled checks and kernels load now. (Two: the
         fields of one record are contiguous arrays, a type of their own to numba.) The same
         bundle twice: the second is all copies, which the table's limits drop, and what is left
-        of a bundle then is a copy of its records (writable, another type to numba)."""
+        of a bundle then is a copy of its records (writable, another type to numba). With a comms
+        model, the same for the records it delivers a tick or more later, in runs of two and of
+        one (:meth:`swarm.net.neighbours.HeardNeighbours.take_records`)."""
         z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
         records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.0) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
@@ -281,6 +283,14 @@ class BundleSource(_NearSource):
         table.arrays(0.0, 0, names)
         table.arrays(0.0)
         table.state(names[0])
+        if self.comms is not None:  # the fates of a bundle's states, and their records delivered later
+            self.comms.fates(names, self.id, MessageKind.STATE, b.states.records["k"])
+            table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
+            table.limits = t.limits
+            heard = HeardNeighbours(set(names), table, self.id, self.comms)
+            later = statewire.encode_state("", names[0], 1, 0.01, 1, z, z, 0.0)
+            for run in (records, [later], records):  # two, one, and two copies the limits drop
+                heard.deliver(run)
 
     def hear(self, key: str, sample: Any) -> bool:
         if key != self.key:
@@ -310,14 +320,16 @@ class BundleSource(_NearSource):
             self.table.update_records(b.states.records, self.others, counter)
             return
         rec = b.states.records  # (world.realism.comms: each state on its own way, through the relay)
+        names, keep = [], []
         for n, src in enumerate(rec["src"].tolist()):
             name = src.decode()
             if name not in self.others:
                 counter.drop("state: from an agent it does not know, or itself")
             elif name not in self.table.gone:
-                r = rec[n]
-                self.take(name, float(r["t"]), int(r["k"]), r["x"].copy(), r["v"].copy(), float(r["r"]),
-                          bool(r["flags"] & 1), bundled=True, seq=int(r["seq"]))  # fmt: skip
+                names.append(name)
+                keep.append(n)
+        if names:
+            self.take_records(rec if len(keep) == len(rec) else rec[keep], names, bundled=True)
 
 
 class CellSource(_NearSource):

@@ -89,6 +89,14 @@ def _fate_matrix(seed, stream, words, kind_tick, delay_s, jitter_s, loss, tick_s
                 out[i, j] = 0
 
 
+@njit(cache=True)
+def _fates(seed, stream, words, receiver, kind, ticks, delay_s, jitter_s, loss, tick_s, out):
+    for i in range(words.shape[0]):
+        pair = words[i] * np.uint64(0x9E3779B1) ^ receiver
+        kind_tick = (kind << np.uint64(56)) ^ np.uint64(ticks[i])
+        out[i] = _fate(seed, stream, pair, kind_tick, delay_s, jitter_s, loss, tick_s)
+
+
 class CommsModel:
     """The fates of a run's messages; ``tick_s`` is the control period [s]."""
 
@@ -113,6 +121,19 @@ class CommsModel:
             return 0
         pair = word(self._word(sender) * 0x9E3779B1 ^ self._word(receiver))
         return int(_fate(self.seed, _COMMS, pair, _kind_tick(kind, tick), *self._link(link)))
+
+    def fates(self, senders: Sequence[str], receiver: str, kind: MessageKind, ticks: IntArray) -> IntArray:
+        """(n,): entry i is :meth:`fate` of ``senders[i]``'s message to ``receiver`` sent at
+        ``ticks[i]`` (>= 0); one compiled pass, for a receiver that takes many at once (a bundle)."""
+        out = np.zeros(len(senders), dtype=np.intp)
+        link = self.p.link(kind)
+        if link.perfect or not len(senders):
+            return out
+        words = np.array([self._word(s) for s in senders], dtype=np.uint64)
+        ks = np.ascontiguousarray(ticks, dtype=np.int64)
+        receiver_word = np.uint64(self._word(receiver))
+        _fates(self.seed, _COMMS, words, receiver_word, np.uint64(int(kind)), ks, *self._link(link), out)
+        return out
 
     def fate_matrix(self, ids: Sequence[str], kind: MessageKind, tick: int) -> IntArray:
         """(n, n): entry (i, j) is :meth:`fate` of ``ids[i]``'s message to ``ids[j]`` (0 on

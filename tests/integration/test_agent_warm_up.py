@@ -20,18 +20,19 @@ from swarm.config import resolve
 from swarm.net.messages import decode, encode
 from swarm.net.neighbours import _admit, _rows, _store, _newest
 from swarm.model import all_finite
+from swarm.realism.comms import _fates
 from swarm.offline.scenario import SwapSettings, circle_swap
 
 cfg = resolve(circle_swap(4, 2.0, SwapSettings(neighbours="agents", realism=sys.argv[1]), name="warm"), "warm")
 kernels = (all_finite, statewire._verdicts, _admit, _store, _rows, _newest)
+kernels += (_fates,) if sys.argv[1] != "ideal" else ()  # (the lab's comms model)
 run = "warm-run"
 agent = AgentProcess(cfg, "cf1", run)  # (built and warmed up; no session opened)
 before = {k.__name__: len(k.signatures) for k in kernels}
 for k in (1, 2):
     states = [statewire.encode_state(run, a, k, 0.2 * (k - 1), k - 1, np.array([i, 0.0, 1.0]), np.zeros(3), 0.07)
               for i, a in enumerate(("cf2", "cf3", "cf4"))]  # (their states of the tick before)
-    bundle = statewire.read_bundle(statewire.encode_bundle(run, "cf1", k, 0.2 * k, k - 1, states), run)
-    agent.source.table.update_records(bundle.states.records, agent.others, tp.Counter())
+    agent.source.take_bundle(statewire.encode_bundle(run, "cf1", k, 0.2 * k, k - 1, states))  # (as the wire hands it)
     body = dict(x=np.array([-1.0, 0, 1]), v=np.zeros(3), q=np.array([0, 0, 0, 1.0]), w=np.zeros(3))
     tick = decode(encode("tick", run, "world", k, 0.2 * k, k, near=["cf2", "cf3"], items=[], gone=[], done=False,
                          frames=[], **body), run)

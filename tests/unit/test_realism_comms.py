@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarm.realism.comms import LOST, CommsModel, CommsParams, DelayLine, LinkParams, MessageKind
 
@@ -42,6 +44,19 @@ def test_the_fate_matrix_is_every_pairs_fate():
         want = [[c.fate(a, b, MessageKind.COMMAND, k) if a != b else 0 for b in IDS] for a in IDS]
         assert M.tolist() == want
     assert not CommsModel(CommsParams(), 5, TICK).fate_matrix(IDS, MessageKind.STATE, 3).any()
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from(IDS + ["router", "x" * 32]), st.integers(0, 2**40)), max_size=20),
+    st.sampled_from(list(MessageKind)),
+    st.integers(0, 2**31),
+)
+def test_the_fates_of_many_senders_are_each_ones_fate(sent, kind, seed):
+    c = CommsModel(LAB, seed, TICK)
+    senders, ticks = [a for a, _ in sent], np.array([k for _, k in sent], dtype=np.int64)
+    assert c.fates(senders, "cf3", kind, ticks).tolist() == [c.fate(a, "cf3", kind, int(k)) for a, k in sent]
+    assert not CommsModel(CommsParams(), seed, TICK).fates(senders, "cf3", kind, ticks).any()
 
 
 def test_different_seeds_kinds_and_directions_differ():

@@ -10,11 +10,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarm.config import resolve
 from swarm.control import PathTracker
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, QuadModel, QuadState
+from swarm.net import statewire
 from swarm.net.neighbours import HeardNeighbours, NeighbourTable
 from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
 from swarm.offline.scenario import circle_swap
@@ -183,6 +186,51 @@ def test_a_state_reaches_the_table_at_its_fate_and_lockstep_waits_only_for_the_w
         else:
             assert len(rows) == 0
     assert heard.states_lost == sum(d == LOST for d in fates.values())
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31), st.lists(st.sampled_from(["b", "c", "d"]), min_size=1, max_size=3, unique=True))
+def test_a_bundles_records_held_for_their_fates_reach_the_table_as_each_state_taken_alone(seed, gone_at_20):
+    """HeardNeighbours.take_records (a bundle's records, their fates in one pass, delivered in
+    runs of records) leaves the table as take does, state by state, tick by tick."""
+    lab = RealismSettings.model_validate(
+        {"preset": "ideal", "comms": {"state": {"delay_s": 0.012, "jitter_s": 0.03, "loss_fraction": 0.2},
+                                      "bundle": {"delay_s": 0.001, "jitter_s": 0.01, "loss_fraction": 0.05}}}
+    )  # fmt: skip
+    comms = lab.comms_model(seed=seed, tick_s=0.01)
+    names = ["b", "c", "d"]
+    limits = statewire.Plausible((-9.0, -9.0, -1.0), (9.0, 9.0, 9.0), 50.0, 0.2, 1.0, 0.08)
+    one, many = (HeardNeighbours(set(names), NeighbourTable(0.1, 0.5, 1.0), "a", comms) for _ in range(2))
+    one.table.limits = many.table.limits = limits
+    for k in range(60):
+        if k == 20:
+            for n in gone_at_20:
+                one.lost(n)
+                many.lost(n)
+        heard = [n for n in names if n not in one.table.gone]
+        x = [np.array([0.1 * i + 0.01 * k, 0.0, 1.0]) for i in range(len(heard))]
+        if k % 4 == 1 and x:
+            x[0][0] = 20.0  # (outside the world: the table's limits drop it)
+        records = [
+            statewire.encode_state("r", n, k + 1, 0.01 * k, k, x[i], np.ones(3), 0.07) for i, n in enumerate(heard)
+        ]
+        if k % 7 == 3 and records:  # (a repeat, as a relay bundles a late neighbour's state again)
+            records.append(records[0])
+            heard = [*heard, heard[0]]
+        for n, r in zip(heard, records, strict=True):
+            f = statewire.read_state(r, "r")
+            one.take(n, f[6], f[5], np.array(f[7:10]), np.array(f[10:13]), f[13], False, bundled=True, seq=f[3])
+        if heard:
+            many.take_records(np.frombuffer(b"".join(records), dtype=statewire.STATE), heard, bundled=True)
+        for h in (one, many):
+            h.on_list(k + 1, names)
+        a = one.rows((k + 1) * 0.01, k + 1, np.zeros(3), lockstep=True)
+        b = many.rows((k + 1) * 0.01, k + 1, np.zeros(3), lockstep=True)
+        assert a.ids == b.ids, k
+        for f in ("c_w", "c_dot_w", "c_ddot_w", "radius_m", "axis_w", "is_neighbour"):
+            assert getattr(a.arrays, f).tobytes() == getattr(b.arrays, f).tobytes(), (k, f)
+        assert (one.states_lost, one.delay_ticks, one.heard) == (many.states_lost, many.delay_ticks, many.heard)
+    assert one.table.rejected == many.table.rejected and one.table.rejected
 
 
 def test_motion_capture_estimates_need_the_agents_own_states_not_the_roster():

@@ -18,7 +18,7 @@ from numba import njit
 
 from swarm.errors import InputError
 from swarm.model import QuadModel, QuadState, check_finite, thrust_vector_to_setpoint
-from swarm.rotation import E3, FloatArray, R_to_euler, quat_to_R, quat_to_R_into, vee
+from swarm.rotation import E3, FloatArray, R_to_euler, norm, quat_to_R, quat_to_R_into, vee
 
 _GAIN_FIELDS = (
     "kp_per_s",
@@ -505,7 +505,7 @@ def turned(v_w: FloatArray, bias_w: FloatArray) -> FloatArray:
     reference speed (as ORCA's maximum speed is), and times to goal compare fairly
     (docs/design.md, "The barrier math")."""
     out = v_w + bias_w
-    speed, faster = float(np.linalg.norm(v_w)), float(np.linalg.norm(out))
+    speed, faster = norm(v_w), norm(out)
     if faster > speed:
         out *= speed / faster
     return out
@@ -546,11 +546,11 @@ class AttitudeController:
     def from_thrust_vector(self, state: QuadState, F_w: FloatArray, yaw_des_rad: float = 0.0) -> FloatArray:
         """Rotor thrusts for a desired thrust vector ``F_w`` [N, world] and yaw [rad]."""
         R = quat_to_R(state.q)
-        n = float(np.linalg.norm(F_w))
+        n = norm(F_w)
         b3 = F_w / n if n > 1e-9 else E3
         b1c = np.array([math.cos(yaw_des_rad), math.sin(yaw_des_rad), 0.0])
         b2 = np.cross(b3, b1c)
-        nb2 = np.linalg.norm(b2)
+        nb2 = norm(b2)
         b2 = b2 / nb2 if nb2 > 1e-9 else R[:, 1]
         R_des = np.column_stack([np.cross(b2, b3), b2, b3])
         return self.rotor_thrusts(state, R_des, float(F_w @ R[:, 2]))

@@ -7,6 +7,8 @@ uses, unit norm, rotating body-frame vectors into the world frame
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
@@ -16,6 +18,12 @@ IntArray = NDArray[np.intp]
 BoolArray = NDArray[np.bool_]
 
 E3 = np.array([0.0, 0.0, 1.0])
+
+
+def norm(v: FloatArray) -> float:
+    """``|v|`` of a 1-D float64 array, bit for bit ``np.linalg.norm(v)`` (which computes
+    ``sqrt(v.dot(v))`` for it) without that function's dispatch."""
+    return math.sqrt(float(v.dot(v)))
 
 
 def hat(a: FloatArray) -> FloatArray:

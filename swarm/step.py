@@ -26,7 +26,7 @@ from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, refer
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.planning import StaticObstacles
 from swarm.realism.sensing import Estimator, EstimatorParams, MocapFrame
-from swarm.rotation import E3, FloatArray, quat_to_R
+from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -334,7 +334,7 @@ class AgentStep:
         attitude loop's lag, about 0.09 s); so the estimator is predicted with what the drone
         can do now, and its disturbance state takes no part of the lag for a disturbance."""
         p = self.model.params
-        return float(np.linalg.norm(F_w)) / p.mass_kg * quat_to_R(state.q)[:, 2] - p.g_mps2 * E3
+        return norm(F_w) / p.mass_kg * quat_to_R(state.q)[:, 2] - p.g_mps2 * E3
 
     def motors_off(self, state: QuadState) -> StepResult:
         """The result of a tick with the motors off (a real drone that has landed or been

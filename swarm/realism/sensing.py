@@ -38,7 +38,7 @@ from numba import njit
 
 from swarm.errors import InputError
 from swarm.realism.rng import Stream, normals, uniform, word
-from swarm.rotation import FloatArray
+from swarm.rotation import FloatArray, norm
 
 MAX_GAP_S = 0.5
 """An estimate this long after the last frame moves the filter's own state forward (:meth:`Estimator.estimate`)."""
@@ -85,7 +85,7 @@ def quat_mul(a: FloatArray, b: FloatArray) -> FloatArray:
 
 def quat_exp(rv: FloatArray) -> FloatArray:
     """The unit quaternion of the rotation vector ``rv`` (3,) [rad]."""
-    angle = float(np.linalg.norm(rv))
+    angle = norm(rv)
     if angle < 1e-12:
         return np.array([rv[0] / 2, rv[1] / 2, rv[2] / 2, 1.0]) / math.sqrt(1.0 + angle * angle / 4)
     s = math.sin(angle / 2) / angle
@@ -96,7 +96,7 @@ def quat_log(q: FloatArray) -> FloatArray:
     """The rotation vector [rad] of a unit quaternion (the shorter way round)."""
     q = q if q[3] >= 0 else -q
     v = q[:3]
-    s = float(np.linalg.norm(v))
+    s = norm(v)
     if s < 1e-12:
         return 2.0 * v
     return 2.0 * math.atan2(s, float(q[3])) / s * v
@@ -270,6 +270,8 @@ class Estimator:
     _q: FloatArray = field(init=False)
     _q_t_s: float = field(init=False)
     _Omega_b: FloatArray = field(init=False)
+    _qd: FloatArray = field(init=False)  # (3,) the parameters' densities, made once
+    _qw: FloatArray = field(init=False)
 
     def __post_init__(self) -> None:
         self.X = np.zeros((3, 3))
@@ -285,6 +287,7 @@ class Estimator:
         self._q = np.asarray(self.q0, float) / np.linalg.norm(self.q0)
         self._q_t_s = self.t0_s
         self._Omega_b = np.zeros(3)
+        self._qd, self._qw = self.p.q_density, self.p.walk_density
 
     def command(self, t_s: float, a_w: FloatArray) -> None:
         """The agent commands the acceleration ``a_w`` (3,) [m/s^2, world, gravity
@@ -300,7 +303,7 @@ class Estimator:
             self._cmds.append((t_s, a))
 
     def _propagate(self, X: FloatArray, P: FloatArray, t0: float, t1: float) -> None:
-        qd, qw = self.p.q_density, self.p.walk_density
+        qd, qw = self._qd, self._qw
         cmds = self._cmds
         for k, (ts, a) in enumerate(cmds):
             end = cmds[k + 1][0] if k + 1 < len(cmds) else math.inf
@@ -325,7 +328,8 @@ class Estimator:
         self._seq = f.seq
         self._advance(t_c)
         _update(self.X, self.P, np.asarray(f.x_w, float), self.p.r2_m2)
-        q = np.asarray(f.q, float) / np.linalg.norm(f.q)
+        q = np.asarray(f.q, float)
+        q = q / norm(q)
         dt = t_c - self._q_t_s
         if dt > 0.0:
             rate = quat_log(quat_mul(quat_conj(self._q), q)) / dt

@@ -343,24 +343,32 @@ class NeighbourTable:
         one of ``known`` (and, with :attr:`limits`, that it may take: the module docstring);
         any other is dropped and counted on ``counter`` (:class:`swarm.net.transport.Counter`).
         Compiled calls check and write them all."""
-        slots, keep = [], []
+        names, keep = [], []
         for n, src in enumerate(records["src"].tolist()):
             name = src.decode()
             if name not in known:
                 counter.drop("state: from an agent it does not know, or itself")
-            elif name not in self.gone:
+            else:
+                names.append(name)
+                keep.append(n)
+        if names:
+            for reason in self.store_records(records if len(keep) == len(records) else records[keep], names):
+                counter.drop(reason)
+
+    def store_records(self, records: np.ndarray, names: list[str]) -> list[str]:
+        """The checked :data:`swarm.net.statewire.STATE` records ``records`` of the neighbours
+        ``names`` (one per record) into the table, each that :attr:`limits` allows (the module
+        docstring; a gone neighbour's skipped); the reasons of the others, each noted in
+        :attr:`rejected`. Compiled calls check and write them all."""
+        slots, keep = [], []
+        for n, name in enumerate(names):
+            if name not in self.gone:
                 slots.append(self._slot(name))
                 keep.append(n)
         if not slots:
-            return
+            return []
         rec = records if len(keep) == len(records) else records[keep]
-        for reason in self.store_records(rec, np.array(slots, dtype=np.int64)):
-            counter.drop(reason)
-
-    def store_records(self, rec: np.ndarray, sl: np.ndarray) -> list[str]:
-        """The :data:`swarm.net.statewire.STATE` records ``rec`` into the slots ``sl`` (int64,
-        one per record), each that :attr:`limits` allows (the module docstring); the reasons of
-        the others, each noted in :attr:`rejected`. Compiled calls check and write them all."""
+        sl = np.array(slots, dtype=np.int64)
         dropped: list[str] = []
         if self.limits is not None:
             verdict = np.empty(len(sl), dtype=np.int8)
@@ -566,20 +574,10 @@ class HeardNeighbours:
         self.deliver(run)
 
     def deliver(self, records: list[bytes]) -> None:
-        """State records (each as its sender published it), delivered now, into the table (a
-        gone neighbour's skipped)."""
-        if not records:
-            return
-        table = self.table
-        rec = np.frombuffer(b"".join(records), dtype=statewire.STATE)
-        slots, keep = [], []
-        for n, src in enumerate(rec["src"].tolist()):
-            name = src.decode()
-            if name not in table.gone:
-                slots.append(table._slot(name))
-                keep.append(n)
-        if slots:
-            table.store_records(rec if len(keep) == len(rec) else rec[keep], np.array(slots, dtype=np.int64))
+        """State records (each as its sender published it), delivered now, into the table."""
+        if records:
+            rec = np.frombuffer(b"".join(records), dtype=statewire.STATE)
+            self.table.store_records(rec, [src.decode() for src in rec["src"].tolist()])
 
     def _latest_k(self, name: str) -> int:
         """The newest tick of ``name``'s states this agent has received (on the wire)."""

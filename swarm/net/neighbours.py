@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -223,6 +223,28 @@ def _admit(last_t, last_seq, slots, seq, t, x, v, r, lim, horizon_s, out):
             last_t[i], last_seq[i] = t[n], seq[n]
 
 
+def known_records(records: np.ndarray, known: set[str], counter: Any) -> tuple[np.ndarray, list[str]]:
+    """The :data:`swarm.net.statewire.STATE` records of ``records`` whose sender is one of
+    ``known``, and their senders; any other is dropped and counted on ``counter``
+    (:class:`swarm.net.transport.Counter`)."""
+    names, keep = [], []
+    for n, src in enumerate(records["src"].tolist()):
+        name = src.decode()
+        if name in known:
+            names.append(name)
+            keep.append(n)
+        else:
+            counter.drop("state: from an agent it does not know, or itself")
+    return (records if len(keep) == len(records) else records[keep]), names
+
+
+class HeldRecord(NamedTuple):
+    """A neighbour's state record held until its fate's tick (:meth:`HeardNeighbours.take_records`)."""
+
+    name: str
+    record: bytes  # as its sender published it
+
+
 class NeighbourTable:
     """Latest states per neighbour, with a short history by tick so that lockstep runs
     can use exactly the state of tick k-1 whatever else has arrived meanwhile. Held in
@@ -266,6 +288,13 @@ class NeighbourTable:
         self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
         self.last_seq = np.zeros(0, dtype=np.uint64)  # (S,) and its sequence number
         self.rejected: dict[str, dict[str, int]] = {}  # sender -> reason -> states dropped
+
+    def blank(self) -> NeighbourTable:
+        """An empty table of the same settings and limits."""
+        t = NeighbourTable(self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost,
+                           self.accel_bound_mps2, self.velocity_error_mps)  # fmt: skip
+        t.limits = self.limits
+        return t
 
     @property
     def limits(self) -> statewire.Plausible | None:
@@ -343,16 +372,9 @@ class NeighbourTable:
         one of ``known`` (and, with :attr:`limits`, that it may take: the module docstring);
         any other is dropped and counted on ``counter`` (:class:`swarm.net.transport.Counter`).
         Compiled calls check and write them all."""
-        names, keep = [], []
-        for n, src in enumerate(records["src"].tolist()):
-            name = src.decode()
-            if name not in known:
-                counter.drop("state: from an agent it does not know, or itself")
-            else:
-                names.append(name)
-                keep.append(n)
+        rec, names = known_records(records, known, counter)
         if names:
-            for reason in self.store_records(records if len(keep) == len(records) else records[keep], names):
+            for reason in self.store_records(rec, names):
                 counter.drop(reason)
 
     def store_records(self, records: np.ndarray, names: list[str]) -> list[str]:
@@ -501,7 +523,7 @@ class HeardNeighbours:
         self.missed = 0  # listed neighbours whose state was not there when used
         self.id, self.comms = agent_id, comms
         # a state held until its tick: as fields (take), or as its record (take_records)
-        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None] | bytes]
+        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None] | HeldRecord]
         self.line = DelayLine()
         self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
         self.states_lost = 0  # comms: states that never reach this agent
@@ -556,7 +578,7 @@ class HeardNeighbours:
                 self.states_lost += 1
                 continue
             self.delay_ticks += max(0, fate - 1)
-            line.put(k, max(1, fate), records[i : i + 1].tobytes())
+            line.put(k, max(1, fate), HeldRecord(name, records[i : i + 1].tobytes()))
 
     def _deliver(self, k: int) -> None:
         """The held states due by tick ``k`` into the table (comms), in order: fields one by
@@ -565,7 +587,7 @@ class HeardNeighbours:
             return
         table, run = self.table, []
         for item in self.line.due(k):
-            if isinstance(item, bytes):
+            if isinstance(item, HeldRecord):
                 run.append(item)
                 continue
             self.deliver(run)
@@ -573,11 +595,11 @@ class HeardNeighbours:
             table.update(*item)
         self.deliver(run)
 
-    def deliver(self, records: list[bytes]) -> None:
-        """State records (each as its sender published it), delivered now, into the table."""
-        if records:
-            rec = np.frombuffer(b"".join(records), dtype=statewire.STATE)
-            self.table.store_records(rec, [src.decode() for src in rec["src"].tolist()])
+    def deliver(self, held: list[HeldRecord]) -> None:
+        """Held state records, delivered now, into the table."""
+        if held:
+            rec = np.frombuffer(b"".join(h.record for h in held), dtype=statewire.STATE)
+            self.table.store_records(rec, [h.name for h in held])
 
     def _latest_k(self, name: str) -> int:
         """The newest tick of ``name``'s states this agent has received (on the wire)."""

@@ -27,7 +27,15 @@ from swarm.net import statewire
 from swarm.net import transport as tp
 from swarm.net.cells import Interest, cell_of
 from swarm.net.messages import Message
-from swarm.net.neighbours import HELD_TICKS, HeardNeighbours, NearNeighbours, NeighbourTable, roster_arrays
+from swarm.net.neighbours import (
+    HELD_TICKS,
+    HeardNeighbours,
+    HeldRecord,
+    NearNeighbours,
+    NeighbourTable,
+    known_records,
+    roster_arrays,
+)
 from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -275,9 +283,7 @@ class BundleSource(_NearSource):
         z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
         records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.0) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
-        t = self.table
-        table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
-        table.limits = t.limits
+        table = self.table.blank()
         for _ in range(2):
             table.update_records(b.states.records, set(names), tp.Counter())
         table.arrays(0.0, 0, names)
@@ -285,11 +291,10 @@ class BundleSource(_NearSource):
         table.state(names[0])
         if self.comms is not None:  # the fates of a bundle's states, and their records delivered later
             self.comms.fates(names, self.id, MessageKind.STATE, b.states.records["k"])
-            table = NeighbourTable(t.timeout_s, t.growth_mps, t.hard_limit_s, t.on_lost, t.accel_bound_mps2, 0.0)
-            table.limits = t.limits
-            heard = HeardNeighbours(set(names), table, self.id, self.comms)
-            later = statewire.encode_state("", names[0], 1, 0.01, 1, z, z, 0.0)
-            for run in (records, [later], records):  # two, one, and two copies the limits drop
+            heard = HeardNeighbours(set(names), self.table.blank(), self.id, self.comms)
+            held = [HeldRecord(n, r) for n, r in zip(names, records, strict=True)]
+            later = HeldRecord(names[0], statewire.encode_state("", names[0], 1, 0.01, 1, z, z, 0.0))
+            for run in (held, [later], held):  # two, one, and two copies the limits drop
                 heard.deliver(run)
 
     def hear(self, key: str, sample: Any) -> bool:
@@ -319,17 +324,12 @@ class BundleSource(_NearSource):
         if self.comms is None:
             self.table.update_records(b.states.records, self.others, counter)
             return
-        rec = b.states.records  # (world.realism.comms: each state on its own way, through the relay)
-        names, keep = [], []
-        for n, src in enumerate(rec["src"].tolist()):
-            name = src.decode()
-            if name not in self.others:
-                counter.drop("state: from an agent it does not know, or itself")
-            elif name not in self.table.gone:
-                names.append(name)
-                keep.append(n)
-        if names:
-            self.take_records(rec if len(keep) == len(rec) else rec[keep], names, bundled=True)
+        # (world.realism.comms: each state on its own way, through the relay)
+        rec, names = known_records(b.states.records, self.others, counter)
+        keep = [n for n, name in enumerate(names) if name not in self.table.gone]
+        if keep:
+            rec, names = (rec, names) if len(keep) == len(names) else (rec[keep], [names[n] for n in keep])
+            self.take_records(rec, names, bundled=True)
 
 
 class CellSource(_NearSource):

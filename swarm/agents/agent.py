@@ -38,7 +38,7 @@ from swarm.net.messages import (
     warm_up,
 )
 from swarm.net.neighbours import roster_arrays
-from swarm.net.sources import BundleSource, CellSource, pick
+from swarm.net.sources import CellSource, NeighbourSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
@@ -144,7 +144,7 @@ def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> Agen
     )  # fmt: skip
 
 
-def _warm_up(step: AgentStep, source: Any, agent_id: str, start_w: FloatArray) -> None:
+def _warm_up(step: AgentStep, source: NeighbourSource, agent_id: str, start_w: FloatArray) -> None:
     """The first tick loads numba's compiled code and pays every other first-call cost
     (about a second): pay it now, before the world can see this agent, so that no real
     tick does."""
@@ -152,8 +152,7 @@ def _warm_up(step: AgentStep, source: Any, agent_id: str, start_w: FloatArray) -
     encode_command("", agent_id, 0, 0.0, 0, CommandBody.zero(step.level.value))
     warm_up()
     roster_arrays(np.zeros(7), np.zeros(1, dtype=np.intp), np.ones(1, dtype=bool))
-    if isinstance(source, BundleSource):
-        source.warm_up()
+    source.warm_up()
 
 
 def warm_kernels(cfg: ScenarioConfig) -> None:

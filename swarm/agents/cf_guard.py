@@ -80,6 +80,7 @@ import msgpack
 
 CONNECT_TIMEOUT_S = 3.0  # the drone must answer within this after the link opens
 KEEPALIVE_S = 0.05  # zero-thrust setpoints while the motors are off
+POLL_S = 0.05  # one poll of the link per this period, however fast it answers
 LANDED_AFTER_S = 2.5  # > the supervisor's 2 s flying hysteresis (supervisor.c IS_FLYING_HYSTERESIS_THRESHOLD)
 ESTOP_ROUNDS = 3  # the emergency stop's repeats, ...
 ESTOP_SPACING_S = 0.05  # ... this far apart: a busy firmware drops what comes meanwhile (socketlink.c)
@@ -208,10 +209,13 @@ class _Drone:
     def _watch_link(self) -> None:
         """The link thread: a poll every 50 ms (:func:`poll_packet`), the keep-alive while the
         motors are off, and the emergency stop when the link reports an error or stops answering."""
-        last_rx = time.monotonic()
+        last_rx = next_poll = time.monotonic()
         while not self.lost.is_set():
-            self.cf.send_packet(poll_packet(self.uri))
-            pk = self.driver.receive_packet(0.05)
+            if time.monotonic() >= next_poll:
+                self.cf.send_packet(poll_packet(self.uri))
+                next_poll = time.monotonic() + POLL_S
+            # (an answer ends the wait at once: the next poll waits for the rest of the period)
+            pk = self.driver.receive_packet(max(0.0, next_poll - time.monotonic()))
             now = time.monotonic()
             while pk is not None:
                 last_rx = now

@@ -655,6 +655,24 @@ class HeardNeighbours:
         for n in self._missing(names, k):
             self.behind[n] = self._latest_k(n)
 
+    def warm_up(self) -> None:
+        """Take two neighbours' states of three ticks (through this agent's comms model, if any)
+        into a throwaway table and build their rows every way a tick does (by tick and names,
+        the newest, a state by name, the far ones forgotten): the compiled kernels this calls
+        load now, not at the first neighbour heard, where on a cold cache numba compiles them
+        for seconds while a real drone flies on its last command."""
+        names, z = ["warm-up-1", "warm-up-2"], np.zeros(3)
+        heard = HeardNeighbours(set(names), self.table.blank(), self.id, self.comms)
+        for k in range(3):
+            for n in names:
+                heard.take(n, 0.01 * k, k, z, z, 0.05, False)
+            heard.rows(0.01 * k, k, z, lockstep=True)
+        table = heard.table
+        table.arrays(0.02, 1, names)
+        table.arrays(0.02)
+        table.state(names[0])
+        table.forget_far(z, 1.0, 0.02)
+
     def at(self, t_s: float) -> None:
         """This agent has heard of sim time ``t_s`` [s] (a measurement): no neighbour's state is
         much newer (``NeighbourTable.at``)."""

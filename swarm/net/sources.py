@@ -109,6 +109,11 @@ class NeighbourSource(Protocol):
         may be much newer (``swarm.net.statewire.Plausible.ahead_s``)."""
         ...
 
+    def warm_up(self) -> None:
+        """Load the compiled code hearing neighbours calls, before the first tick (a throwaway
+        table: nothing heard here stays)."""
+        ...
+
     @property
     def rejected(self) -> dict[str, dict[str, int]]:
         """The neighbours' states dropped as implausible, repeated, out of order or ahead of
@@ -172,6 +177,9 @@ class RosterSource:
 
     def at(self, t_s: float) -> None:
         pass
+
+    def warm_up(self) -> None:
+        pass  # (the roster's kernel: the agent's warm-up calls roster_arrays)
 
     @property
     def rejected(self) -> dict[str, dict[str, int]]:
@@ -273,22 +281,20 @@ class BundleSource(_NearSource):
         return (1 if k_next == 0 or self.bundle_k >= k_next - 1 else 2), None
 
     def warm_up(self) -> None:
-        """Read a bundle of two states into a throwaway table and build its rows (by tick, and
-        by the names the world gives): their compiled checks and kernels load now. (Two: the
+        """As every source (:meth:`swarm.net.neighbours.HeardNeighbours.warm_up`), and read a
+        bundle of two states into a throwaway table: its compiled checks load now. (Two: the
         fields of one record are contiguous arrays, a type of their own to numba.) The same
         bundle twice: the second is all copies, which the table's limits drop, and what is left
         of a bundle then is a copy of its records (writable, another type to numba). With a comms
         model, the same for the records it delivers a tick or more later, in runs of two and of
         one (:meth:`swarm.net.neighbours.HeardNeighbours.take_records`)."""
+        super().warm_up()
         z, names = np.zeros(3), ["warm-up-1", "warm-up-2"]
         records = [statewire.encode_state("", n, 0, 0.0, 0, z, z, 0.0) for n in names]
         b = statewire.read_bundle(statewire.encode_bundle("", self.id, 0, 0.0, 0, records), "")
         table = self.table.blank()
         for _ in range(2):
             table.update_records(b.states.records, set(names), tp.Counter())
-        table.arrays(0.0, 0, names)
-        table.arrays(0.0)
-        table.state(names[0])
         if self.comms is not None:  # the fates of a bundle's states, and their records delivered later
             self.comms.fates(names, self.id, MessageKind.STATE, b.states.records["k"])
             heard = HeardNeighbours(set(names), self.table.blank(), self.id, self.comms)

@@ -459,21 +459,34 @@ def right_hand_bias(
     roundabout instead of a stall. It only changes the reference; the filter still
     guarantees safety (docs/design.md, "The barrier math").
     """
-    out = np.zeros(3)
     hx, hy = float(heading_w[0]), float(heading_w[1])
     n = math.hypot(hx, hy)
     if n < 1e-9 or len(others_w) == 0:
-        return out
-    right = np.array([hy / n, -hx / n, 0.0])  # heading x e3
-    d_w = others_w - x_w
-    dist = np.linalg.norm(d_w, axis=1)
-    ahead = (d_w[:, 0] * hx + d_w[:, 1] * hy > 0) & (dist < trigger_m)
-    if others_v_w is not None:  # followed, not turned from: the agents ahead flying my way
-        ahead &= (others_v_w[:, 0] * hx + others_v_w[:, 1] * hy) < FOLLOW_FRACTION * n * n
-    weight = min(float(np.sum(1.0 - dist[ahead] / trigger_m)), 1.0)
+        return np.zeros(3)
+    follow = others_v_w is not None  # followed, not turned from: the agents ahead flying my way
+    weight = _ahead_weight(
+        np.asarray(x_w, dtype=float), hx, hy, n, others_w, others_v_w if follow else others_w, follow, trigger_m
+    )
+    weight = min(weight, 1.0)
     if cruise_mps is not None and cruise_mps > 0:
         weight *= min(1.0, n / cruise_mps)
-    return right * (speed_mps * weight)
+    return np.array([hy / n, -hx / n, 0.0]) * (speed_mps * weight)  # (heading x e3, normalised)
+
+
+@njit(cache=True)
+def _ahead_weight(x, hx, hy, n, others, others_v, follow, trigger_m):
+    """:func:`right_hand_bias`'s sum of ``1 - d / trigger_m`` over the others (k, 3) [m] in front
+    of ``x`` (along the horizontal heading ``hx, hy`` of norm ``n`` [m/s]) within ``trigger_m``,
+    less those flying this way (``follow``: their velocities ``others_v`` (k, 3) [m/s] along the
+    heading at least :data:`FOLLOW_FRACTION` of its speed)."""
+    total = 0.0
+    for i in range(others.shape[0]):
+        d0, d1, d2 = others[i, 0] - x[0], others[i, 1] - x[1], others[i, 2] - x[2]
+        dist = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if d0 * hx + d1 * hy > 0 and dist < trigger_m:
+            if not follow or others_v[i, 0] * hx + others_v[i, 1] * hy < FOLLOW_FRACTION * n * n:
+                total += 1.0 - dist / trigger_m
+    return total
 
 
 def reference_thrust(

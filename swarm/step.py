@@ -22,7 +22,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from swarm.control import YAW_GAIN_PER_S, AttitudeController, PathTracker, reference_thrust, setpoint_vector
+from swarm.control import (
+    YAW_GAIN_PER_S,
+    AttitudeController,
+    PathTracker,
+    reference_thrust,
+    right_hand_bias,
+    setpoint_vector,
+)
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.planning import StaticObstacles
 from swarm.realism.sensing import Estimator, EstimatorParams, MocapFrame
@@ -368,6 +375,10 @@ class AgentStep:
                 c.command(0.0, np.zeros(3))
                 c.frame(MocapFrame(0, 0, 0.0, c.p.latency_s + 0.005, start, c.q0))
                 c.estimate(0.01)
+        if self.tiebreak is not None:  # the tie-break's kernel, on neighbours' rows ahead as the table gives them:
+            for n in (1, 2):  # one row is a contiguous array to numba, two a strided one
+                nb = ObstacleArrays.build([start + [0.5, 0.1 * i, 0.0] for i in range(n)], [0.1] * n)
+                right_hand_bias(start, np.array([1.0, 0.0, 0.0]), nb.c_w, *self.tiebreak, 1.0, nb.c_dot_w)
         state = QuadState.hover([0.0, 0.0, 1.0])
         state.v_w = np.array([2.0, 0.0, 0.0])  # m/s, straight at the obstacles below
         weight = np.array([0.0, 0.0, self.model.params.weight_N])

@@ -16,9 +16,13 @@ agent's CPU per control tick [us], start-up excluded, averaged over agents),
 agent received per tick), ``missed_neighbours``
 (near neighbours whose state was not there when used, summed over agents),
 ``recorder_cpu_us_per_tick`` (the recorder's CPU per world tick [us], start-up excluded: the
-message channels, the Foxglove scene and the log), plus collisions, late ticks and the minimum
-separation, and ``busy_processes`` (``--busy N``: N processes spin on the CPUs meanwhile, one
-pinned to each, an overloaded machine). Each run's folder is kept under ``--out``.
+message channels, the Foxglove scene and the log), ``relay_cpu_us_per_tick`` (the bundle relay's,
+likewise; nan without one), ``swarm_cpu_us_per_agent_tick`` (every process's steady CPU, agents,
+world, relay and recorder, per agent and world tick [us]) against ``budget_us_per_agent_tick`` (the
+CPUs this process may use, per agent tick at ``--rate``: what a realtime swarm can spend), plus
+collisions, late ticks and the minimum separation, and ``busy_processes`` (``--busy N``: N
+processes spin on the CPUs meanwhile, one pinned to each, an overloaded machine). Each run's
+folder is kept under ``--out``.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import numpy as np
 
 from swarm.config import resolve
 from swarm.offline.scenario import SwapSettings, circle_swap
+from swarm.runs import ledger
 from swarm.runs.launch import RunHandle
 
 
@@ -106,6 +111,13 @@ def run_row(
     rec_path = h.out / "recorder.json"
     rec = json.loads(rec_path.read_text()) if rec_path.exists() else {}
     rec_us = ((rec["cpu_s"] - rec["startup_cpu_s"]) * 1e6 / rec["clocks"]) if rec.get("clocks") else float("nan")
+    relay = ledger.summaries(h.out / "logs").get("router", {})
+    ticks = world.get("ticks") or nan
+    relay_s = relay["cpu_s"] - relay["startup_cpu_s"] if "cpu_s" in relay else 0.0  # (no relay: no CPU)
+    relay_us = relay_s * 1e6 / ticks if "cpu_s" in relay else nan
+    steady_s = [a["cpu_s"] - a["startup_cpu_s"] for a in agents]
+    steady_s += [world.get("cpu_s", nan) - world.get("startup_cpu_s", 0.0), relay_s]
+    steady_s += [rec["cpu_s"] - rec["startup_cpu_s"] if rec.get("clocks") else nan]
     return {
         "agents": n,
         "mode": mode,
@@ -129,6 +141,9 @@ def run_row(
         "min_separation_m": metrics.get("min_separation_m"),
         "world_cpu_percent": round((world.get("cpu_s", 0) - world.get("startup_cpu_s", 0)) / wall * 100, 1),
         "recorder_cpu_us_per_tick": round(rec_us, 1),
+        "relay_cpu_us_per_tick": round(relay_us, 1),
+        "swarm_cpu_us_per_agent_tick": round(sum(steady_s) * 1e6 / (n * ticks), 1),
+        "budget_us_per_agent_tick": round(len(os.sched_getaffinity(0)) * 1e6 / (n * rate_hz), 1),
         "stop_reason": reason,
     }
 

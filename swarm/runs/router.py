@@ -129,6 +129,7 @@ def main(run: str, conf: Any, cfg: ScenarioConfig | None = None) -> int:
     relay = BundleRelay(cfg, run, session) if cfg is not None and cfg.uses_bundles else None
     token = tp.declare_liveliness(session, tp.Keys(run).alive("router"))
     print("router: listening" + (" and bundling the agents' states" if relay else ""), file=sys.stderr, flush=True)
+    startup_cpu_s = time.process_time()  # s: the process's CPU, all threads, until it listened
     while not stop:
         if relay is None:
             time.sleep(0.1)  # nothing to do: Zenoh's own threads route; this only waits for a signal
@@ -139,6 +140,9 @@ def main(run: str, conf: Any, cfg: ScenarioConfig | None = None) -> int:
     if relay is not None:
         c = relay.counter
         print(f"router: sent {relay.sent} bundles; dropped {c.dropped} {c.reasons}", file=sys.stderr)
-        summary = {"bundles": relay.sent, "dropped": c.dropped, "rejected": relay.intake.rejected}
+        summary = {
+            "bundles": relay.sent, "dropped": c.dropped, "rejected": relay.intake.rejected,
+            "cpu_s": time.process_time(), "startup_cpu_s": startup_cpu_s,
+        }  # fmt: skip
         print("ROUTER_SUMMARY " + json.dumps(summary), file=sys.stderr)
     return 0

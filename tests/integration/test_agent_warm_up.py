@@ -22,6 +22,7 @@ from swarm.config import resolve
 from swarm.net.messages import decode, encode
 from swarm.net.neighbours import _admit, _rows, _store, _newest
 from swarm.model import all_finite
+from swarm.control import _ahead_weight
 from swarm.realism.comms import _fates
 from swarm.offline.scenario import SwapSettings, circle_swap
 
@@ -30,7 +31,7 @@ raw = circle_swap(4, 2.0, SwapSettings(neighbours="agents", realism=realism), na
 raw["neighbours"]["interest"] = interest
 raw["network"] = {"topology": "star" if interest == "bundle" else "mesh"}
 cfg = resolve(raw, "warm")
-kernels = (all_finite, _rows, _newest)
+kernels = (all_finite, _rows, _newest, _ahead_weight)
 kernels += (statewire._verdicts, _admit, _store) if interest == "bundle" else ()  # (a bundle's records)
 kernels += (_fates,) if realism != "ideal" and interest == "bundle" else ()  # (the lab's comms model)
 run = "warm-run"

@@ -110,6 +110,49 @@ def test_with_their_velocities_the_tie_break_follows_agents_ahead_flying_its_way
         np.testing.assert_allclose(right_hand_bias(x, heading, ahead, 1.2, 0.5, others_v_w=np.array([v])), turning)
 
 
+def _bias_by_definition(x, heading, others, trigger_m, speed_mps, cruise_mps, others_v):
+    """right_hand_bias's docstring in numpy: each agent in front within the trigger (less those
+    flying this way) weighs 1 - d / trigger, the sum capped at 1, faded with the heading's speed."""
+    n = math.hypot(heading[0], heading[1])
+    if n < 1e-9 or len(others) == 0:
+        return np.zeros(3)
+    d = others - x
+    dist = np.linalg.norm(d, axis=1)
+    ahead = (d[:, 0] * heading[0] + d[:, 1] * heading[1] > 0) & (dist < trigger_m)
+    if others_v is not None:
+        from swarm.control import FOLLOW_FRACTION
+
+        ahead &= others_v[:, 0] * heading[0] + others_v[:, 1] * heading[1] < FOLLOW_FRACTION * n * n
+    weight = min(float(np.sum(1.0 - dist[ahead] / trigger_m)), 1.0) * min(1.0, n / cruise_mps)
+    return np.array([heading[1] / n, -heading[0] / n, 0.0]) * speed_mps * weight
+
+
+_coord = st.floats(-3.0, 3.0, allow_nan=False)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    others=st.lists(st.tuples(_coord, _coord, _coord), min_size=0, max_size=20),
+    velocities=st.booleans(),
+    heading=st.tuples(_coord, _coord, _coord),
+    trigger_m=st.floats(0.1, 3.0),
+    data=st.data(),
+)
+def test_the_tie_break_is_its_definition(others, velocities, heading, trigger_m, data):
+    """The compiled sum over the agents ahead gives the bias of the docstring, on the rows as a
+    neighbour table gives them (strided views of one record array)."""
+    from swarm.control import right_hand_bias
+
+    rows = ObstacleArrays.build(others or np.zeros((0, 3)), [0.1] * len(others))
+    v = data.draw(st.lists(st.tuples(_coord, _coord, _coord), min_size=len(others), max_size=len(others)))
+    rows.rec["cd"] = v or np.zeros((0, 3))
+    x, h = np.array([0.1, -0.2, 1.0]), np.array(heading)
+    others_v = rows.c_dot_w if velocities else None
+    got = right_hand_bias(x, h, rows.c_w, trigger_m, 0.4, 0.8, others_v)
+    want = _bias_by_definition(x, h, rows.c_w, trigger_m, 0.4, 0.8, others_v)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+
+
 def test_a_tracker_moves_on_past_short_legs_it_was_pushed_beyond_but_not_through_a_wall():
     """A replanned path's first legs can be short steps from where the agent was to the
     grid; an agent carried past them tracks the leg it is at (within SKIP_AHEAD_M of path),

@@ -659,11 +659,13 @@ def _cf_call(what: Callable[[], object]) -> object:
 
 @cf.command("status")
 @click.argument("uri")
-def cf_status(uri: str) -> None:
+@click.option("--timeout-s", type=click.FloatRange(min=0.1, max=60.0), default=3.0, show_default=True,
+              help="How long to wait for each answer (longer for a slow link or a busy simulated drone).")  # fmt: skip
+def cf_status(uri: str, timeout_s: float) -> None:
     """The supervisor's state bits of the drone at URI."""
     from swarm.agents.cf_admin import status
 
-    click.echo(", ".join(_cf_call(lambda: status(uri))) or "(no state bit set)")  # type: ignore[arg-type]
+    click.echo(", ".join(_cf_call(lambda: status(uri, timeout_s))) or "(no state bit set)")  # type: ignore[arg-type]
 
 
 @cf.command("recover")

@@ -105,6 +105,7 @@ RESENDS = 5
 MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
 MONITOR_PERIOD_10MS = 1  # 100 Hz
 HANDED_BACK_SILENT_S = 3.0
+HANDED_BACK_SETTLE_S = 4.0  # at most this long after a hand-back for the supervisor to stop counting it flying
 BOOT_TIMEOUT_S = 5.0  # a firmware without its gyro bias this long after its hello is restarted (about 1 s normally)
 CF2_ENV = "C3SWARM_CF2"
 
@@ -300,6 +301,7 @@ class FirmwareDrone:
     talked_s: float = -math.inf  # monotonic time of the client's newest packet
     setpoint_s: float = -math.inf  # ... and of its newest setpoint (RPYT or the stop)
     handed_back: bool = False
+    handed_back_s: float = math.inf  # monotonic time of the hand-back
     last_sample: dict[str, float] = field(default_factory=dict)
     state: FwState = FwState.NOT_READY
     events: list[tuple[float, str]] = field(default_factory=list)  # (monotonic s, FwState) transitions
@@ -315,13 +317,19 @@ class FirmwareDrone:
         self.cl_sock.setblocking(False)
 
     def done(self, now: float) -> bool:
-        """Its client is done with it: it handed the drone back, or fell silent for
-        :data:`HANDED_BACK_SILENT_S` after talking while the drone rests on the floor with its
-        motors off. A client that stalls mid-flight does not count: the relay carries the other
+        """Its client is done with it: it handed the drone back and the supervisor no longer
+        counts it flying (or :data:`HANDED_BACK_SETTLE_S` after the hand-back), or it fell silent
+        for :data:`HANDED_BACK_SILENT_S` after talking while the drone rests on the floor with
+        its motors off. The supervisor counts a drone flying for 2 s after its last thrust on the
+        firmware's clock (supervisor.c ``IS_FLYING_HYSTERESIS_THRESHOLD``), which a busy machine
+        slows against the wall clock the client waits on: the trace then still ends with the
+        drone landed. A client that stalls mid-flight does not count: the relay carries the other
         drones' links, and ending it would refuse them (cflib's UDP socket is connected: its
         next receive fails with ``ConnectionRefusedError``)."""
+        if self.handed_back:
+            return self.state is not FwState.FLYING or now - self.handed_back_s > HANDED_BACK_SETTLE_S
         silent = self.talked_s > -math.inf and now - self.talked_s > HANDED_BACK_SILENT_S
-        return self.handed_back or (silent and self.body.resting)
+        return silent and self.body.resting
 
     def start(self, log: IO[bytes] | int) -> None:
         """Start the firmware, a UDP client of :attr:`fw_sock` (it dies with this process)."""
@@ -432,7 +440,8 @@ class FirmwareDrone:
             self.setpoint_s = now
             self.write({"k": "sp", "t": now, "roll": r, "pitch": p, "yaw": y, "thrust": thrust})
         elif port == 7 and ch == 1 and data[:1] == b"\x00":  # crtp_commander.c metaNotifySetpointsStop
-            self.handed_back = True
+            if not self.handed_back:
+                self.handed_back, self.handed_back_s = True, now
             self.write({"k": "pkt", "t": now, "what": "notify_stop"})
         elif port == 7 and ch == 0 and data[:1] == b"\x00":  # crtp_commander_generic.c stopType
             self.setpoint_s = now

@@ -177,9 +177,10 @@ def test_a_zero_attitude_setpoint_is_levelling_out_only_once_the_client_is_silen
 
 def test_the_relay_outlives_a_client_that_falls_silent_mid_flight():
     """``--until-handed-back`` ends the relay once every client is done with its drone: handed
-    back, or silent for 3 s with the drone resting on the floor. A client silent in flight is not
-    done (the relay carries the other drones' links; ending it refuses them)."""
-    from swarm.world.sitl_fw import HANDED_BACK_SILENT_S, FirmwareDrone
+    back (and its supervisor no longer counting it flying, for at most HANDED_BACK_SETTLE_S), or
+    silent for 3 s with the drone resting on the floor. A client silent in flight is not done
+    (the relay carries the other drones' links; ending it refuses them)."""
+    from swarm.world.sitl_fw import HANDED_BACK_SETTLE_S, HANDED_BACK_SILENT_S, FirmwareDrone
 
     d = FirmwareDrone("real1", 0, [0.0, 0.0, 0.0], 0.0, cf2=Path("/nonexistent"))
     try:
@@ -191,7 +192,9 @@ def test_the_relay_outlives_a_client_that_falls_silent_mid_flight():
         assert not d.done(later)
         d.body.s[2] = 0.0  # on the floor, motors still spinning
         assert not d.done(later)
-        d.handed_back = True
+        d.handed_back, d.handed_back_s, d.state = True, 100.0, FwState.FLYING  # (the supervisor's 2 s)
+        assert not d.done(100.5) and d.done(100.0 + HANDED_BACK_SETTLE_S + 0.1)
+        d.state = FwState.READY  # landed
         assert d.done(100.5)
     finally:
         d.fw_sock.close()

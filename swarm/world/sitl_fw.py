@@ -60,8 +60,8 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
 The drone counts as ready, and answers probes, once the firmware has its gyro bias and
 the monitor is logging. With ``--until-handed-back`` the process ends when every drone has
 been handed back by its client (``send_notify_setpoint_stop``, CRTP port 7 channel 1, as
-crtp_commander.c reads it), or rests on the floor, motors off, with its client silent for 3 s
-after talking (:meth:`FirmwareDrone.done`); SIGTERM ends it too.
+crtp_commander.c reads it) and landed as its supervisor sees it, or rests on the floor, motors
+off, with its client silent for 3 s after talking (:meth:`FirmwareDrone.done`); SIGTERM ends it too.
 """
 
 from __future__ import annotations

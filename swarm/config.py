@@ -507,6 +507,54 @@ MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each 
 AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
 
 
+MonitorAction = Literal["warn", "slow", "hold", "land"]
+
+
+class MonitorGrades(_Strict):
+    """What the safety monitor does on each of its checks (``swarm.safety.monitor``): ``warn``
+    counts and reports it, ``slow`` flies the reference at ``slow_fraction`` of its speed,
+    ``hold`` holds the drone where it is, ``land`` lands it where it is (latched)."""
+
+    estimate_std: MonitorAction = "slow"
+    estimate_age: MonitorAction = "hold"
+    estimate_lost: MonitorAction = "land"
+    neighbour_std: MonitorAction = "slow"
+    neighbour_age: MonitorAction = "slow"
+    infeasible: MonitorAction = "warn"
+    disturbance: MonitorAction = "land"
+    world_late: MonitorAction = "hold"
+    tick_overrun: MonitorAction = "warn"
+
+
+class MonitorSettings(_Strict):
+    """The safety monitor in every agent (``swarm.safety.monitor``, docs/design.md, "The safety
+    monitor"): each tick it checks what the filter's margins assume and acts on a breach."""
+
+    enabled: bool = True
+    # m: the largest position deviation (one axis's standard deviation) an estimate may have;
+    # null: std_envelope_factor times the steady-state one the noise margin was designed for
+    # (swarm.tuning.design_std: a frame or two dropped in a row is within it, a gap of five is not)
+    std_envelope_m: float | None = Field(None, gt=0, allow_inf_nan=False)
+    std_envelope_factor: float = Field(1.5, ge=1, le=100, allow_inf_nan=False)
+    estimate_age_s: float = Field(0.15, gt=0, le=10, allow_inf_nan=False)  # own estimate without a frame
+    estimate_lost_s: float = Field(0.5, gt=0, le=10, allow_inf_nan=False)  # ... past this: lost
+    # s: a neighbour's state older than this; null: failure.neighbour_timeout_s
+    neighbour_age_s: float | None = Field(None, gt=0, le=10, allow_inf_nan=False)
+    infeasible_s: float = Field(0.25, gt=0, le=60, allow_inf_nan=False)  # no clean solve for this long
+    disturbance_s: float = Field(0.5, gt=0, le=60, allow_inf_nan=False)  # disturbance at its clip this long
+    world_late_s: float = Field(0.1, gt=0, le=10, allow_inf_nan=False)  # realtime: world behind the wall clock
+    slow_fraction: float = Field(0.5, gt=0, le=1, allow_inf_nan=False)
+    land_speed_mps: float = Field(0.3, gt=0, le=2, allow_inf_nan=False)
+    settle_s: float = Field(0.5, ge=0, le=60, allow_inf_nan=False)  # an action holds this long after its breach
+    grades: MonitorGrades = MonitorGrades()
+
+    @model_validator(mode="after")
+    def _ages(self) -> MonitorSettings:
+        if self.estimate_lost_s <= self.estimate_age_s:
+            raise ValueError("estimate_lost_s must be longer than estimate_age_s")
+        return self
+
+
 class Ros2Settings(_Strict):
     """The run seen and steered from ROS 2 (``swarm.ros2``, docs/ros2.md): a bridge process
     that publishes the swarm as ROS 2 topics the way rmw_zenoh maps them, through the
@@ -563,6 +611,7 @@ class ScenarioConfig(_Strict):
     limits: LimitSettings = LimitSettings()
     ros2: Ros2Settings = Ros2Settings()
     world: WorldSettings = WorldSettings()
+    monitor: MonitorSettings = MonitorSettings()
 
     @model_validator(mode="after")
     def _machine(self) -> ScenarioConfig:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -36,11 +36,12 @@ from swarm.realism.sensing import Estimator, EstimatorParams, MocapFrame
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
+from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import command_lead_s, filter_config_for
+from swarm.tuning import command_lead_s, design_std, filter_config_for, live_margin_m, monitor_params
 
 if TYPE_CHECKING:
-    from swarm.config import AgentConfig
+    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
     from swarm.realism.settings import RealismSettings
 
 
@@ -64,6 +65,19 @@ the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an es
 wrong cannot tip the drone over."""
 
 
+class _Sensed(NamedTuple):
+    """What the sense stage of a step found."""
+
+    now: QuadState  # the state at the tick's time (published)
+    state: QuadState  # the state filtered: at the tick's time plus the lead
+    d_w: FloatArray | None  # (3,) m/s^2, world: the disturbance taken off the command, or None
+    sd_m: float  # m: the largest axis's position deviation of ``state`` (the live margins')
+    sd_now: tuple[float, float]  # the position [m] and velocity [m/s] deviations of ``now`` (published)
+    age_s: float  # s: since the capture of the last frame fused (0 without an estimator)
+    est: FloatArray  # (9,) the estimate reported (StepResult.est), or (0,)
+    clip_mps2: float  # m/s^2: the disturbance's clip per axis
+
+
 @dataclass(frozen=True)
 class StepResult:
     """What one control step decided, and the agent's running tallies after it."""
@@ -83,7 +97,12 @@ class StepResult:
     arrived: bool  # it has been within the goal tolerance of its goal at some step
     min_h: float  # m^2/s: smallest exact h of its rows over every step so far (inf: none yet)
     infeasible_ticks: int  # steps so far whose filter call was not a clean solve
-    est: FloatArray  # (6,) centre of mass [m] and velocity [m/s], world, as estimated (sensing), else (0,)
+    # (9,) with an estimate: centre of mass [m] and velocity [m/s], world, the largest axis's position [m] and
+    # velocity [m/s] standard deviations, and its age [s] (since the last frame fused); else (0,)
+    est: FloatArray
+    sd: tuple[float, float] = (0.0, 0.0)  # the published state's position [m] and velocity [m/s] deviations
+    verdict: Verdict = CLEAR  # the safety monitor's at this step
+    live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
 
     @property
     def intervention(self) -> float:
@@ -122,6 +141,8 @@ class AgentStep:
         estimator: Estimator | None = None,
         lead_s: float = 0.0,
         observer: EstimatorParams | None = None,
+        monitor: MonitorParams | None = None,
+        fixed_sd: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -133,7 +154,11 @@ class AgentStep:
         to then (the estimate, or the given state moved by its last command) against rows the
         caller gives at the same time. ``observer``: a real drone's estimator of its disturbance
         alone, from the states it is given (it acts on them), run on the ticks the caller says it
-        is airborne."""
+        is airborne. ``monitor``: the safety monitor's parameters (None: no monitor).
+        ``fixed_sd``: without an estimator, the position [m] and velocity [m/s] deviations its
+        states have (a real drone's motion capture in a world with sensing; 0: exact). With an
+        estimator or a deviation every row grows by the live noise margin
+        (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -144,6 +169,9 @@ class AgentStep:
         self.estimator = estimator
         self.lead_s = lead_s
         self.observer = observer
+        self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
+        self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
+        self.live = estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
         self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included) (no estimator)
@@ -162,13 +190,17 @@ class AgentStep:
         level: CommandLevel | None = None,
         realism: RealismSettings | None = None,
         control_hz: float | None = None,
+        monitor: MonitorSettings | None = None,
+        failure: FailureSettings | None = None,
     ) -> AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
         (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
         ``realism.sensing`` a simulated drone's estimator, starting at its start with its start velocity (a real
-        drone acts on the states the world relays from the real motion capture); with
-        ``control_hz`` its command's lead in that world."""
+        drone acts on the states the world relays from the real motion capture, whose deviations
+        are taken as the design's, ``swarm.tuning.design_std``); with
+        ``control_hz`` its command's lead in that world; with ``monitor`` (and the scenario's
+        ``failure`` settings) its safety monitor."""
         level = agent.command_level if level is None else level
         lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
         path_w, route = path_for(agent, still)
@@ -183,6 +215,12 @@ class AgentStep:
                 np.array([0.0, 0.0, math.sin(half), math.cos(half)]),
                 v0_w=np.asarray(agent.start_velocity, float),
             )
+        mon = None
+        if monitor is not None:
+            from swarm.config import FailureSettings as _Failure
+
+            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
+        fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         return cls(
             QuadModel(agent.quad_params()),
             filter_config_for(agent, still, level, route, realism),
@@ -197,6 +235,8 @@ class AgentStep:
             estimator=estimator,
             lead_s=lead_s,
             observer=observer,
+            monitor=mon,
+            fixed_sd=fixed_sd,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -237,6 +277,8 @@ class AgentStep:
         landing: bool = False,
         frames: list[MocapFrame] | None = None,
         airborne: bool = True,
+        world_late_s: float = 0.0,
+        tick_overrun: bool = False,
     ) -> StepResult:
         """The step at sim time ``t_s`` [s] from ``state`` (centre of mass, world), among
         ``obstacles`` and ``neighbours`` (rows at ``t_s``, with their names). ``tracker``:
@@ -245,41 +287,31 @@ class AgentStep:
         With an estimator the state is its estimate at ``t_s`` from the motion-capture
         ``frames`` that arrived since the last step (``state`` is not read). With a lead the
         neighbours' rows are the caller's at ``t_s + lead_s``. ``airborne`` False (a real drone
-        taking off): its observer rests, and starts afresh from the state of its next airborne tick."""
-        model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
-        now = state  # (the state at t_s, published; a lead moves the one filtered)
-        d_w: FloatArray | None = None  # m/s^2, world: the disturbance taken off the command
-        if self.observer is not None and airborne and est is None:  # (a real drone, on the state it is given)
-            seen = self._observed
-            if seen is None:
-                seen = self._observed = Estimator(self.observer, state.x_w, state.q, t_s, state.v_w)
-            self._frames += 1
-            seen.frame(MocapFrame(0, self._frames, t_s, t_s, state.x_w, state.q))
-            if level is CommandLevel.ATTITUDE:
-                lim = MAX_DISTURBANCE_FRACTION * model.params.g_mps2
-                d_w = np.clip(seen.estimate(t_s).d_w, -lim, lim)
-        if est is not None:
-            for f in frames or ():
-                est.frame(f)
-            e = est.estimate(t_s)
-            est_out = np.concatenate([e.x_w, e.v_w])  # (reported at the tick's time)
-            if level is CommandLevel.ATTITUDE:
-                lim = MAX_DISTURBANCE_FRACTION * model.params.g_mps2
-                d_w = np.clip(e.d_w, -lim, lim)
-            state = now = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
-            if lead > 0.0:
-                e = est.estimate(t_s + lead)
-                state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
-        elif lead > 0.0:
-            a = self._a_w
-            x_w = state.x_w + state.v_w * lead + 0.5 * a * lead * lead
-            state = QuadState(x_w, state.v_w + a * lead, state.q, state.Omega_b)
+        taking off): its observer rests, and starts afresh from the state of its next airborne tick.
+        ``world_late_s`` [s] (how far the world's clock is behind the wall clock) and
+        ``tick_overrun`` (the agent's last tick took longer than a tick) are the shell's readings
+        for the safety monitor.
+
+        Stages: sense (the state acted on, and its deviation), widen (every row by the live noise
+        margin), monitor (the verdict on what the margins assume), reference (the tracker's, or
+        the velocity the route or the monitor holds), filter, command."""
+        model, level = self.model, self.level
+        sensed = self._sense(t_s, state, frames, airborne)
+        now, state, d_w = sensed.now, sensed.state, sensed.d_w
         x_b, v_b, yaw = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, model.params.l_m)
         nb = neighbours.arrays
+        obs = obstacles.arrays
+        extra_nb = extra_obs = _NO_ESTIMATE
+        nb_sd = np.zeros(len(nb)) if neighbours.sd_m is None else neighbours.sd_m
+        if self.live:
+            extra_nb, extra_obs = live_margin_m(sensed.sd_m, nb_sd), live_margin_m(sensed.sd_m, np.zeros(len(obs)))
+            nb, obs = nb.widened(extra_nb), obs.widened(extra_obs)
+        verdict = self._monitor(t_s, sensed, x_b, nb, nb_sd, neighbours.age_s, d_w, world_late_s, tick_overrun)
         held = None
         if tracker is None:
             held = self._held(t_s, state, nb)
             tracker = self.tracker
+        held = self._act(verdict.action, held, tracker, state)
         if held is not None:
             F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, held)  # hover, or back out of the passage
         else:
@@ -289,7 +321,6 @@ class AgentStep:
         res: FilterResult | None = None
         row_ids: list[str] = []
         if self.filtered:
-            obs = obstacles.arrays
             rows = ObstacleArrays.concat([obs, nb]) if len(obs) else nb
             filt = self.filt_land if landing and self.filt_land is not None else self.filt
             res = filt.filter(state, u_ref, rows)
@@ -310,22 +341,140 @@ class AgentStep:
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
+        self._commanded(t_s, state, u, d_w, airborne)
+        live_m = max(float(extra_nb.max(initial=0.0)), float(extra_obs.max(initial=0.0)))
+        return StepResult(
+            level=level,
+            command=command,
+            u=u,
+            status=status,
+            filter=res,
+            row_ids=row_ids,
+            held_w=held,
+            x_b_w=pub_x,
+            v_b_w=pub_v,
+            solo=self.solo,
+            arrived=self.arrived,
+            min_h=self.min_h,
+            infeasible_ticks=self.infeasible,
+            est=sensed.est,
+            sd=sensed.sd_now,
+            verdict=verdict,
+            live_margin_m=live_m,
+        )
+
+    def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:
+        """The state the step acts on (at ``t_s + lead_s``), the one it publishes (at ``t_s``),
+        their deviations, and the disturbance taken off the command: the estimator's, from the
+        ``frames`` (``state`` unread); a real drone's observer's on ``state``; or ``state`` moved
+        by the last command over the lead."""
+        model, level, est, lead = self.model, self.level, self.estimator, self.lead_s
+        now = state
+        d_w: FloatArray | None = None  # m/s^2, world: the disturbance taken off the command
+        lim = MAX_DISTURBANCE_FRACTION * model.params.g_mps2
+        if self.observer is not None and airborne and est is None:  # (a real drone, on the state it is given)
+            seen = self._observed
+            if seen is None:
+                seen = self._observed = Estimator(self.observer, state.x_w, state.q, t_s, state.v_w)
+            self._frames += 1
+            seen.frame(MocapFrame(0, self._frames, t_s, t_s, state.x_w, state.q))
+            if level is CommandLevel.ATTITUDE:
+                d_w = np.clip(seen.estimate(t_s).d_w, -lim, lim)
+        if est is None:
+            if self.lead_s > 0.0:
+                a = self._a_w
+                x_w = state.x_w + state.v_w * lead + 0.5 * a * lead * lead
+                state = QuadState(x_w, state.v_w + a * lead, state.q, state.Omega_b)
+            sd = self.fixed_sd
+            return _Sensed(now, state, d_w, sd[0], sd, 0.0, _NO_ESTIMATE, lim)
+        for f in frames or ():
+            est.frame(f)
+        e = est.estimate(t_s)
+        sd_now = (float(e.pos_std_m.max()), float(e.vel_std_mps.max()))
+        est_out = np.array([*e.x_w, *e.v_w, *sd_now, e.age_s])  # (reported at the tick's time)
+        if level is CommandLevel.ATTITUDE:
+            d_w = np.clip(e.d_w, -lim, lim)
+        state = now = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+        sd_m = sd_now[0]
+        if lead > 0.0:
+            e = est.estimate(t_s + lead)
+            state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
+            sd_m = float(e.pos_std_m.max())
+        return _Sensed(now, state, d_w, sd_m, sd_now, e.age_s, est_out, lim)
+
+    def _monitor(
+        self,
+        t_s: float,
+        sensed: _Sensed,
+        x_b_w: FloatArray,
+        nb: ObstacleArrays,
+        nb_sd_m: FloatArray,
+        nb_age_s: FloatArray | None,
+        d_w: FloatArray | None,
+        world_late_s: float,
+        tick_overrun: bool,
+    ) -> Verdict:
+        """The safety monitor's verdict on this step's readings (CLEAR without a monitor): the
+        own deviation and age, the largest deviation and age of the neighbours within the
+        filter's sensing radius, the last filter call, the disturbance at its clip, and the
+        shell's readings."""
+        mon = self.monitor
+        if mon is None:
+            return CLEAR
+        nb_sd = nb_age = 0.0
+        if len(nb):
+            d = nb.c_w - x_b_w
+            near = np.einsum("ij,ij->i", d, d) <= self.config.sensing_radius_m**2
+            if near.any():
+                nb_sd = float(nb_sd_m[near].max())
+                nb_age = 0.0 if nb_age_s is None else float(nb_age_s[near].max())
+        clipped = d_w is not None and bool((np.abs(d_w) >= sensed.clip_mps2 * (1.0 - 1e-9)).any())
+        return mon.check(
+            Readings(
+                t_s=t_s,
+                own_std_m=sensed.sd_now[0],
+                own_age_s=sensed.age_s,
+                neighbour_std_m=nb_sd,
+                neighbour_age_s=nb_age,
+                clean_solve=not (self.filtered and self.solo),
+                disturbance_clipped=clipped,
+                world_late_s=world_late_s,
+                tick_overrun=tick_overrun,
+            )
+        )
+
+    def _act(
+        self, action: Action, held: FloatArray | None, tracker: PathTracker, state: QuadState
+    ) -> FloatArray | None:
+        """The velocity [m/s, world] the step holds under the monitor's ``action``: the route's
+        or the path's at ``slow_fraction`` of it (SLOW), zero (HOLD), down at the landing speed
+        to the filter's floor, then zero (LAND); ``held`` unchanged below SLOW."""
+        if action < Action.SLOW or self.monitor is None:
+            return held
+        p = self.monitor.p
+        if action is Action.SLOW:
+            v = tracker.command(state.x_w)[0] if held is None else held
+            return p.slow_fraction * v
+        if action is Action.LAND:
+            floor = self.config.floor_z_m
+            if floor is None or state.x_w[2] > floor + 0.05:
+                return np.array([0.0, 0.0, -p.land_speed_mps])
+        return np.zeros(3)
+
+    def _commanded(self, t_s: float, state: QuadState, u: FloatArray, d_w: FloatArray | None, airborne: bool) -> None:
+        """Tell the estimator (or the observer) the acceleration the command ``u`` asks from
+        when it acts, and keep it for the next tick's lead without one."""
+        est, lead = self.estimator, self.lead_s
         if not airborne:
             self._observed = None
         tracked = est if est is not None else self._observed
         if tracked is not None:
-            a_w = self._tilted_accel_w(state, u) if level is CommandLevel.ATTITUDE else self._accel_w(state, u)
+            a_w = self._tilted_accel_w(state, u) if self.level is CommandLevel.ATTITUDE else self._accel_w(state, u)
             tracked.command(t_s + lead, a_w)
-        if est is None:
-            if lead > 0.0:
-                self._a_w = self._accel_w(state, u)  # (the next tick's lead moves the state by it)
-                if d_w is not None:
-                    self._a_w = self._a_w + d_w  # (what the drone does with it: the filtered acceleration)
-            est_out = _NO_ESTIMATE
-        return StepResult(
-            level, command, u, status, res, row_ids, held, pub_x, pub_v, self.solo, self.arrived, self.min_h,
-            self.infeasible, est_out,
-        )  # fmt: skip
+        if est is None and lead > 0.0:
+            self._a_w = self._accel_w(state, u)  # (the next tick's lead moves the state by it)
+            if d_w is not None:
+                self._a_w = self._a_w + d_w  # (what the drone does with it: the filtered acceleration)
 
     def _accel_w(self, state: QuadState, u: FloatArray) -> FloatArray:
         """The acceleration [m/s^2, world] the command ``u`` asks of the nominal airframe at
@@ -349,9 +498,22 @@ class AgentStep:
         x_b, v_b, _ = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.model.params.l_m)
         zero = np.zeros(4)
         return StepResult(
-            self.level, zero, zero, FilterStatus.OK, None, [], None, x_b, v_b, self.solo, self.arrived, self.min_h,
-            self.infeasible, _NO_ESTIMATE,
-        )  # fmt: skip
+            level=self.level,
+            command=zero,
+            u=zero,
+            status=FilterStatus.OK,
+            filter=None,
+            row_ids=[],
+            held_w=None,
+            x_b_w=x_b,
+            v_b_w=v_b,
+            solo=self.solo,
+            arrived=self.arrived,
+            min_h=self.min_h,
+            infeasible_ticks=self.infeasible,
+            est=_NO_ESTIMATE,
+            sd=self.fixed_sd,
+        )
 
     def reset_tallies(self) -> None:
         """Forget the running tallies (after a warm-up call)."""

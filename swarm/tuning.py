@@ -8,11 +8,16 @@ import math
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from swarm.net.neighbours import NeighbourTable
 from swarm.planning import StaticObstacles
+from swarm.rotation import FloatArray
 from swarm.route import Route, plans_round_walls
+from swarm.safety.monitor import Action, Breach, MonitorParams
 
 if TYPE_CHECKING:
-    from swarm.config import AgentConfig
+    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
     from swarm.model import CommandLevel, QuadParams
     from swarm.realism.settings import RealismSettings
     from swarm.safety.filter import FilterConfig
@@ -23,18 +28,36 @@ position error (own and neighbour's, independent: ``sqrt(2)`` times one) beyond 
 ``world.realism.sensing`` (:func:`noise_margin_m`)."""
 
 
-def noise_margin_m(realism: RealismSettings | None) -> float:
-    """The extra radius [m] for the estimates' noise: :data:`NOISE_SIGMAS` x ``sqrt(2)`` x the
-    estimator's steady-state position standard deviation when it is read
-    (``swarm.realism.sensing.steady_std``; 0 without sensing). Two estimates of independent
-    frames are each within it of the truth except with the Gaussian tail's odds."""
+def design_std(realism: RealismSettings | None) -> tuple[float, float]:
+    """The estimator's steady-state standard deviations of position [m] and velocity [m/s] when
+    it is read (``swarm.realism.sensing.steady_std``, the largest axis; (0, 0) without sensing):
+    what an agent without an estimator of its own (a real drone on the world's frames) says its
+    state's deviations are, and the envelope the safety monitor holds the live ones to
+    (``swarm.safety.monitor``)."""
     if realism is None or not realism.sensing.enabled:
-        return 0.0
+        return 0.0, 0.0
     from swarm.realism.sensing import steady_std
 
     s = realism.sensing
-    pos_std, _ = steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)
-    return NOISE_SIGMAS * math.sqrt(2.0) * pos_std
+    return steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)
+
+
+def noise_margin_m(realism: RealismSettings | None) -> float:
+    """The steady-state noise margin [m]: :data:`NOISE_SIGMAS` x ``sqrt(2)`` x the
+    estimator's steady-state position deviation (:func:`design_std`; 0 without sensing). Two
+    estimates of independent frames are each within it of the truth except with the Gaussian
+    tail's odds. The filter keeps the live form of it (:func:`live_margin_m`); this is the
+    figure the margin is designed for, against which the monitor and the metrics compare."""
+    return NOISE_SIGMAS * math.sqrt(2.0) * design_std(realism)[0]
+
+
+def live_margin_m(own_sd_m: float, row_sd_m: FloatArray) -> FloatArray:
+    """The extra radius [m] of each row for the estimates' noise now: :data:`NOISE_SIGMAS` x the
+    root sum of squares of the agent's own position deviation ``own_sd_m`` [m] and the one its
+    row's state carries ``row_sd_m`` (n,) [m] (0 for a fixed obstacle). Own and neighbour's
+    estimates are of independent frames, so the pair's relative error has that deviation; it
+    grows through a motion-capture gap of either and shrinks when frames return."""
+    return NOISE_SIGMAS * np.sqrt(own_sd_m * own_sd_m + row_sd_m * row_sd_m)
 
 
 def max_accel_mps2(params: QuadParams) -> float:
@@ -59,6 +82,50 @@ def prediction_bounds(params: QuadParams, realism: RealismSettings | None) -> tu
         s = realism.sensing
         vel = NOISE_SIGMAS * steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)[1]
     return max_accel_mps2(params), vel
+
+
+def neighbour_table(failure: FailureSettings, params: QuadParams, realism: RealismSettings | None) -> NeighbourTable:
+    """The neighbour table of an agent flying an airframe like ``params``: its ``failure``
+    settings, the prediction bounds of ``realism`` (:func:`prediction_bounds`), and with
+    ``realism.sensing`` each row's velocity error :data:`NOISE_SIGMAS` times the deviation its
+    state carries where that exceeds the bound (the one builder of every shell)."""
+    accel, vel_err = prediction_bounds(params, realism)
+    sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
+    f = failure
+    return NeighbourTable(
+        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas
+    )
+
+
+def monitor_params(
+    settings: MonitorSettings, realism: RealismSettings | None, failure: FailureSettings
+) -> MonitorParams:
+    """The safety monitor's parameters (``swarm.safety.monitor.MonitorParams``) from the
+    scenario's ``monitor`` settings: the deviation envelope, ``std_envelope_factor`` times the
+    steady-state deviation the noise margin was designed for (:func:`design_std`, with sensing;
+    none without) unless set, the neighbours' age bound
+    ``failure.neighbour_timeout_s`` unless set."""
+    envelope = settings.std_envelope_m
+    if envelope is None:
+        sd = design_std(realism)[0]
+        envelope = settings.std_envelope_factor * sd if sd > 0.0 else math.inf
+    grades = tuple(
+        (Breach[name.upper()], Action[action.upper()]) for name, action in settings.grades.model_dump().items()
+    )
+    return MonitorParams(
+        enabled=settings.enabled,
+        std_envelope_m=envelope,
+        estimate_age_s=settings.estimate_age_s,
+        estimate_lost_s=settings.estimate_lost_s,
+        neighbour_age_s=settings.neighbour_age_s or failure.neighbour_timeout_s,
+        infeasible_s=settings.infeasible_s,
+        disturbance_s=settings.disturbance_s,
+        world_late_s=settings.world_late_s,
+        slow_fraction=settings.slow_fraction,
+        land_speed_mps=settings.land_speed_mps,
+        settle_s=settings.settle_s,
+        grades=grades,
+    )
 
 
 def command_lead_s(realism: RealismSettings | None, control_hz: float) -> float:
@@ -112,19 +179,17 @@ def filter_config_for(
     obstacles: StaticObstacles,
     level: CommandLevel,
     route: Route | None = None,
-    realism: RealismSettings | None = None,
+    realism: RealismSettings | None = None,  # (unused: the noise margin is live)
 ) -> FilterConfig:
     """The agent's filter settings at command ``level`` among the static ``obstacles``: its
     configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
     flying a lane (:func:`swarm.planning.keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
     and no velocity buffer: a lane runs a few centimetres beyond the safety radius from a wall
     and from the other flow's lane, on purpose, and the buffer asks every row for about 0.1 m/s
-    of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths"). With
-    ``realism.sensing`` the margin grows by :func:`noise_margin_m`."""
+    of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths").
+    The estimates' noise is not in the margin: each row grows by it live (:func:`live_margin_m`,
+    ``swarm.step``)."""
     cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
-    noise = noise_margin_m(realism)
-    if noise > 0.0:  # world.realism.sensing: the estimates' noise (noise_margin_m)
-        cfg = replace(cfg, margin_m=cfg.margin_m + noise)
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
     return cfg

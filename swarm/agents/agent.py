@@ -44,6 +44,7 @@ from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
 from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
+from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles
 from swarm.shutdown import StopFlag
 from swarm.step import AgentStep, StepResult
@@ -66,6 +67,9 @@ def command_body(result: StepResult) -> CommandBody:
         result.infeasible_ticks,
         result.arrived,
         result.est,
+        int(result.verdict.action),
+        int(result.verdict.breaches),
+        result.live_margin_m,
     )
 
 
@@ -140,7 +144,7 @@ class RealDrone:
 def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> AgentStep:
     return AgentStep.of_agent(
         cfg.agent(agent_id), still, cfg.goal_tolerance_m,
-        realism=cfg.world.realism, control_hz=cfg.time.control_hz,
+        realism=cfg.world.realism, control_hz=cfg.time.control_hz, monitor=cfg.monitor, failure=cfg.failure,
     )  # fmt: skip
 
 
@@ -198,6 +202,10 @@ class AgentProcess:
         self.msg_seen: dict[int, float] = {}  # lockstep: wall time each tick's measurement arrived
         self.reported_gone: set[str] = set()
         self.acted_k = -1  # lockstep: the newest tick acted on
+        self.pace_s: float | None = None  # realtime: the smallest (wall clock - sim time) of a tick acted on [s]
+        self.last_tick_s = 0.0  # wall time [s] the last tick took
+        self.tick_budget_s = 1.0 / cfg.time.control_hz
+        self.action = Action.NONE  # the safety monitor's action at the last tick
         _warm_up(self.step, self.source, agent_id, np.asarray(me.start, float))
         self.plan = FlightPlan(me) if self.real else None  # a real drone's phases (after the warm-up)
 
@@ -411,24 +419,47 @@ class AgentProcess:
         state = QuadState(msg["x"], msg["v"], msg["q"], msg["w"])
         x_b = body_centre(state.x_w, state.v_w, state.q, state.Omega_b, self.step.model.params.l_m)[0]
         neighbours = self.source.rows(msg.t + self.step.lead_s, msg.k, x_b, self.lockstep)
+        late_s = 0.0
+        if not self.lockstep:  # realtime: how far the world's clock has fallen behind the wall clock
+            behind = time.monotonic() - msg.t
+            self.pace_s = behind if self.pace_s is None else min(self.pace_s, behind)
+            late_s = behind - self.pace_s
+        overrun = self.last_tick_s > self.tick_budget_s
         if self.plan is None:
-            return self.step(msg.t, state, self.obstacles, neighbours, frames=msg.body.get("frames"))
-        tracker = self.plan.tracker(state.x_w)
-        if tracker is None:  # landed or stopped: motors off
-            return self.step.motors_off(state)
-        phase = self.plan.phase
-        return self.step(
-            msg.t, state, self.obstacles, neighbours, tracker=tracker, landing=phase is Phase.LAND,
-            airborne=phase is not Phase.TAKEOFF,
-        )  # fmt: skip
+            result = self.step(
+                msg.t, state, self.obstacles, neighbours, frames=msg.body.get("frames"), world_late_s=late_s,
+                tick_overrun=overrun,
+            )  # fmt: skip
+        else:
+            tracker = self.plan.tracker(state.x_w)
+            if tracker is None:  # landed or stopped: motors off
+                return self.step.motors_off(state)
+            phase = self.plan.phase
+            result = self.step(
+                msg.t, state, self.obstacles, neighbours, tracker=tracker, landing=phase is Phase.LAND,
+                airborne=phase is not Phase.TAKEOFF, world_late_s=late_s, tick_overrun=overrun,
+            )  # fmt: skip
+        self.on_verdict(msg.t, result)
+        return result
+
+    def on_verdict(self, t_s: float, result: StepResult) -> None:
+        """Say when the safety monitor's action changes; a real drone it lands lands by its
+        flight plan (motors off on the ground)."""
+        v = result.verdict
+        if v.action is not self.action:
+            why = ", ".join(n for b, n in BREACH_NAMES.items() if b in v.breaches) or "settling"
+            print(f"agent {self.id}: monitor: {v.action.name.lower()} at t={t_s:.2f} s ({why})", file=sys.stderr)
+            self.action = v.action
+        if v.action is Action.LAND and self.plan is not None and self.plan.phase in (Phase.TAKEOFF, Phase.MISSION):
+            self.plan.land()
 
     def publish(self, msg: Message, result: StepResult) -> None:
         """This agent's state (by cell, or on its own key) and then its command."""
         keys, run, source = self.keys, self.run_id, self.source
         if source.publishes_state:
             self.seq += 1
-            state = encode_state(run, self.id, self.seq, msg.t, msg.k, StateBody(result.x_b_w, result.v_b_w,
-                                                                               self.radius_m, result.solo))  # fmt: skip
+            body = StateBody(result.x_b_w, result.v_b_w, self.radius_m, result.solo, result.sd)
+            state = encode_state(run, self.id, self.seq, msg.t, msg.k, body)
             if isinstance(source, CellSource):
                 cell = source.cell_of(result.x_b_w)
                 pub = self.cell_pubs.get(cell)
@@ -460,7 +491,8 @@ class AgentProcess:
             if result is None:
                 break
             self.publish(msg, result)
-            self.tick_s.add(time.perf_counter() - t0)
+            self.last_tick_s = time.perf_counter() - t0
+            self.tick_s.add(self.last_tick_s)
 
     def summary(self) -> dict[str, Any]:
         ts = self.tick_s

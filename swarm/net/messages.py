@@ -25,13 +25,14 @@ from swarm.model import all_finite
 from swarm.net import statewire
 from swarm.realism.sensing import MocapFrame
 
-VERSION = 9  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 10  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
 # 7: the state as a fixed binary record, and the router's bundle of them (swarm.net.statewire)
 # 8: the tick names the agents the world has seen go ("gone")
 # 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
+# 10: the state carries its estimate's deviations; the command the monitor's verdict and the live margin
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -40,7 +41,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     # what a neighbour needs of an agent: its body centre, velocity and bounding radius, and
     # whether it is not doing its share of a pair's avoidance now (its last filter call was
     # not a clean solve, or it flies unfiltered): then the neighbour takes all of it
-    "state": {"x": 3, "v": 3, "r": "f", "solo": "b"},
+    "state": {"x": 3, "v": 3, "r": "f", "solo": "b", "sd": 2},
     # what the world needs (the command of the agent's level), then the filter's report
     # of this tick for the record: status, intervention |u - u_ref|, solve time [us],
     # the names and h of the rows, and the agent's running counts
@@ -57,8 +58,14 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "goal_reached": "b",
         "dropped": "i",
         # the state the agent acted on (world.realism.sensing: its estimate): centre of mass [m],
-        # its velocity [m/s], world; empty when it acts on the world's measurement
+        # its velocity [m/s], world, its position [m] and velocity [m/s] deviations and its age [s];
+        # empty when it acts on the world's measurement
         "est": "vf",
+        # the safety monitor (swarm.safety.monitor): its action now (0 none, 1 warn, 2 slow, 3 hold,
+        # 4 land), the checks that breached (a bit each), and the largest live noise margin of a row [m]
+        "monitor": "i",
+        "breaches": "i",
+        "live_margin": "f",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
@@ -146,9 +153,10 @@ class StateBody:
     v_b_w: np.ndarray  # (3,) m/s, world: its velocity
     radius_m: float  # bounding radius
     solo: bool  # not doing its share of a pair's avoidance now (its neighbours take all of it)
+    sd: tuple[float, float] = (0.0, 0.0)  # its estimate's position [m] and velocity [m/s] deviation (largest axis)
 
     def fields(self) -> dict[str, Any]:
-        return {"x": self.x_b_w, "v": self.v_b_w, "r": self.radius_m, "solo": self.solo}
+        return {"x": self.x_b_w, "v": self.v_b_w, "r": self.radius_m, "solo": self.solo, "sd": self.sd}
 
 
 @dataclass(frozen=True)
@@ -166,7 +174,10 @@ class CommandBody:
     min_h: float = 1e9  # m^2/s: the smallest exact h so far (1e9: none yet)
     infeasible: int = 0  # ticks so far that were not a clean solve
     goal_reached: bool = False
-    est: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (6,) the estimate it acted on, or (0,)
+    est: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (9,) the estimate it acted on, or (0,)
+    monitor: int = 0  # the safety monitor's action (swarm.safety.monitor.Action)
+    breaches: int = 0  # the checks that breached (swarm.safety.monitor.Breach bits)
+    live_margin: float = 0.0  # m: the largest live noise margin of a row
 
     @staticmethod
     def zero(level: str = "attitude") -> CommandBody:
@@ -186,6 +197,9 @@ class CommandBody:
             "infeasible": self.infeasible,
             "goal_reached": self.goal_reached,
             "est": self.est,
+            "monitor": self.monitor,
+            "breaches": self.breaches,
+            "live_margin": self.live_margin,
         }
 
 
@@ -196,13 +210,15 @@ def encode_command(run: str, src: str, seq: int, t: float, k: int, body: Command
 
 def encode_state(run: str, src: str, seq: int, t: float, k: int, body: StateBody) -> bytes:
     """A state message of ``body`` (a fixed binary record: :mod:`swarm.net.statewire`)."""
-    return statewire.encode_state(run, src, seq, t, k, body.x_b_w, body.v_b_w, body.radius_m, body.solo)
+    return statewire.encode_state(run, src, seq, t, k, body.x_b_w, body.v_b_w, body.radius_m, body.solo, body.sd)
 
 
 def encode(kind: str, run: str, src: str, seq: int, t: float, k: int, **body: Any) -> bytes:
     """msgpack bytes of a message; vector fields (arrays or lists) become float64 binaries."""
     if kind == "state":  # a fixed binary record (swarm.net.statewire), not msgpack
-        return statewire.encode_state(run, src, seq, t, k, body["x"], body["v"], body["r"], body.get("solo", False))
+        return statewire.encode_state(
+            run, src, seq, t, k, body["x"], body["v"], body["r"], body.get("solo", False), body.get("sd", (0.0, 0.0))
+        )
     schema = SCHEMAS.get(kind)
     if schema is None:
         raise ValueError(f"unknown message kind {kind!r}")
@@ -364,8 +380,8 @@ def _state_message(payload: bytes, run: str, kinds: tuple[str, ...] | None) -> M
     if kinds is not None and "state" not in kinds:
         raise DecodeError("unexpected kind 'state'")
     f = statewire.read_state(payload, run)
-    body = {"x": np.array(f[7:10]), "v": np.array(f[10:13]), "r": f[13], "solo": f[2] == 1}
-    return Message("state", run, f[14].rstrip(b"\0").decode(), f[3], f[6], f[5], body)
+    body = {"x": np.array(f[7:10]), "v": np.array(f[10:13]), "r": f[13], "solo": f[2] == 1, "sd": (f[14], f[15])}
+    return Message("state", run, f[16].rstrip(b"\0").decode(), f[3], f[6], f[5], body)
 
 
 def warm_up() -> None:
@@ -512,7 +528,14 @@ FIELD_DOCS: dict[str, str] = {
     "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
     "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",
     "est": "the state the agent acted on, its estimate with world.realism.sensing: centre of mass [m] and "
-    "velocity [m/s], world (6 floats; none without an estimate)",
+    "velocity [m/s], world, the largest axis's position [m] and velocity [m/s] standard deviations, and the "
+    "estimate's age [s] since its last motion-capture frame (9 floats; none without an estimate)",
+    "monitor": "the safety monitor's action: 0 none, 1 warn, 2 slow, 3 hold, 4 land (swarm.safety.monitor)",
+    "breaches": "the safety monitor's checks that breached this tick, a bit each: 1 estimate_std, 2 estimate_age, "
+    "4 estimate_lost, 8 neighbour_std, 16 neighbour_age, 32 infeasible, 64 disturbance, 128 world_late, "
+    "256 tick_overrun",
+    "live_margin": "the largest extra radius a filter row kept for the estimates' noise this tick [m]",
+    "sd": "the standard deviations of the state's position [m] and velocity [m/s] (its estimate's, largest axis)",
 }
 _ITEM_SCHEMA = {
     "type": "object",

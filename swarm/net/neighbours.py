@@ -74,6 +74,7 @@ class _Slots:
     v: FloatArray  # (S, H, 3) its velocity [m/s, world]
     r: FloatArray  # (S, H) bounding radius [m]
     solo: BoolArray  # (S, H) not doing its share
+    sd: FloatArray  # (S, H, 2) its estimate's position [m] and velocity [m/s] standard deviations
     latest: IntArray  # (S,) newest tick held, -1: none
     gone: BoolArray  # (S,) its liveliness is gone
 
@@ -86,6 +87,7 @@ class _Slots:
             np.zeros((n, h, 3)),
             np.zeros((n, h)),
             np.zeros((n, h), dtype=np.bool_),
+            np.zeros((n, h, 2)),
             np.full(n, -1, dtype=np.int64),
             np.zeros(n, dtype=np.bool_),
         )
@@ -96,17 +98,17 @@ class _Slots:
         return _Slots(*(np.concatenate([a, b]) for a, b in zip(self.fields(), more.fields(), strict=True)))
 
     def fields(self) -> tuple[np.ndarray, ...]:
-        return (self.k, self.t, self.x, self.v, self.r, self.solo, self.latest, self.gone)
+        return (self.k, self.t, self.x, self.v, self.r, self.solo, self.sd, self.latest, self.gone)
 
 
 @njit(cache=True)
 def _store(table, slots, states):
-    """Write state ``n`` of ``states`` = (t, k, x, v, r, flags): tick k[n], time t[n] [s],
+    """Write state ``n`` of ``states`` = (t, k, x, v, r, flags, sd): tick k[n], time t[n] [s],
     centre x[n] [m, world], velocity v[n] [m/s, world], radius r[n] [m], solo bit of
-    flags[n]) into slot slots[n] of ``table`` (:meth:`_Slots.fields`), unless that place
-    holds a newer tick."""
-    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_latest, _ = table
-    t, k, x, v, r, flags = states
+    flags[n], deviations sd[n] (m, m/s)) into slot slots[n] of ``table`` (:meth:`_Slots.fields`),
+    unless that place holds a newer tick."""
+    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_sd, sl_latest, _ = table
+    t, k, x, v, r, flags, sd = states
     h = sl_k.shape[1]
     for n in range(slots.shape[0]):
         i, kk = slots[n], k[n]
@@ -119,6 +121,8 @@ def _store(table, slots, states):
             sl_x[i, j, d] = x[n, d]
             sl_v[i, j, d] = v[n, d]
         sl_r[i, j] = r[n]
+        sl_sd[i, j, 0] = sd[n, 0]
+        sl_sd[i, j, 1] = sd[n, 1]
         sl_solo[i, j] = (flags[n] & 1) == 1
         if kk > sl_latest[i]:
             sl_latest[i] = kk
@@ -136,14 +140,16 @@ def _newest(sl_k, i, k_max):
 
 
 @njit(cache=True)
-def _rows(table, slots, k_max, t_now, lost, out, kept):
+def _rows(table, slots, k_max, t_now, lost, out, kept, sd_out, age_out):
     """The rows of ``slots`` of ``table`` (:meth:`_Slots.fields`) at sim time ``t_now`` [s]
     (see NeighbourTable.arrays) into ``out`` (OBSTACLE); kept[n]: slot n made a row.
     ``lost``: the table's (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep
-    them stopped 0.0, accel_bound_mps2, velocity_error_mps). Returns the number of rows."""
-    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, _, sl_gone = table
+    them stopped 0.0, accel_bound_mps2, velocity_error_mps, sigmas). A row's velocity error is
+    the larger of velocity_error_mps and sigmas x the deviation its state carries; sd_out[m] the
+    position deviation [m] row m's state carries, age_out[m] its age [s]. Returns the number of rows."""
+    sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_sd, _, sl_gone = table
     timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
-    accel, vel_err = lost[4], lost[5]
+    accel, vel_err0, sigmas = lost[4], lost[5], lost[6]
     m = 0
     for n in range(slots.shape[0]):
         i = slots[n]
@@ -166,6 +172,7 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
             for d in range(3):
                 ob.c[d] = sl_x[i, j, d] + sl_v[i, j, d] * age
                 ob.cd[d] = sl_v[i, j, d]
+            vel_err = max(vel_err0, sigmas * sl_sd[i, j, 1])
             ob.grow = growth_mps * max(0.0, age - timeout_s) + (0.5 * accel * age + vel_err) * age
             ob.r = sl_r[i, j] + ob.grow
             ob.is_nb = not sl_solo[i, j]
@@ -173,6 +180,8 @@ def _rows(table, slots, k_max, t_now, lost, out, kept):
             ob.cdd[d] = 0.0
             ob.axis[d] = 0.0
         ob.is_agent = True
+        sd_out[m] = sl_sd[i, j, 0]
+        age_out[m] = age
         kept[n] = True
         m += 1
     return m
@@ -261,13 +270,15 @@ class NeighbourTable:
         on_lost: str = "keep_stopped",
         accel_bound_mps2: float = 0.0,
         velocity_error_mps: float = 0.0,
+        sigmas: float = 0.0,
     ) -> None:
         """``accel_bound_mps2``, ``velocity_error_mps``: a row's radius also grows by
         ``(a / 2 age + e) age`` with its state's age [s], what extrapolating it at constant
         velocity can miss when the neighbour accelerates at up to ``a`` and its velocity is off by
-        up to ``e`` (``world.realism``: ``swarm.tuning.prediction_bounds``; 0: not at all)."""
+        up to ``e`` (``world.realism``: ``swarm.tuning.prediction_bounds``; 0: not at all), or by
+        ``sigmas`` times the velocity deviation its state carries where that is larger."""
         self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost = timeout_s, growth_mps, hard_limit_s, on_lost
-        self.accel_bound_mps2, self.velocity_error_mps = accel_bound_mps2, velocity_error_mps
+        self.accel_bound_mps2, self.velocity_error_mps, self.sigmas = accel_bound_mps2, velocity_error_mps, sigmas
         self._lost = np.array(
             [
                 timeout_s,
@@ -276,6 +287,7 @@ class NeighbourTable:
                 1.0 if on_lost == "drop" else 0.0,
                 accel_bound_mps2,
                 velocity_error_mps,
+                sigmas,
             ]
         )
         self.slot: dict[str, int] = {}  # name -> slot, in the order first heard
@@ -283,6 +295,8 @@ class NeighbourTable:
         self.s = _Slots.empty(0, self.HISTORY)
         self.gone: set[str] = set()
         self.row_names: list[str] = []  # names of the rows the last arrays() built
+        self.row_sd_m = np.zeros(0)  # (rows,) m: the position deviation each of those rows' states carries
+        self.row_age_s = np.zeros(0)  # (rows,) s: their states' ages
         self._limits: statewire.Plausible | None = None
         self.now_s = -np.inf  # sim time [s] of the newest tick this agent has heard of (at(), arrays())
         self.last_t = np.zeros(0)  # (S,) sim time [s] of each slot's newest state taken (-inf: none)
@@ -292,7 +306,7 @@ class NeighbourTable:
     def blank(self) -> NeighbourTable:
         """An empty table of the same settings and limits."""
         t = NeighbourTable(self.timeout_s, self.growth_mps, self.hard_limit_s, self.on_lost,
-                           self.accel_bound_mps2, self.velocity_error_mps)  # fmt: skip
+                           self.accel_bound_mps2, self.velocity_error_mps, self.sigmas)  # fmt: skip
         t.limits = self.limits
         return t
 
@@ -345,10 +359,12 @@ class NeighbourTable:
         radius_m: float,
         solo: bool = False,
         seq: int | None = None,
+        sd: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         """``name``'s state of tick ``k`` at ``t_s`` [s] (body centre ``x_w`` [m, world], its
         velocity ``v_w`` [m/s], radius [m]; ``seq``: its sequence number, which tells a copy of
-        the newest state taken, as a relay bundles a late neighbour's state again, from a repeat)."""
+        the newest state taken, as a relay bundles a late neighbour's state again, from a repeat;
+        ``sd``: its estimate's position [m] and velocity [m/s] deviations)."""
         if name in self.gone:
             return
         i = self._slot(name)
@@ -365,6 +381,7 @@ class NeighbourTable:
         if s.k[i, j] > k:
             return
         s.k[i, j], s.t[i, j], s.x[i, j], s.v[i, j], s.r[i, j], s.solo[i, j] = k, t_s, x_w, v_w, radius_m, solo
+        s.sd[i, j] = sd
         s.latest[i] = max(s.latest[i], k)
 
     def update_records(self, records: np.ndarray, known: set[str], counter: Any) -> None:
@@ -404,7 +421,7 @@ class NeighbourTable:
                     self._reject(self.names[sl[n]], reason)
                 ok = verdict == 0
                 rec, sl = rec[ok], sl[ok]
-        states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"])
+        states = (rec["t"], rec["k"], rec["x"], rec["v"], rec["r"], rec["flags"], rec["sd"])
         _store(self.s.fields(), sl, states)
         return dropped
 
@@ -482,14 +499,16 @@ class NeighbourTable:
             slots = list(dict.fromkeys([self.slot[n] for n in names if n in self.slot]))
             slots += [self.slot[n] for n in self.gone if n in self.slot and self.slot[n] not in slots]
         if not slots:
-            self.row_names = []
+            self.row_names, self.row_sd_m, self.row_age_s = [], np.zeros(0), np.zeros(0)
             return ObstacleArrays.empty()
         sel = np.array(slots, dtype=np.int64)
         out = np.empty(len(slots), dtype=OBSTACLE)
         kept = np.empty(len(slots), dtype=np.bool_)
         k = _ANY_TICK if k_max is None else k_max
-        m = _rows(self.s.fields(), sel, k, t_now, self._lost, out, kept)
+        sd, age = np.empty(len(slots)), np.empty(len(slots))
+        m = _rows(self.s.fields(), sel, k, t_now, self._lost, out, kept, sd, age)
         self.row_names = [self.names[i] for i, ok in zip(slots, kept.tolist(), strict=True) if ok]
+        self.row_sd_m, self.row_age_s = sd[:m], age[:m]
         if m == 0:
             return ObstacleArrays.empty()
         return ObstacleArrays.of_records(out[:m])
@@ -523,7 +542,9 @@ class HeardNeighbours:
         self.missed = 0  # listed neighbours whose state was not there when used
         self.id, self.comms = agent_id, comms
         # a state held until its tick: as fields (take), or as its record (take_records)
-        self.line: DelayLine[tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None] | HeldRecord]
+        self.line: DelayLine[
+            tuple[str, float, int, FloatArray, FloatArray, float, bool, int | None, tuple[float, float]] | HeldRecord
+        ]
         self.line = DelayLine()
         self.heard: dict[str, int] = {}  # comms: neighbour -> the newest tick of its states on the wire
         self.states_lost = 0  # comms: states that never reach this agent
@@ -541,13 +562,15 @@ class HeardNeighbours:
         solo: bool,
         bundled: bool = False,
         seq: int | None = None,
+        sd: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         """A neighbour's state of tick ``k`` at ``t_s`` [s]: body centre ``x_w`` [m, world], its
         velocity ``v_w`` [m/s, world], radius [m], whether it is not doing its share; ``bundled``:
-        it came in the relay's bundle; ``seq``: its sequence number (``NeighbourTable.update``)."""
+        it came in the relay's bundle; ``seq``: its sequence number (``NeighbourTable.update``);
+        ``sd``: its estimate's position [m] and velocity [m/s] deviations."""
         comms = self.comms
         if comms is None:
-            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo, seq)
+            self.table.update(name, t_s, k, x_w, v_w, radius_m, solo, seq, sd)
             return
         self.heard[name] = max(self.heard.get(name, -1), k)
         d = comms.fate(name, self.id, MessageKind.STATE, k)
@@ -558,7 +581,7 @@ class HeardNeighbours:
             self.states_lost += 1
             return
         self.delay_ticks += max(0, d - 1)
-        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo, seq))
+        self.line.put(k, max(1, d), (name, t_s, k, x_w, v_w, radius_m, solo, seq, sd))
 
     def take_records(self, records: np.ndarray, names: list[str], bundled: bool = False) -> None:
         """With a ``comms`` model: checked :data:`swarm.net.statewire.STATE` records, of the
@@ -686,8 +709,9 @@ class HeardNeighbours:
     def rows(self, t_s: float, k: int, x_b_w: FloatArray, lockstep: bool) -> NamedObstacles:
         """Every heard neighbour's row at ``t_s`` [s] (lockstep: from its state of tick k-1)."""
         self._deliver(k)
-        arr = self.table.arrays(t_s, k - 1 if lockstep else None)
-        return NamedObstacles(arr, self.table.row_names[: len(arr)])
+        table = self.table
+        arr = table.arrays(t_s, k - 1 if lockstep else None)
+        return NamedObstacles(arr, table.row_names[: len(arr)], table.row_sd_m, table.row_age_s)
 
 
 class NearNeighbours(HeardNeighbours):
@@ -725,4 +749,4 @@ class NearNeighbours(HeardNeighbours):
                 timeout_s = table.timeout_s
                 self.missed += sum(1 for n in near if (s := table.state(n)) is None or t_s - s.t_s > timeout_s)
             arr = table.arrays(t_s)
-        return NamedObstacles(arr, table.row_names[: len(arr)])
+        return NamedObstacles(arr, table.row_names[: len(arr)], table.row_sd_m, table.row_age_s)

@@ -39,7 +39,7 @@ from swarm.net.neighbours import (
 from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import prediction_bounds
+from swarm.tuning import neighbour_table
 
 
 def _keep_newest(by_tick: dict, n: int) -> None:
@@ -224,7 +224,7 @@ class StateSource(HeardNeighbours):
         if m is None:
             return True
         if m.kind == "state" and m.src == name:
-            self.take(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
+            self.take(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"], sd=m["sd"])
         else:
             self.counter.drop(f"unexpected {m.kind} on {key}")
         return True
@@ -372,7 +372,7 @@ class CellSource(_NearSource):
             and m.src in self.others
             and key == self.keys.cell_state(cell_of(m["x"], self.interest.cell_m), m.src)
         ):
-            self.take(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"])
+            self.take(m.src, m.t, m.k, m["x"], m["v"], m["r"], m["solo"], sd=m["sd"])
         else:
             self.counter.drop(f"unexpected {m.kind} on {key}")
         return True
@@ -397,11 +397,8 @@ def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSou
     others = {a.id for a in cfg.agents} - {agent_id}
     if cfg.neighbours.source == "world":
         return RosterSource(others)
-    f, realism = cfg.failure, cfg.world.realism
-    accel, vel_err = prediction_bounds(cfg.agent(agent_id).quad_params(), realism)
-    table = NeighbourTable(
-        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
-    )
+    realism = cfg.world.realism
+    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism)
     table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say (a run's own agent gone wrong)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)

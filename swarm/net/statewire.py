@@ -2,15 +2,18 @@
 them that the run's router sends each agent once per tick (``neighbours.interest: bundle``).
 
 A state is what a neighbour needs of an agent: its body centre ``x`` [m, world], velocity
-``v`` [m/s, world], bounding radius ``r`` [m], and ``solo`` (it is not doing its share of
-a pair's avoidance now). It travels as one :data:`STATE` record of 128 bytes instead of a
+``v`` [m/s, world], bounding radius ``r`` [m], the standard deviations ``sd`` of its position
+[m] and velocity [m/s] (its estimate's, the largest axis: the receiver's live margins,
+``swarm.step``), and ``solo`` (it is not doing its share of
+a pair's avoidance now). It travels as one :data:`STATE` record of 144 bytes instead of a
 msgpack map, so that a receiver reads all of a tick's states with one ``np.frombuffer``
 and checks them as arrays (:func:`check_states`). A :data:`BUNDLE` is a 72-byte header
 and the senders' records as they published them, byte for byte.
 
 Checks: size, magic, schema version, the run (as :func:`run_tag`, a 64-bit hash of the
 run id), the sender's id (ASCII, as the config allows), and finite numbers with a
-non-negative radius. A record that fails is dropped and counted by the receiver.
+non-negative radius and deviations no larger than :data:`MAX_STD_M` and
+:data:`MAX_VEL_STD_MPS`. A record that fails is dropped and counted by the receiver.
 
 What a well-formed state may say is :class:`Plausible`: a body centre inside the world's
 bounds, a speed the airframe can reach there, a radius no larger than the run's largest
@@ -36,7 +39,7 @@ from swarm.errors import DecodeError
 if TYPE_CHECKING:
     from swarm.config import ScenarioConfig
 
-VERSION = 8  # the message schema version (swarm.net.messages.VERSION) these records belong to
+VERSION = 10  # the message schema version (swarm.net.messages.VERSION) these records belong to
 STATE_MAGIC = b"C3S"
 BUNDLE_MAGIC = b"C3B"
 ID_BYTES = 32  # agent ids are at most 32 ASCII characters (swarm.config)
@@ -53,6 +56,7 @@ STATE = np.dtype(
         ("x", "<f8", (3,)),  # body centre [m, world]
         ("v", "<f8", (3,)),  # its velocity [m/s, world]
         ("r", "<f8"),  # bounding radius [m]
+        ("sd", "<f8", (2,)),  # standard deviation of its position [m] and velocity [m/s] (largest axis)
         ("src", f"S{ID_BYTES}"),  # sender id, NUL-padded ASCII
     ]
 )
@@ -68,7 +72,7 @@ BUNDLE = np.dtype(
         ("dst", f"S{ID_BYTES}"),  # the agent it is for
     ]
 )
-_STATE_PACK = struct.Struct("<3sBIQQqd3d3dd32s")
+_STATE_PACK = struct.Struct("<3sBIQQqd3d3dd2d32s")
 _BUNDLE_PACK = struct.Struct("<3sBIQQqd32s")
 _ID = re.compile(rb"[A-Za-z0-9_-]{1,32}")
 if _STATE_PACK.size != STATE.itemsize or _BUNDLE_PACK.size != BUNDLE.itemsize:  # pragma: no cover
@@ -82,14 +86,25 @@ def run_tag(run: str) -> int:
 
 
 def encode_state(
-    run: str, src: str, seq: int, t: float, k: int, x: object, v: object, r: float, solo: bool = False
+    run: str,
+    src: str,
+    seq: int,
+    t: float,
+    k: int,
+    x: object,
+    v: object,
+    r: float,
+    solo: bool = False,
+    sd: tuple[float, float] = (0.0, 0.0),
 ) -> bytes:
-    """One state record (:data:`STATE`)."""
+    """One state record (:data:`STATE`); ``sd``: the position [m] and velocity [m/s] standard
+    deviations of the sender's estimate (0: exact)."""
     xs = [float(e) for e in np.asarray(x, float).reshape(3)]
     vs = [float(e) for e in np.asarray(v, float).reshape(3)]
     return _STATE_PACK.pack(
-        STATE_MAGIC, VERSION, int(bool(solo)), seq, run_tag(run), k, float(t), *xs, *vs, float(r), src.encode()
-    )
+        STATE_MAGIC, VERSION, int(bool(solo)), seq, run_tag(run), k, float(t), *xs, *vs, float(r),
+        float(sd[0]), float(sd[1]), src.encode(),
+    )  # fmt: skip
 
 
 def record_time(record: bytes) -> float:
@@ -104,19 +119,25 @@ def encode_bundle(run: str, dst: str, seq: int, t: float, k: int, records: list[
 
 
 _MV = int.from_bytes(STATE_MAGIC + bytes([VERSION]), "little")  # magic and version as one integer
-_WORDS = STATE.itemsize // 8  # a record as 16 little-endian 64-bit words: 0 magic, version, flags;
-# 1 seq; 2 run; 3 k; 4-11 the floats t, x, v, r; 12-15 the sender id
-NOT_A_STATE, ANOTHER_RUN, BAD_FLAGS_OR_TICK, NOT_FINITE = 1, 2, 3, 4
+_WORDS = STATE.itemsize // 8  # a record as 18 little-endian 64-bit words: 0 magic, version, flags;
+# 1 seq; 2 run; 3 k; 4-13 the floats t, x, v, r, sd; 14-17 the sender id
+MAX_STD_M = 1.0
+"""The largest position deviation [m] a state may carry: an estimate worse than this is no
+state to fly near (the monitor lands its own drone long before, ``swarm.safety.monitor``)."""
+MAX_VEL_STD_MPS = 10.0
+"""The largest velocity deviation [m/s] a state may carry."""
+NOT_A_STATE, ANOTHER_RUN, BAD_FLAGS_OR_TICK, NOT_FINITE, BAD_DEVIATION = 1, 2, 3, 4, 5
 REASONS = {
     NOT_A_STATE: f"not a state of schema version {VERSION}",
     ANOTHER_RUN: "another run",
     BAD_FLAGS_OR_TICK: "bad flags or tick",
     NOT_FINITE: "not finite, or a negative radius",
+    BAD_DEVIATION: "a negative or implausible deviation",
 }
 
 
 @njit(cache=True)
-def _verdicts(u, f, mv, tag, out):
+def _verdicts(u, f, mv, tag, max_sd, max_sdv, out):
     """out[i]: 0 if record i passes, else the first check it fails (REASONS)."""
     for i in range(u.shape[0]):
         w0 = u[i, 0]
@@ -128,11 +149,13 @@ def _verdicts(u, f, mv, tag, out):
         elif (w0 >> np.uint64(32)) > np.uint64(1) or u[i, 3] >= np.uint64(1 << 63):
             v = 3
         else:
-            for j in range(4, 12):
+            for j in range(4, 14):
                 if not np.isfinite(f[i, j]):
                     v = 4
-            if f[i, 11] < 0.0:
+            if v == 0 and f[i, 11] < 0.0:
                 v = 4
+            if v == 0 and not (0.0 <= f[i, 12] <= max_sd and 0.0 <= f[i, 13] <= max_sdv):
+                v = 5
         out[i] = v
 
 
@@ -156,7 +179,7 @@ def check_states(records: np.ndarray, run: str) -> States:
         return States(records, {})
     u = np.frombuffer(records.data, np.uint64).reshape(n, _WORDS)
     verdict = np.empty(n, dtype=np.int8)
-    _verdicts(u, u.view(np.float64), np.uint64(_MV), np.uint64(run_tag(run)), verdict)
+    _verdicts(u, u.view(np.float64), np.uint64(_MV), np.uint64(run_tag(run)), MAX_STD_M, MAX_VEL_STD_MPS, verdict)
     if not verdict.any():
         return States(records, {})
     codes, counts = np.unique(verdict[verdict != 0], return_counts=True)
@@ -166,7 +189,7 @@ def check_states(records: np.ndarray, run: str) -> States:
 
 def read_state(payload: bytes, run: str) -> tuple:
     """One state message, checked whole, as the fields of :data:`STATE` (magic, ver,
-    flags, seq, run, k, t, x0, x1, x2, v0, v1, v2, r, src); DecodeError otherwise."""
+    flags, seq, run, k, t, x0, x1, x2, v0, v1, v2, r, sd_x, sd_v, src); DecodeError otherwise."""
     if len(payload) != STATE.itemsize:
         raise DecodeError(f"state: {len(payload)} bytes, expected {STATE.itemsize}")
     f = _STATE_PACK.unpack(payload)
@@ -176,9 +199,11 @@ def read_state(payload: bytes, run: str) -> tuple:
         raise DecodeError("state: another run")
     if f[2] > 1 or f[5] < 0:
         raise DecodeError("state: bad flags or tick")
-    if not all(map(math.isfinite, f[6:14])) or f[13] < 0:
+    if not all(map(math.isfinite, f[6:16])) or f[13] < 0:
         raise DecodeError("state: not finite, or a negative radius")
-    if _ID.fullmatch(f[14].rstrip(b"\0")) is None:
+    if not (0.0 <= f[14] <= MAX_STD_M and 0.0 <= f[15] <= MAX_VEL_STD_MPS):
+        raise DecodeError("state: a negative or implausible deviation")
+    if _ID.fullmatch(f[16].rstrip(b"\0")) is None:
         raise DecodeError("state: bad sender id")
     return f
 

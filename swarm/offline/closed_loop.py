@@ -11,13 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarm.config import FailureSettings, NeighbourSettings, ScenarioConfig
+from swarm.config import FailureSettings, MonitorSettings, NeighbourSettings, ScenarioConfig
 from swarm.control import AttitudeSetpoint, OnboardController, PathTracker, yaw_of
 from swarm.errors import InputError
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, step_rk4
 from swarm.net.cells import near_lists
-from swarm.net.neighbours import NearNeighbours, NeighbourTable
+from swarm.net.neighbours import NearNeighbours
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import CommsModel, DelayLine, MessageKind
 from swarm.realism.plant import Plant
@@ -26,9 +26,10 @@ from swarm.realism.settings import RealismSettings
 from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
+from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep
-from swarm.tuning import command_lead_s, filter_config_for, prediction_bounds
+from swarm.tuning import NOISE_SIGMAS, command_lead_s, filter_config_for, monitor_params, neighbour_table
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -230,6 +231,24 @@ class SwarmLog:
     commands_lost: int = 0  # world.realism.comms: commands that never reached their drone
     frames_dropped: int = 0  # world.realism.sensing: motion-capture frames dropped
     accel_cmd_w: FloatArray | None = None  # (T, N, 3) m/s^2, world: what each command asks, F / m_nominal - g e3
+    monitor: FloatArray | None = None  # (T, N) the safety monitor's action (swarm.safety.monitor.Action)
+    breach_ticks: dict[str, int] = field(default_factory=dict)  # per check: agent ticks it breached
+    own_sd_m: FloatArray | None = None  # (T, N) m: each estimate's largest axis position deviation
+    live_margin_m: FloatArray | None = None  # (T, N) m: the largest live noise margin of a row
+    unguarded_ticks: int = 0  # agent ticks an estimate's error exceeded its live bound with the monitor not acting
+
+    def action_ticks(self, action: Action) -> int:
+        """Agent ticks the monitor took ``action`` (0 without a log)."""
+        return 0 if self.monitor is None else int((self.monitor == int(action)).sum())
+
+    @property
+    def landed_by_monitor(self) -> list[bool]:
+        """Per agent: the monitor landed it."""
+        return (
+            [False] * self.x_b_w.shape[1]
+            if self.monitor is None
+            else (self.monitor == int(Action.LAND)).any(0).tolist()
+        )
 
     @property
     def infeasible_ticks(self) -> int:
@@ -265,6 +284,7 @@ def simulate_swarm(
     goal_tolerance_m: float = 0.15,
     realism: RealismSettings | None = None,
     seed: int = 0,
+    monitor: MonitorSettings | None = None,
 ) -> SwarmLog:
     """Fly a swarm in one process, as a lockstep run of the agent processes with neighbours by
     bundles does: at every tick each agent's control step (:class:`swarm.step.AgentStep`, the
@@ -277,7 +297,8 @@ def simulate_swarm(
     ``realism`` (``world.realism``, seeded by ``seed``) the world is as imperfect as the world
     process makes it (the plant, motion capture and each agent's estimator, the delay and loss of
     states and commands: :class:`_Plant`, ``swarm.net.neighbours.HeardNeighbours``). No I/O; the
-    benchmark and tests use it."""
+    benchmark and tests use it. ``monitor``: each agent's safety monitor (None: the default
+    settings, as the agent processes run it)."""
     for i, a in enumerate(agents):
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
@@ -287,6 +308,7 @@ def simulate_swarm(
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
     lead = command_lead_s(r, control_hz)
+    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE)
     steps = [
         AgentStep(
             model,
@@ -303,21 +325,12 @@ def simulate_swarm(
                 else None
             ),
             lead_s=lead,
+            monitor=mon,
         )
         for a in agents
     ]
-    f = _FAILURE
-    accel, vel_err = prediction_bounds(model.params, r)
     heard = [
-        NearNeighbours(
-            set(names) - {names[i]},
-            NeighbourTable(
-                f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err
-            ),
-            math.inf,
-            names[i],
-            comms,
-        )
+        NearNeighbours(set(names) - {names[i]}, neighbour_table(_FAILURE, model.params, r), math.inf, names[i], comms)
         for i in range(n)
     ]
     near_m = np.array([a.config.sensing_radius_m + _NEAR_MARGIN_M for a in agents])
@@ -331,6 +344,8 @@ def simulate_swarm(
     goals = np.array([a.goal_w for a in agents])
     t_goal: list[float | None] = [None] * n
     log_t, log_x, log_v, log_s, log_com, log_vb, log_err, log_a = [], [], [], [], [], [], [], []
+    log_mon, log_sd, log_live = [], [], []
+    unguarded = 0
     min_sep, min_clear = math.inf, math.inf
     for k in range(round(duration_s * control_hz)):
         t = k / control_hz
@@ -350,7 +365,9 @@ def simulate_swarm(
         for i, res in enumerate(results):  # this tick's states, which the next tick uses
             for j in range(n):
                 if j != i:
-                    heard[j].take(names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True)
+                    heard[j].take(
+                        names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True, sd=res.sd
+                    )
         for i, res in enumerate(results):
             plant.send(i, res.command, k)
         plant.fly(k)
@@ -365,8 +382,14 @@ def simulate_swarm(
         log_v.append(np.array([s.v_w for s in states]))
         log_s.append([res.status for res in results])
         log_a.append(np.array([res.u for res in results]) / p.mass_kg - p.g_mps2 * E3)
+        log_mon.append([int(res.verdict.action) for res in results])
+        log_live.append([res.live_margin_m for res in results])
         if sensing:
-            log_err.append(np.linalg.norm(np.array([res.est[:3] for res in results]) - x_com, axis=1))
+            est = np.array([res.est for res in results])
+            log_err.append(np.linalg.norm(est[:, :3] - x_com, axis=1))
+            log_sd.append(est[:, 6])
+            beyond = np.abs(est[:, :3] - x_com).max(axis=1) > NOISE_SIGMAS * est[:, 6]
+            unguarded += int((beyond & (log_mon[-1] < np.array(int(Action.SLOW)))).sum())
         if all(tg is not None for tg in t_goal):
             break
     return SwarmLog(
@@ -384,6 +407,14 @@ def simulate_swarm(
         plant.commands_lost,
         plant.mocap.dropped if plant.mocap is not None else 0,
         np.array(log_a),
+        np.array(log_mon),
+        {
+            name: sum(s.monitor.breach_ticks.get(name, 0) for s in steps if s.monitor is not None)
+            for name in BREACH_NAMES.values()
+        },
+        np.array(log_sd) if sensing else None,
+        np.array(log_live),
+        unguarded,
     )
 
 

@@ -94,7 +94,7 @@ class BundleRelay:
         except DecodeError as exc:
             self._drop(sender, str(exc))
             return
-        if f[14].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
+        if f[16].rstrip(b"\0").decode() != sender:  # (only the agent may publish on its key)
             self._drop(sender, "state: sender is not its key's agent")
             return
         if not self.intake.admit(sender, f[6], f[7:10], f[10:13], f[13]):

@@ -124,6 +124,14 @@ class ObstacleArrays:
         rec["cd"] = cd + cdd * dt_s
         return ObstacleArrays.of_records(rec)
 
+    def widened(self, extra_m: FloatArray) -> ObstacleArrays:
+        """A copy with each row's radius, and the growth its keep-out ellipsoid takes, larger by
+        ``extra_m`` (n,) [m] (the live margins, ``swarm.step``)."""
+        rec = self.rec.copy()
+        rec["r"] += extra_m
+        rec["grow"] += extra_m
+        return ObstacleArrays.of_records(rec)
+
     @staticmethod
     def empty() -> ObstacleArrays:
         return _EMPTY
@@ -195,6 +203,8 @@ class NamedObstacles:
 
     arrays: ObstacleArrays
     ids: list[str]
+    sd_m: FloatArray | None = None  # (n,) m: each row's centre's position deviation its state carries (None: 0)
+    age_s: FloatArray | None = None  # (n,) s: each row's state's age (None: 0, measured or fixed)
 
     @staticmethod
     def none() -> NamedObstacles:

@@ -13,25 +13,32 @@ from swarm.net import statewire as w
 from swarm.net.messages import decode, encode
 
 
-def _state(src="cf1", k=3, x=(1.0, 2.0, 3.0), run="r", solo=False, seq=7):
-    return w.encode_state(run, src, seq, 0.01 * k, k, x, (0.0, 0.5, 0.0), 0.07, solo)
+def _state(src="cf1", k=3, x=(1.0, 2.0, 3.0), run="r", solo=False, seq=7, sd=(0.002, 0.01)):
+    return w.encode_state(run, src, seq, 0.01 * k, k, x, (0.0, 0.5, 0.0), 0.07, solo, sd)
 
 
 def test_a_state_is_one_fixed_little_endian_record_of_the_documented_layout():
     data = _state(solo=True)
-    assert len(data) == w.STATE.itemsize == 128
+    assert len(data) == w.STATE.itemsize == 144
     rec = np.frombuffer(data, w.STATE)[0]
     assert rec["magic"] == b"C3S" and rec["ver"] == w.VERSION and rec["flags"] == 1
     assert rec["src"] == b"cf1" and rec["k"] == 3 and rec["seq"] == 7 and rec["run"] == w.run_tag("r")
     assert rec["x"].tolist() == [1.0, 2.0, 3.0] and rec["v"].tolist() == [0.0, 0.5, 0.0] and rec["r"] == 0.07
+    assert rec["sd"].tolist() == [0.002, 0.01]
     # read by hand, byte by byte, as a receiver in another language would
     assert struct.unpack_from("<3d", data, 40) == (1.0, 2.0, 3.0)
-    assert data[96:99] == b"cf1" and data[99:128] == bytes(29)
+    assert struct.unpack_from("<2d", data, 96) == (0.002, 0.01)
+    assert data[112:115] == b"cf1" and data[115:144] == bytes(29)
 
 
 def test_the_generic_decoder_reads_a_state_record_as_a_message():
     m = decode(encode("state", "r", "cf1", 7, 1.5, 3, x=[1, 2, 3], v=[0, 0, 0.5], r=0.07, solo=True), "r")
     assert (m.kind, m.src, m.seq, m.t, m.k, m["r"], m["solo"]) == ("state", "cf1", 7, 1.5, 3, 0.07, True)
+    assert m["sd"] == (0.0, 0.0)  # (none given: an exact state)
+    m = decode(
+        encode("state", "r", "cf1", 7, 1.5, 3, x=[1, 2, 3], v=[0, 0, 0.5], r=0.07, solo=False, sd=(0.003, 0.02)), "r"
+    )
+    assert m["sd"] == (0.003, 0.02)
     with pytest.raises(DecodeError, match="unexpected kind"):
         decode(_state(), "r", ("command",))
 
@@ -46,7 +53,12 @@ def test_the_generic_decoder_reads_a_state_record_as_a_message():
         (31, b"\x80", "bad flags or tick"),  # k < 0
         (40, struct.pack("<d", float("nan")), "not finite"),
         (88, struct.pack("<d", -0.1), "negative radius"),
-        (96, b"c f", "bad sender id"),
+        (96, struct.pack("<d", float("inf")), "not finite"),  # the position deviation
+        (96, struct.pack("<d", -0.001), "negative or implausible deviation"),
+        (104, struct.pack("<d", -0.001), "negative or implausible deviation"),  # the velocity deviation
+        (96, struct.pack("<d", 2.0), "negative or implausible deviation"),  # beyond MAX_STD_M
+        (104, struct.pack("<d", 11.0), "negative or implausible deviation"),  # beyond MAX_VEL_STD_MPS
+        (112, b"c f", "bad sender id"),
     ],
 )
 def test_each_check_of_a_state_drops_it_with_its_reason(offset, value, reason):
@@ -58,7 +70,7 @@ def test_each_check_of_a_state_drops_it_with_its_reason(offset, value, reason):
 
 def test_a_state_of_the_wrong_size_is_dropped():
     for data in (_state()[:-1], _state() + b"\0"):
-        with pytest.raises(DecodeError, match="expected 128"):
+        with pytest.raises(DecodeError, match="expected 144"):
             decode(data, "r")
 
 

@@ -42,6 +42,13 @@ class Stream(IntEnum):
     MOCAP_ATTITUDE = 5
     MOCAP_DROP = 6
     COMMS = 7
+    # 40-49: motion capture's failures (swarm.realism.sensing)
+    MOCAP_OCCLUSION = 40  # a burst of occlusion starts (drone, frame)
+    MOCAP_OCCLUSION_LENGTH = 41  # its length, drawn at its start (drone, frame)
+    MOCAP_SWAP = 42  # two drones' identities swap (frame)
+    MOCAP_OUTLIER = 43  # a frame jumps (drone, frame)
+    MOCAP_OUTLIER_DIRECTION = 44  # the jump's direction (drone, frame)
+    MOCAP_CENTROID = 45  # a drone's constant offset of the markers' centroid (drone)
 
 
 def word(value: int) -> np.uint64:

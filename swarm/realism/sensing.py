@@ -56,6 +56,37 @@ class MocapParams:
     """Standard deviation of each component of the attitude error's rotation vector [rad]."""
     latency_s: float = 0.0
     drop_fraction: float = 0.0
+    occlusion_rate_hz: float = 0.0
+    """How often a drone's markers are lost, per second it is seen [1/s]: at each frame of a
+    drone in view a burst of occlusion begins with probability ``occlusion_rate_hz / rate_hz``
+    (at most 1), and for its length no frame of the drone is made. Optical motion capture loses a
+    body its cameras cannot see (Autodesk MotionBuilder, "Optical motion data: Occlusion"); how
+    often in a given lab is not published: assumed, per run (0: never)."""
+    occlusion_mean_s: float = 0.2
+    """The mean length of a burst of occlusion [s]. A burst's length in frames is geometric with
+    this mean, drawn at its start: the two-state (Gilbert-Elliott) chain over frames, whose bad
+    state ends with probability ``1 / (occlusion_mean_s rate_hz)`` at each frame. Assumed: a
+    drone passing behind another or under a lamp for a fifth of a second."""
+    swap_rate_hz: float = 0.0
+    """How often two drones' identities swap, per second of the run [1/s] (not per drone): at a
+    frame with probability ``swap_rate_hz / rate_hz``, the two drones closest to each other then
+    (by their true centres) each get the other's frame, its measured position and attitude, for
+    ``swap_duration_s``. A tracker matching identical marker sets confuses the bodies that are
+    close (Autodesk MotionBuilder, "Optical motion data: Swapping"; Crazyswarm tracks identical
+    marker arrangements by their predicted positions, Preiss et al., ICRA 2017). Rate assumed
+    (0: never); one swap at a time."""
+    swap_duration_s: float = 0.5
+    """How long a swap lasts [s] (at least one frame). Assumed: until the tracker's labelling
+    recovers, as a Vicon or OptiTrack system re-labels a body from its full marker set."""
+    outlier_fraction: float = 0.0
+    """The fraction of frames whose position jumps by ``outlier_m`` in a random direction (a ghost
+    or mislabelled marker moves the fitted pose). Assumed (0: never)."""
+    outlier_m: float = 0.1
+    """The length of a jump [m]. Assumed: about the size of a Crazyflie's marker arrangement."""
+    centroid_offset_std_m: float = 0.0
+    """The standard deviation of each coordinate of a drone's constant offset [m] between its
+    markers' centroid (what motion capture reports) and its centre of mass: markers glued by hand,
+    a body defined where they happened to be. Assumed a few millimetres (0: none)."""
 
 
 class MocapFrame(NamedTuple):
@@ -107,7 +138,15 @@ def quat_conj(q: FloatArray) -> FloatArray:
 
 
 class MocapSensor:
-    """Frames of n drones from their true poses, one :meth:`step` per physics step."""
+    """Frames of n drones from their true poses, one :meth:`step` per physics step.
+
+    Its failures (:class:`MocapParams`, each off by default and then drawing nothing): a burst of
+    occlusion hides a drone (no frame); a swap gives the two closest drones each other's frames; an
+    outlier moves a frame by ``outlier_m``; every frame of a drone is off by its constant centroid
+    offset. Every draw is a pure function of (seed, drone, frame number); the chains' state (the
+    frame a burst ends, the swap under way) is kept here. The counters: ``dropped``, ``occluded``
+    (frames hidden by occlusion), ``occlusions`` (bursts begun), ``swaps`` (swaps begun), ``swapped``
+    (frames made with the other drone's pose) and ``outliers`` (frames made with a jump)."""
 
     def __init__(self, p: MocapParams, n: int, seed: int) -> None:
         self.p = p
@@ -116,6 +155,16 @@ class MocapSensor:
         self._next_seq = 0
         self._in_flight: list[tuple[float, int, int, MocapFrame]] = []  # (due, seq, drone, frame)
         self.dropped = 0
+        self.occluded = 0
+        self.occlusions = 0
+        self.swaps = 0
+        self.swapped = 0
+        self.outliers = 0
+        self._visible_from = np.zeros(n, np.int64)  # per drone: the first frame after its burst of occlusion
+        self._swap: tuple[int, int, int] | None = None  # (drone, drone, the first frame after the swap)
+        self._offset: FloatArray | None = None  # (n, 3) m: the centroids' offsets
+        if p.centroid_offset_std_m > 0.0:
+            self._offset = normals(int(self.seed), Stream.MOCAP_CENTROID, np.arange(n), 0, 3) * p.centroid_offset_std_m
 
     def step(self, t_s: float, x_w: FloatArray, q: FloatArray) -> list[MocapFrame]:
         """Capture the drones at ``t_s`` [s] if a frame is due (true centres of mass
@@ -130,21 +179,74 @@ class MocapSensor:
             out.append(heapq.heappop(self._in_flight)[3])
         return out
 
+    def _occluded(self, i: int, seq: int) -> bool:
+        """Whether drone ``i`` is hidden at frame ``seq``: in a burst, or one begins (its length drawn now)."""
+        p = self.p
+        if seq < self._visible_from[i]:
+            return True
+        u = uniform(self.seed, np.uint64(int(Stream.MOCAP_OCCLUSION)), np.uint64(i), word(seq), np.uint64(0))
+        if u > min(p.occlusion_rate_hz / p.rate_hz, 1.0):
+            return False
+        mean_frames = p.occlusion_mean_s * p.rate_hz
+        frames = 1
+        if mean_frames > 1.0:  # geometric on 1, 2, ... with this mean: the chain's bad state, memoryless
+            v = uniform(self.seed, np.uint64(int(Stream.MOCAP_OCCLUSION_LENGTH)), np.uint64(i), word(seq), np.uint64(0))
+            frames = 1 + math.floor(math.log(v) / math.log1p(-1.0 / mean_frames))
+        self._visible_from[i] = seq + frames
+        self.occlusions += 1
+        return True
+
+    def _swap_at(self, seq: int, x_w: FloatArray) -> tuple[int, int, int] | None:
+        """The swap under way at frame ``seq``, or one that begins now between the two drones closest
+        to each other (their true centres ``x_w`` (n, 3)), or None."""
+        p = self.p
+        if self._swap is not None and seq < self._swap[2]:
+            return self._swap
+        self._swap = None
+        u = uniform(self.seed, np.uint64(int(Stream.MOCAP_SWAP)), np.uint64(0), word(seq), np.uint64(0))
+        if u > min(p.swap_rate_hz / p.rate_hz, 1.0):
+            return None
+        x = np.asarray(x_w, float)
+        d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+        d[np.diag_indices(self.n)] = np.inf
+        i, j = divmod(int(np.argmin(d)), self.n)
+        frames = max(1, round(p.swap_duration_s * p.rate_hz))
+        self._swap = (min(i, j), max(i, j), seq + frames)
+        self.swaps += 1
+        return self._swap
+
     def _capture(self, seq: int, t_s: float, x_w: FloatArray, q: FloatArray) -> None:
         p = self.p
         drones = np.arange(self.n)
         dpos = normals(int(self.seed), Stream.MOCAP_POSITION, drones, seq, 3) * p.position_noise_m
         datt = normals(int(self.seed), Stream.MOCAP_ATTITUDE, drones, seq, 3) * p.attitude_noise_rad
         due = t_s + p.latency_s
+        swap = self._swap_at(seq, x_w) if p.swap_rate_hz > 0.0 and self.n >= 2 else None
         for i in range(self.n):
+            if p.occlusion_rate_hz > 0.0 and self._occluded(i, seq):
+                self.occluded += 1
+                continue
             if p.drop_fraction > 0.0:
                 u = uniform(self.seed, np.uint64(int(Stream.MOCAP_DROP)), np.uint64(i), word(seq), np.uint64(0))
                 if u <= p.drop_fraction:
                     self.dropped += 1
                     continue
-            qi = np.asarray(q[i], float)
-            q_meas = quat_mul(qi, quat_exp(datt[i])) if p.attitude_noise_rad > 0 else qi.copy()
-            frame = MocapFrame(i, seq, t_s, due, np.asarray(x_w[i], float) + dpos[i], q_meas)
+            src = i  # whose pose this frame of drone i carries
+            if swap is not None and i in (swap[0], swap[1]):
+                src = swap[1] if i == swap[0] else swap[0]
+                self.swapped += 1
+            qi = np.asarray(q[src], float)
+            q_meas = quat_mul(qi, quat_exp(datt[src])) if p.attitude_noise_rad > 0 else qi.copy()
+            x_meas = np.asarray(x_w[src], float) + dpos[src]
+            if self._offset is not None:
+                x_meas = x_meas + self._offset[src]
+            if p.outlier_fraction > 0.0:
+                u = uniform(self.seed, np.uint64(int(Stream.MOCAP_OUTLIER)), np.uint64(i), word(seq), np.uint64(0))
+                if u <= p.outlier_fraction:
+                    away = normals(int(self.seed), Stream.MOCAP_OUTLIER_DIRECTION, [i], seq, 3)[0]
+                    x_meas = x_meas + p.outlier_m * away / norm(away)
+                    self.outliers += 1
+            frame = MocapFrame(i, seq, t_s, due, x_meas, q_meas)
             heapq.heappush(self._in_flight, (due, seq, i, frame))
 
 
@@ -166,6 +268,28 @@ class EstimatorParams:
     initial_disturbance_std_mps2: float = 0.0
     """The standard deviation of the disturbance at the start [m/s^2]: before any frame, how far the
     drone's acceleration may be off the one its commands ask for (thrust and mass off the model)."""
+    gate_sigmas: float = 0.0
+    """The innovation gate (:meth:`Estimator.frame`), in standard deviations of the innovation
+    (0: off, every frame is fused, the filter of before exactly). A frame is refused when the
+    normalised innovation ``sqrt(sum_k y_k^2 / (P_k + R))`` over the three axes (``P_k`` the
+    filter's position variance predicted to the frame's capture) exceeds this and the innovation's
+    length exceeds ``gate_floor_m + gate_accel_mps2 tau^2 / 2`` (``tau``: since the last frame
+    fused). 5 keeps a consistent filter's frames (chi-square, 3 degrees of freedom: 1.6e-5 refused)."""
+    gate_floor_m: float = 0.03
+    """A frame this close to the prediction [m] is never refused: 20 sigma of the lab's 1.5 mm
+    innovations (1 mm noise plus the filter's own), so noise never trips the gate. Assumed; a
+    swap of two drones this close cannot happen (two Crazyflies are 9 cm across)."""
+    gate_accel_mps2: float = 1.0
+    """The acceleration [m/s^2] the gate allows a drone beyond the one it predicts (its commands and
+    its disturbance estimate) while it has no frame: the gate's reach grows as
+    ``gate_accel_mps2 tau^2 / 2``, so a drone pushed by less than this is never locked out, however
+    long it went unseen. Assumed: about twice the lab's 1-sigma thrust-to-mass departure
+    (0.57 m/s^2, before the disturbance estimate has found it)."""
+    gate_reset_s: float = 1.0
+    """After refusing every frame for this long [s] (from the first refused), the gate takes the next
+    frame and starts the filter afresh from it: a filter that fused a wrong frame (a swap fused late,
+    when its covariance had grown over the other drone) can be wrong and sure of itself, and nothing
+    else would let it out. Assumed: twice the swaps' assumed 0.5 s, so a swap is refused whole."""
 
     @property
     def r2_m2(self) -> float:
@@ -249,12 +373,40 @@ def _update(X, P, z, r2):
         P[k, 2, 2] = p22 - k2 * p02
 
 
+REJECT_REASONS = ("jump", "after_gap", "in_run")
+"""Why a frame was refused (:attr:`Estimator.rejected_reasons`): ``jump``, the frame right after one
+fused (an outlier, a swap's first frame); ``after_gap``, the first frame after frames missed
+(lost, dropped or occluded; a return far from where the drone was predicted); ``in_run``, a frame
+after one refused (a swap's later frames)."""
+
+
 @dataclass
 class Estimator:
     """One agent's estimate of its own drone from motion-capture frames.
 
     Per control tick: :meth:`frame` for each frame that arrived, :meth:`estimate` for the
-    state to act on, :meth:`command` with the acceleration it then commands."""
+    state to act on, :meth:`command` with the acceleration it then commands.
+
+    With ``p.gate_sigmas`` > 0 an implausible frame is refused and treated as lost: not fused, the
+    filter coasts on the commands, its covariance and the estimate's age grow. Implausible: its
+    position is beyond the gate in the filter's own innovation covariance *and* beyond the reach
+    ``gate_floor_m + gate_accel_mps2 tau^2 / 2`` (``tau`` since the last frame fused). Re-acquiring
+    after a gap needs no rule of its own: the prediction (the commanded motion and the disturbance
+    estimate) stays near a drone that is seen again, and both the covariance and the reach grow
+    with the gap, so a true return is fused at once, and a drone whose acceleration stays within
+    ``gate_accel_mps2`` of the predicted one is never locked out. A rule that accepts frames once
+    several agree with each other is not used: the frames of a swap agree with each other (they
+    are the other drone's track), and that rule would fuse them. A swap is refused for as long as
+    the other drone is beyond both the gate's grown covariance and its reach: with the lab's
+    estimator, two drones 0.2 m or more apart, for 0.5 s (the reach is then 15.5 cm; the
+    covariance's 5 sigma about 15 cm vertically, 7 cm across). Longer swaps of close drones can be
+    fused, and a filter that fused a wrong frame is wrong and sure of itself (its disturbance
+    estimate takes the jump): so, last, after ``gate_reset_s`` of refusing every frame it takes the
+    next (``resets``). A frame fused beyond the statistical gate (on the reach, or on that reset)
+    restarts the filter from it (:meth:`_restart`: its position, and no more trust in its velocity
+    and disturbance than the gap allows), so one wrong or late frame cannot leave the filter
+    confidently wrong (``reacquired``: on the reach). Counters: ``rejected``, ``rejected_reasons``
+    (:data:`REJECT_REASONS`), ``reacquired``, ``resets``."""
 
     p: EstimatorParams
     x0_w: FloatArray  # (3,) m, world: the start
@@ -265,7 +417,14 @@ class Estimator:
     P: FloatArray = field(init=False)  # (3, 3, 3)
     t_fused_s: float = field(init=False)
     stale: int = field(init=False, default=0)  # frames older than the last fused, dropped
+    rejected: int = field(init=False, default=0)  # frames refused by the gate
+    rejected_reasons: dict[str, int] = field(init=False)  # the refused, by REJECT_REASONS
+    reacquired: int = field(init=False, default=0)  # frames fused on the gate's reach alone
+    resets: int = field(init=False, default=0)  # frames fused after gate_reset_s of refusals
     _seq: int = field(init=False, default=-1)
+    _run: int = field(init=False, default=0)  # frames refused since the last fused
+    _run_t_s: float = field(init=False, default=0.0)  # the capture time of the run's first
+    _t_frame_s: float = field(init=False)  # the capture time of the last frame fused (the start: t0_s)
     _cmds: list[tuple[float, FloatArray]] = field(init=False)  # (from t [s], a [m/s^2, world])
     _q: FloatArray = field(init=False)
     _q_t_s: float = field(init=False)
@@ -282,7 +441,8 @@ class Estimator:
         self.P[:, 0, 0] = self.p.r2_m2
         self.P[:, 1, 1] = self.p.initial_velocity_std_mps**2
         self.P[:, 2, 2] = self.p.initial_disturbance_std_mps2**2
-        self.t_fused_s = self.t0_s
+        self.t_fused_s = self._t_frame_s = self.t0_s
+        self.rejected_reasons = dict.fromkeys(REJECT_REASONS, 0)
         self._cmds = [(self.t0_s, np.zeros(3))]
         self._q = np.asarray(self.q0, float) / np.linalg.norm(self.q0)
         self._q_t_s = self.t0_s
@@ -314,20 +474,79 @@ class Estimator:
     def _advance(self, t_s: float) -> None:
         """Predict the filter's own state to ``t_s`` and forget the commands before it."""
         self._propagate(self.X, self.P, self.t_fused_s, t_s)
+        self._moved_to(t_s)
+
+    def _moved_to(self, t_s: float) -> None:
         self.t_fused_s = t_s
         while len(self._cmds) > 1 and self._cmds[1][0] <= t_s:
             self._cmds.pop(0)
 
     def frame(self, f: MocapFrame) -> bool:
         """Fuse a frame; False (and counted) if it is older than the last one fused (by its
-        frame number, or by its capture time as the agent reckons it)."""
+        frame number, or by its capture time as the agent reckons it), or, with the gate on,
+        implausible (``rejected``; the class docstring)."""
         t_c = f.t_arrival_s - self.p.latency_s
         if f.seq <= self._seq or t_c < self.t_fused_s:
             self.stale += 1
             return False
-        self._seq = f.seq
-        self._advance(t_c)
-        _update(self.X, self.P, np.asarray(f.x_w, float), self.p.r2_m2)
+        if self.p.gate_sigmas > 0.0:
+            if not self._gated(f, t_c):
+                return False
+        else:
+            self._seq = f.seq
+            self._advance(t_c)
+            _update(self.X, self.P, np.asarray(f.x_w, float), self.p.r2_m2)
+        self._attitude(f, t_c)
+        return True
+
+    def _gated(self, f: MocapFrame, t_c: float) -> bool:
+        """The gate on a frame captured at ``t_c`` [s]: fuse it (True) or refuse it (False, counted)."""
+        p = self.p
+        z = np.asarray(f.x_w, float)
+        X, P = self.X.copy(), self.P.copy()
+        self._propagate(X, P, self.t_fused_s, t_c)
+        y = z - X[:, 0]
+        d2 = float(np.sum(y * y / (P[:, 0, 0] + p.r2_m2)))
+        dist = norm(y)
+        tau = t_c - self._t_frame_s
+        if d2 > p.gate_sigmas**2 and dist > p.gate_floor_m:
+            if self._run and t_c - self._run_t_s >= p.gate_reset_s:
+                self.resets += 1
+            elif dist <= p.gate_floor_m + 0.5 * p.gate_accel_mps2 * tau * tau:
+                self.reacquired += 1
+            else:
+                reason = "in_run" if self._run else ("jump" if f.seq == self._seq + 1 else "after_gap")
+                self.rejected += 1
+                self.rejected_reasons[reason] += 1
+                if not self._run:
+                    self._run_t_s = t_c
+                self._run += 1
+                return False
+            self._restart(X, P, tau)
+        self.X, self.P = X, P
+        self._moved_to(t_c)
+        self._seq, self._t_frame_s, self._run = f.seq, t_c, 0
+        _update(self.X, self.P, z, p.r2_m2)
+        return True
+
+    def _restart(self, X: FloatArray, P: FloatArray, tau: float) -> None:
+        """Before fusing a frame beyond the statistical gate, ``tau`` [s] after the last one fused:
+        the filter's state ``X`` and covariance ``P`` at its capture (in place) stop trusting
+        themselves: the position to be taken from the frame (its variance 1 m^2), the velocity off
+        by up to what the allowed push and the disturbance estimated give over ``tau`` plus what it
+        may have been off by at the start, the disturbance by itself and its initial deviation;
+        the correlations dropped. The frames that follow find velocity and disturbance again, as
+        from a start in motion."""
+        p = self.p
+        a = p.gate_accel_mps2 + np.abs(X[:, 2])
+        for k in range(3):
+            pvv = P[k, 1, 1] + (a[k] * tau) ** 2 + p.initial_velocity_std_mps**2
+            pdd = P[k, 2, 2] + X[k, 2] ** 2 + p.initial_disturbance_std_mps2**2
+            P[k] = 0.0
+            P[k, 0, 0], P[k, 1, 1], P[k, 2, 2] = 1.0, pvv, pdd
+
+    def _attitude(self, f: MocapFrame, t_c: float) -> None:
+        """The attitude and the body rates from a frame fused, captured at ``t_c`` [s]."""
         q = np.asarray(f.q, float)
         q = q / norm(q)
         dt = t_c - self._q_t_s
@@ -336,7 +555,6 @@ class Estimator:
             a = dt / (self.p.rate_filter_s + dt) if self.p.rate_filter_s > 0 else 1.0
             self._Omega_b = self._Omega_b + a * (rate - self._Omega_b)
         self._q, self._q_t_s = q, t_c
-        return True
 
     def estimate(self, t_s: float, Omega_b: FloatArray | None = None) -> Estimate:
         """The state at ``t_s`` [s]: the filter predicted forward from the last frame's

@@ -175,6 +175,12 @@ class EstimatorSettings(Strict):
     # it may change (its random walk's std over 1 s) and how large it may be at the start; 0, 0: none
     disturbance_walk_mps2: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
     initial_disturbance_std_mps2: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)
+    # the innovation gate (swarm.realism.sensing.Estimator.frame): 0 sigmas, off (every frame fused);
+    # its floor and the push it allows an unseen drone (assumed, EstimatorParams' docstrings)
+    gate_sigmas: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
+    gate_floor_m: float = Field(0.03, ge=0, le=10, allow_inf_nan=False)
+    gate_accel_mps2: float = Field(1.0, ge=0, le=100, allow_inf_nan=False)
+    gate_reset_s: float = Field(1.0, gt=0, le=60, allow_inf_nan=False)  # refusing every frame this long: restart
 
 
 class SensingSettings(Strict):
@@ -187,13 +193,36 @@ class SensingSettings(Strict):
     attitude_noise_rad: float = Field(0.0, ge=0, le=0.5, allow_inf_nan=False)  # std of each rotation-vector component
     latency_s: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
     drop_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
+    # motion capture's failures (swarm.realism.sensing.MocapParams has each one's source or assumption);
+    # all off by default. Bursts of occlusion: how often a drone is lost per second seen, their mean length
+    occlusion_rate_hz: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
+    occlusion_mean_s: float = Field(0.2, gt=0, le=60, allow_inf_nan=False)
+    # the two closest drones swap identities: swaps per second of the run, how long each lasts
+    swap_rate_hz: float = Field(0.0, ge=0, le=100, allow_inf_nan=False)
+    swap_duration_s: float = Field(0.5, gt=0, le=60, allow_inf_nan=False)
+    # a frame jumps by outlier_m in a random direction
+    outlier_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
+    outlier_m: float = Field(0.1, ge=0, le=10, allow_inf_nan=False)
+    # std of each coordinate of a drone's constant offset of its markers' centroid from its centre of mass
+    centroid_offset_std_m: float = Field(0.0, ge=0, le=0.1, allow_inf_nan=False)
     estimator: EstimatorSettings = EstimatorSettings()
 
     def mocap_params(self) -> MocapParams:
         from swarm.realism.sensing import MocapParams
 
         return MocapParams(
-            self.rate_hz, self.position_noise_m, self.attitude_noise_rad, self.latency_s, self.drop_fraction
+            self.rate_hz,
+            self.position_noise_m,
+            self.attitude_noise_rad,
+            self.latency_s,
+            self.drop_fraction,
+            occlusion_rate_hz=self.occlusion_rate_hz,
+            occlusion_mean_s=self.occlusion_mean_s,
+            swap_rate_hz=self.swap_rate_hz,
+            swap_duration_s=self.swap_duration_s,
+            outlier_fraction=self.outlier_fraction,
+            outlier_m=self.outlier_m,
+            centroid_offset_std_m=self.centroid_offset_std_m,
         )
 
     def estimator_params(self) -> EstimatorParams:
@@ -208,6 +237,10 @@ class SensingSettings(Strict):
             rate_filter_s=e.rate_filter_s,
             disturbance_walk_mps2=e.disturbance_walk_mps2,
             initial_disturbance_std_mps2=e.initial_disturbance_std_mps2,
+            gate_sigmas=e.gate_sigmas,
+            gate_floor_m=e.gate_floor_m,
+            gate_accel_mps2=e.gate_accel_mps2,
+            gate_reset_s=e.gate_reset_s,
         )
 
 

@@ -42,6 +42,10 @@ class Stream(IntEnum):
     MOCAP_ATTITUDE = 5
     MOCAP_DROP = 6
     COMMS = 7
+    # 50-59: a bad day's plant and radio (battery sag, burst loss, per-drone gusts)
+    BATTERY_START = 50
+    COMMS_BURST = 51
+    WIND_RELATIVE = 52
 
 
 def word(value: int) -> np.uint64:

@@ -2,9 +2,9 @@
 
 :meth:`Plant.step` takes the drones' true states and the rotor thrusts their controllers
 command, and returns the thrusts the rotors make (after the motors' lag and each drone's
-thrust factor) and the extra force [N, world] and torque [N m, body] of downwash, drag
-(in the wind) and ground effect. State (rotor speeds, gust filters) is held in flat
-arrays, vectorised over drones.
+thrust factor, and the battery's sag) and the extra force [N, world] and torque [N m, body]
+of downwash, drag (in the wind: the rotors' and, if set, the body's) and ground effect.
+State (rotor speeds, gust filters) is held in flat arrays, vectorised over drones.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import numpy as np
 
 from swarm.model import QuadParams, rotor_geometry
 from swarm.realism.aero import AeroParams, downwash_force_w, drag_force_w, ground_effect
-from swarm.realism.motors import MotorParams, Motors, drone_factors, plant_airframe
+from swarm.realism.motors import MotorParams, Motors, battery_start_min, drone_factors, plant_airframe
 from swarm.realism.rng import Stream
-from swarm.realism.wind import Wind, WindParams
+from swarm.realism.wind import Wind, WindParams, body_drag_force_w
 from swarm.rotation import FloatArray
 
 
@@ -37,6 +37,8 @@ class PlantParams:
             not self.aero.any
             and not self.wind.any
             and not m.lag
+            and not m.sag
+            and self.wind.body_drag_area_m2 == 0.0
             and m.thrust_coefficient_offset_fraction == 0.0
             and m.thrust_coefficient_spread_fraction == 0.0
             and m.mass_offset_fraction == 0.0
@@ -88,7 +90,10 @@ class Plant:
         ]
         if f0_N is None:
             f0_N = np.array([[a.weight_N / 4.0] * 4 for a in nominal]).reshape(n, 4)
-        self.motors = Motors(m, dt_s, np.array([a.kf for a in nominal]), self.thrust_factor, f0_N)
+        self.battery_start_min = battery_start_min(seed, n, m.battery_start_spread_min) if m.sag else np.zeros(n)
+        self.motors = Motors(
+            m, dt_s, np.array([a.kf for a in nominal]), self.thrust_factor, f0_N, self.battery_start_min
+        )
         self.wind = Wind(p.wind, n, dt_s, seed)
         self.rotor_xy_b = np.array([rotor_geometry(a)[0] for a in nominal]).reshape(n, 4, 2)
         self._zeros = np.zeros((n, 3))
@@ -113,6 +118,8 @@ class Plant:
             drag = drag_force_w(R, np.asarray(v_w, float) - wind_w, self.motors.omega_sum_rad_s, a)
         else:
             drag = self._zeros
+        if self.p.wind.body_drag_area_m2 > 0.0:
+            drag = drag + body_drag_force_w(np.asarray(v_w, float) - wind_w, self.p.wind.body_drag_area_m2)
         if a.ground_effect:
             ground, torque = ground_effect(x_w, R, f, self.rotor_xy_b, a)
         else:

@@ -49,6 +49,10 @@ class Stream(IntEnum):
     MOCAP_OUTLIER = 43  # a frame jumps (drone, frame)
     MOCAP_OUTLIER_DIRECTION = 44  # the jump's direction (drone, frame)
     MOCAP_CENTROID = 45  # a drone's constant offset of the markers' centroid (drone)
+    # 50-59: a bad day's plant and radio (battery sag, burst loss, per-drone gusts)
+    BATTERY_START = 50
+    COMMS_BURST = 51
+    WIND_RELATIVE = 52
 
 
 def word(value: int) -> np.uint64:

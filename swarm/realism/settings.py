@@ -24,7 +24,7 @@ from swarm.strict import Strict, merge
 if TYPE_CHECKING:  # (imported where used: a config is read, and refused, without numba or scipy)
     from swarm.model import QuadParams
     from swarm.realism.aero import AeroParams
-    from swarm.realism.comms import CommsModel, CommsParams, LinkParams
+    from swarm.realism.comms import CommsModel, CommsParams, LinkParams, RadioParams
     from swarm.realism.motors import MotorParams
     from swarm.realism.plant import Plant, PlantParams
     from swarm.realism.sensing import Estimator, EstimatorParams, MocapParams, MocapSensor
@@ -132,6 +132,11 @@ class MotorSettings(Strict):
     thrust_coefficient_spread_fraction: float = Field(0.0, ge=0, le=0.15, allow_inf_nan=False)
     mass_offset_fraction: float = Field(0.0, gt=-0.5, le=0.5, allow_inf_nan=False)
     mass_spread_fraction: float = Field(0.0, ge=0, le=0.15, allow_inf_nan=False)
+    # battery sag: the thrust at one command falls by this fraction per minute of flight (uncompensated
+    # Crazyflie: about 0.018, swarm.realism.motors); each drone's battery had flown a seeded uniform
+    # [0, spread) minutes at takeoff
+    battery_sag_fraction_per_min: float = Field(0.0, ge=0, le=0.1, allow_inf_nan=False)
+    battery_start_spread_min: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)
 
     def params(self) -> MotorParams:
         from swarm.realism.motors import MotorParams
@@ -150,6 +155,11 @@ class WindSettings(Strict):
     height_m: float = Field(1.0, gt=0, allow_inf_nan=False)  # where the MIL-F-8785C scales are taken
     airspeed_mps: float = Field(1.0, gt=0, allow_inf_nan=False)  # V: lengths L become times L / V
     gust_field: Literal["shared", "per_drone"] = "shared"  # one gust field for all drones, or one each
+    # each drone's own gust on top of the field (isotropic, correlation length L_r; swarm.realism.wind)
+    relative_gust_std_mps: float = Field(0.0, ge=0, le=20, allow_inf_nan=False)
+    relative_gust_length_m: float = Field(0.3, gt=0, le=1e4, allow_inf_nan=False)
+    # the body's C_d A [m^2] (quadratic drag; a Crazyflie: about 1.3e-3, assumed, swarm.realism.wind)
+    body_drag_area_m2: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
 
     def params(self) -> WindParams:
         from swarm.realism.wind import WindParams
@@ -249,23 +259,45 @@ class LinkSettings(Strict):
 
     delay_s: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)
     jitter_s: float = Field(0.0, ge=0, le=10, allow_inf_nan=False)  # plus up to this, uniformly
-    loss_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)
+    loss_fraction: float = Field(0.0, ge=0, lt=1, allow_inf_nan=False)  # in the good state, if bursts
+    # loss in bursts (a Gilbert-Elliott chain, one step per message; swarm.realism.comms): the chance
+    # per message of entering the bad state (0: no bursts), of leaving it, and the loss in it
+    burst_enter_probability: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
+    burst_exit_probability: float = Field(0.2, gt=0, le=1, allow_inf_nan=False)
+    burst_loss_fraction: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
 
     def params(self) -> LinkParams:
         from swarm.realism.comms import LinkParams
 
-        return LinkParams(self.delay_s, self.jitter_s, self.loss_fraction)
+        return LinkParams(**self.model_dump())
+
+
+class RadioSettings(Strict):
+    """Drones that share one Crazyradio: the command link's latency and loss grow with their
+    number and command rate (:class:`swarm.realism.comms.RadioParams`). 1: the link as set."""
+
+    drones_per_radio: int = Field(1, ge=1, le=64)
+    backend: Literal["cpp", "cflib"] = "cpp"  # Crazyswarm2's C++ backend (broadcasts) or cflib (unicasts)
+    command_rate_hz: float | None = Field(None, gt=0, le=10_000, allow_inf_nan=False)  # None: the control rate
+    # assumed, uncalibrated: the loss each further drone adds at 100 Hz (Crazyswarm2 publishes no loss curve)
+    loss_per_extra_drone: float = Field(0.0, ge=0, le=0.5, allow_inf_nan=False)
+
+    def params(self) -> RadioParams:
+        from swarm.realism.comms import RadioParams
+
+        return RadioParams(**self.model_dump())
 
 
 class CommsSettings(Strict):
     state: LinkSettings = LinkSettings()  # an agent's state to another agent
     bundle: LinkSettings = LinkSettings()  # the relay's bundle to an agent
     command: LinkSettings = LinkSettings()  # an agent's command to its drone
+    shared_radio: RadioSettings = RadioSettings()  # the command link's Crazyradio, shared by drones_per_radio drones
 
     def params(self) -> CommsParams:
         from swarm.realism.comms import CommsParams
 
-        return CommsParams(self.state.params(), self.bundle.params(), self.command.params())
+        return CommsParams(self.state.params(), self.bundle.params(), self.command.params(), self.shared_radio.params())
 
 
 class RealismSettings(Strict):

@@ -25,6 +25,27 @@ at ``max(h, 10 ft)`` and the intensity is a setting (``gust_std_mps``, sigma_u =
 Leaves out: gusts' spatial variation within the swarm when ``shared`` (one field for all,
 valid where the drones are closer than ``L``), or any correlation between drones when not
 (each its own field: the worst case), and rotational turbulence (MIL's p, q, r).
+
+Per-drone turbulence (off by default): ``relative_gust_std_mps`` adds to the shared field
+each drone's own gust, three independent first-order Gauss-Markov (Ornstein-Uhlenbeck)
+components of standard deviation ``sigma_r`` and correlation time ``T_r = L_r / V``
+(``relative_gust_length_m`` over ``airspeed_mps``): Dryden's ``u`` form, isotropic as
+turbulence at scales well below ``L`` is (Kolmogorov's local isotropy), discretised exactly
+(``y' = a y + sigma_r sqrt(1 - a^2) n``, ``a = exp(-dt / T_r)``) and stationary from the
+first step. It stands for the eddies smaller than the spacing, which the shared field (of
+scale ``L``, metres to hundreds of metres) cannot make differ between neighbours: two
+drones' winds correlate by ``sigma_s^2 / (sigma_s^2 + sigma_r^2)`` per horizontal
+component. Assumed, no lab measurement: a lab that sees its drones buffeted apart sets
+``sigma_r`` of the order of ``gust_std_mps`` and ``L_r`` of the order of its spacing.
+
+Body drag (off by default): ``body_drag_area_m2`` is the body's ``C_d A``, and the air pushes
+the body with ``-rho C_d A |v_rel| v_rel / 2`` (``rho`` 1.204 kg/m^3, dry air at 20 C and
+sea level), a force of its own besides the rotors' linear drag (Forster 2015, in
+:mod:`swarm.realism.aero`, whose constants were identified in flight below about 1 m/s and
+so already hold the body's drag at those speeds). No published ``C_d A`` of a Crazyflie was
+found; a bluff body's ``C_d`` of about 1 (Hoerner, *Fluid-Dynamic Drag*, 1965) on the
+Crazyflie 2.1's 92 mm x 29 mm side (datasheet), half of it solid, gives about 1.3e-3 m^2
+(0.8 mN at 1 m/s, 0.3 % of a 27 g drone's weight; at 5 m/s 20 mN, 7 %).
 """
 
 from __future__ import annotations
@@ -39,6 +60,7 @@ from swarm.realism.rng import Stream, normals
 from swarm.rotation import FloatArray
 
 FT_M = 0.3048
+AIR_DENSITY_KG_M3 = 1.204  # dry air, 20 C, 101.325 kPa
 
 
 def mil_f_8785c_low_altitude(height_m: float) -> tuple[float, float, float]:
@@ -67,6 +89,12 @@ class WindParams:
     """V [m/s]: the drones' speed through the air, turning lengths into times."""
     shared: bool = True
     """One gust field for every drone (True), or each drone its own."""
+    relative_gust_std_mps: float = 0.0
+    """sigma_r [m/s] of each drone's own gust, added to the field's (each component); 0: none."""
+    relative_gust_length_m: float = 0.3
+    """L_r [m]: each drone's own gust's correlation length (its time: L_r / V)."""
+    body_drag_area_m2: float = 0.0
+    """The body's C_d A [m^2]: a quadratic drag of the body in the air; 0: none."""
 
     def scales(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """((sigma_u, sigma_v, sigma_w) [m/s], (T_u, T_v, T_w) [s]) of the gusts."""
@@ -83,8 +111,19 @@ class WindParams:
         return any(s > 0.0 for s in sigma)
 
     @property
+    def relative(self) -> bool:
+        return self.relative_gust_std_mps > 0.0
+
+    @property
     def any(self) -> bool:
-        return self.gusts or any(c != 0.0 for c in self.steady_w_mps)
+        return self.gusts or self.relative or any(c != 0.0 for c in self.steady_w_mps)
+
+
+def body_drag_force_w(v_rel_w: FloatArray, cd_area_m2: float) -> FloatArray:
+    """(n, 3) [N, world]: the body's quadratic drag ``-rho C_d A |v_rel| v_rel / 2`` for the
+    velocities relative to the air ``v_rel_w`` (n, 3) [m/s, world] (the drone's less the wind's)."""
+    speed = np.linalg.norm(v_rel_w, axis=1, keepdims=True)
+    return -0.5 * AIR_DENSITY_KG_M3 * cd_area_m2 * speed * v_rel_w
 
 
 def dryden_state_space(
@@ -143,7 +182,17 @@ class Wind:
         self.wind_w = np.tile(self.steady_w, (n, 1))
         """(n, 3) [m/s, world]: the wind at each drone now."""
         self._gusts = p.gusts
+        self._relative = p.relative
+        if self._relative:
+            T_r = p.relative_gust_length_m / p.airspeed_mps
+            self._a_r = math.exp(-dt_s / T_r)
+            self._b_r = p.relative_gust_std_mps * math.sqrt(1.0 - self._a_r**2)
+            self._drones = np.arange(n)
+            self.y = p.relative_gust_std_mps * normals(seed, Stream.WIND_RELATIVE, self._drones, 0, 3)
+            """(n, 3) [m/s, world]: each drone's own gust, stationary from the start."""
         if not self._gusts:
+            if self._relative:
+                self.wind_w = self.wind_w + self.y
             return
         self._fields = 1 if p.shared else n
         sigma, T = p.scales()
@@ -162,12 +211,20 @@ class Wind:
     def _update(self) -> None:
         w = self.steady_w + self.x @ self._out
         self.wind_w = np.repeat(w, self.n, axis=0) if self._fields == 1 else w
+        if self._relative:
+            self.wind_w = self.wind_w + self.y
 
     def step(self) -> FloatArray:
         """Advance one step; the wind (n, 3) [m/s, world] at each drone."""
-        if not self._gusts:
+        if not self._gusts and not self._relative:
             return self.wind_w
         self.k += 1
+        if self._relative:
+            noise_r = normals(self.seed, Stream.WIND_RELATIVE, self._drones, self.k, 3)
+            self.y = self._a_r * self.y + self._b_r * noise_r
+        if not self._gusts:
+            self.wind_w = self.steady_w + self.y
+            return self.wind_w
         noise = normals(self.seed, Stream.WIND, np.arange(self._fields), self.k, 5)
         self.x = self.x @ self._AdT + noise @ self._LdT
         self._update()

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numba import njit
@@ -63,6 +64,23 @@ class AeroParams:
     """How fast the wake's radius grows with the distance below the drone [m/m]: the spreading
     rate of a turbulent round jet's half-velocity radius (Pope, *Turbulent Flows*, 2000, Table
     5.1; Hussein, Capp and George 1994: 0.094)."""
+    downwash_model: Literal["gym_pybullet", "measured"] = "gym_pybullet"
+    """Which downwash acts: ``"gym_pybullet"`` (upstream's fit, the coefficients above) or
+    ``"measured"`` (a widening wake fitted to Neural-Swarm's Crazyflie flights, the
+    ``downwash_measured_*`` coefficients below; :func:`downwash_force_w`)."""
+    downwash_measured_area_m2: float = 4.19e-3
+    """``measured``: the lower drone's effective area in the wake [m^2]: on the axis the force is
+    this area times the wake's momentum flux per area, ``T A / (2 pi w^2)`` (fitted: 4.19e-3 +-
+    0.18e-3, 64 % of a Crazyflie's four rotor discs)."""
+    downwash_measured_width0_m: float = 0.0352
+    """``measured``: the wake's Gaussian width extrapolated to the upper drone, ``w0`` [m]
+    (fitted: 0.035 +- 0.004)."""
+    downwash_measured_spread_m_per_m: float = 0.0439
+    """``measured``: how fast the wake's width ``w = w0 + spread dz`` grows with depth [m/m]
+    (fitted: 0.044 +- 0.013; a turbulent round jet's momentum-flux profile spreads by 0.056)."""
+    downwash_measured_min_depth_m: float = 0.27
+    """``measured``: the shallowest depth fitted [m]; above it the force on the axis is held at
+    its value there while the width keeps narrowing towards ``w0``."""
     drag_xy_kg_per_rad: float = 9.1785e-7
     """Rotor drag per (rad/s of summed rotor speed) per (m/s of airspeed), body x and y
     [N / (rad/s) / (m/s) = kg/rad]; Forster 2015's identification of the Crazyflie 2.0."""
@@ -143,8 +161,38 @@ def _downwash(x_w, thrust_N, peak_N, slope, offset_m, r_p, cap_fraction, range_x
         out[i, 2] = fz
 
 
+@njit(cache=True)
+def _downwash_measured(x_w, thrust_N, area_m2, w0_m, spread, min_dz_m, cap_fraction, range_xy, out):
+    n = x_w.shape[0]
+    for i in range(n):
+        fz = 0.0
+        for j in range(n):
+            dz = x_w[j, 2] - x_w[i, 2]
+            if j == i or not dz > 0.0:
+                continue
+            dx = x_w[j, 0] - x_w[i, 0]
+            dy = x_w[j, 1] - x_w[i, 1]
+            dxy2 = dx * dx + dy * dy
+            if not dxy2 < range_xy * range_xy:
+                continue
+            t = max(thrust_N[j], 0.0)
+            w = w0_m + spread * dz  # the profile's width at this depth
+            w_peak = w0_m + spread * max(dz, min_dz_m)  # the axis value is held above the fitted range
+            f = t * area_m2 / (2.0 * math.pi * w_peak * w_peak) * math.exp(-0.5 * dxy2 / (w * w))
+            cap = cap_fraction * t
+            if f > cap:
+                f = cap
+            fz -= f
+        out[i, 0] = 0.0
+        out[i, 1] = 0.0
+        out[i, 2] = fz
+
+
 def downwash_force_w(x_w: FloatArray, thrust_N: FloatArray, p: AeroParams) -> FloatArray:
     """Downwash on each drone from every drone above it: (n, 3) [N, world], straight down.
+
+    Two models, :attr:`AeroParams.downwash_model`: ``"gym_pybullet"`` (the default, below) and
+    ``"measured"`` (after it).
 
     ``x_w`` (n, 3) [m, world] are the centres of mass, ``thrust_N`` (n,) each drone's
     collective thrust. For a drone ``j`` above ``i`` (``dz = z_j - z_i > 0``, horizontal
@@ -182,9 +230,68 @@ def downwash_force_w(x_w: FloatArray, thrust_N: FloatArray, p: AeroParams) -> Fl
       lower drone's tilt (at most 35 degrees here).
 
     Leaves out: the upper drone's tilt and thrust (the fit is at hover), the wake's travel
-    time, and any torque (a drone half under a wake is rolled in reality)."""
+    time, and any torque (a drone half under a wake is rolled in reality).
+
+    **measured**: a wake that widens with depth, fitted to Crazyflie flights. For a drone ``j``
+    above ``i`` with collective thrust ``T``::
+
+        F = T A / (2 pi w_p^2) exp(-d^2 / (2 w^2)),   w = w0 + s dz,   w_p = w0 + s max(dz, dz_min)
+
+    a Gaussian whose width grows linearly with depth and whose peak falls as its area grows
+    (``F`` integrated over the plane is ``T A`` at every depth: momentum conserved), scaled by
+    the thrust above (a wake's momentum flux is the thrust that made it), zero for ``dz <= 0``,
+    and capped at ``downwash_cap_thrust_fraction T`` (which never binds with the fitted values:
+    0.30 T at most). ``A`` (:attr:`AeroParams.downwash_measured_area_m2`), ``w0`` and ``s`` are
+    fitted (least squares, weighted by each bin's standard error plus 0.2 gf) to the residual
+    vertical force on the lower of two small Crazyflie 2.1 (32 g) in the public flight logs of
+    Shi et al., "Neural-Swarm2: Planning and Control of Heterogeneous Multirotor Swarms Using
+    Learned Interactions", T-RO 2021 (Neural-Swarm, ICRA 2020), aerorobotics/neural-swarm,
+    ``data/training/datacollection21_06_16_2020/swap_ss`` (11 flights) and ``swap_sss`` (8),
+    and ``datacollection20_12_20_2019/swap_sss`` (1): drones 0.2-0.4 m apart vertically
+    crossing under each other in 2-4 s. The force is the authors' own ``Fa`` (``learning/
+    utils.py``: mass times the logged acceleration less the thrust of their PWM-and-voltage
+    thrust map with its motor lag, ``fa_delay``), less each drone's median with no drone within
+    0.4 m horizontally (its bias, -0.7 to -1.8 gf), on samples with exactly one drone above
+    within 0.6 m and both higher than 0.3 m. Means [gf] (standard error 0.1-0.5 gf) in 5 cm
+    depth bins, by horizontal offset ``d`` [m]:
+
+    ======  ======  =====  =====  =====  =====  =====  =====  =====
+    dz      d=0.01  0.03   0.05   0.07   0.09   0.11   0.13   0.15
+    ======  ======  =====  =====  =====  =====  =====  =====  =====
+    0.275   9.0     7.2    4.8    3.1    1.5    0.4    0.0    -0.4
+    0.32    9.7     7.9    6.5    3.9    1.7    0.5    -0.4   -0.9
+    0.375   7.7     6.4    5.4    3.5    1.9    0.9    0.3    0.0
+    0.415   6.2     6.6    5.1    3.5    2.1    1.0    0.5    0.0
+    ======  ======  =====  =====  =====  =====  =====  =====  =====
+
+    Fitted range: ``dz`` 0.27-0.42 m (on the axis), ``d`` up to 0.15 m; RMS residual 0.49 gf
+    (1.5 % of the weight), largest 1.2 gf. On the axis the fit gives 0.30 of the thrust above at
+    0.27 m, 0.285 at 0.3 m, 0.24 at 0.4 m (9.6, 9.1 and 7.7 gf for 32 g), 0.20 at 0.5 m and 0.11
+    at 1 m (upstream's: one weight, the cap, to 0.54 m; 0.29 at 1 m). Outside the range: deeper, the
+    same law (a turbulent jet's, Bauersfeld et al., RA-L 2025, arXiv 2403.13321: a quadrotor's wake is a round jet
+    from 2.5 drone diameters below it); shallower, the axis value is held at its 0.27 m value
+    and the width narrows to ``w0`` at ``dz = 0``, so a drone beside another at its height (12
+    cm apart) feels 0.09 % of the thrust. No sideways force: the logs show at most a 0.3 gf pull
+    towards the axis 0.1-0.2 m off it (under 1 % of the weight) and no push outward. The
+    flights were moving (0.1-0.5 m/s), so the profile is the wake as a drone crossing it feels
+    it; the upper drone is a 32 g Crazyflie, and another drone's wake is scaled by its thrust."""
     x_w = np.ascontiguousarray(x_w, dtype=float)
     out = np.empty_like(x_w)
+    if p.downwash_model == "measured":
+        _downwash_measured(
+            x_w,
+            np.ascontiguousarray(thrust_N, dtype=float),
+            p.downwash_measured_area_m2,
+            p.downwash_measured_width0_m,
+            p.downwash_measured_spread_m_per_m,
+            p.downwash_measured_min_depth_m,
+            p.downwash_cap_thrust_fraction,
+            p.downwash_range_xy_m,
+            out,
+        )
+        return out
+    if p.downwash_model != "gym_pybullet":
+        raise ValueError(f"downwash_model: {p.downwash_model!r} is neither 'gym_pybullet' nor 'measured'")
     _downwash(
         x_w,
         np.ascontiguousarray(thrust_N, dtype=float),

@@ -109,6 +109,13 @@ class AeroSettings(Strict):
     # the wake's radius at the rotors (cf2x.urdf: arm + prop radius) and its spreading rate (a turbulent round jet)
     downwash_wake_radius_m: float = Field(0.0628, gt=0, le=1, allow_inf_nan=False)
     downwash_wake_spread: float = Field(0.094, ge=0, le=1, allow_inf_nan=False)
+    # gym_pybullet: upstream's fit above; measured: a widening wake fitted to Neural-Swarm's Crazyflie
+    # flights (swarm.realism.aero.downwash_force_w, the data and the fit's range in its docstring)
+    downwash_model: Literal["gym_pybullet", "measured"] = "gym_pybullet"
+    downwash_measured_area_m2: float = Field(4.19e-3, ge=0, le=1, allow_inf_nan=False)
+    downwash_measured_width0_m: float = Field(0.0352, gt=0, le=1, allow_inf_nan=False)
+    downwash_measured_spread_m_per_m: float = Field(0.0439, ge=0, le=1, allow_inf_nan=False)
+    downwash_measured_min_depth_m: float = Field(0.27, ge=0, le=10, allow_inf_nan=False)
     drag_xy_kg_per_rad: float = Field(9.1785e-7, ge=0, allow_inf_nan=False)
     drag_z_kg_per_rad: float = Field(10.311e-7, ge=0, allow_inf_nan=False)
     ground_effect_coeff: float = Field(11.36859, ge=0, allow_inf_nan=False)

@@ -537,7 +537,8 @@ class MonitorSettings(_Strict):
     std_envelope_m: float | None = Field(None, gt=0, allow_inf_nan=False)
     std_envelope_factor: float = Field(1.5, ge=1, le=100, allow_inf_nan=False)
     estimate_age_s: float = Field(0.15, gt=0, le=10, allow_inf_nan=False)  # own estimate without a frame
-    estimate_lost_s: float = Field(0.5, gt=0, le=10, allow_inf_nan=False)  # ... past this: lost
+    # s: ... past this it is lost (the estimator's gate takes any frame after 1 s: gate_reset_s)
+    estimate_lost_s: float = Field(1.0, gt=0, le=10, allow_inf_nan=False)
     # s: a neighbour's state older than this; null: failure.neighbour_timeout_s
     neighbour_age_s: float | None = Field(None, gt=0, le=10, allow_inf_nan=False)
     infeasible_s: float = Field(0.25, gt=0, le=60, allow_inf_nan=False)  # no clean solve for this long

@@ -32,7 +32,7 @@ from swarm.control import (
 )
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.planning import StaticObstacles
-from swarm.realism.sensing import Estimator, EstimatorParams, MocapFrame
+from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
@@ -143,6 +143,7 @@ class AgentStep:
         observer: EstimatorParams | None = None,
         monitor: MonitorParams | None = None,
         fixed_sd: tuple[float, float] = (0.0, 0.0),
+        offset_sd_m: float = 0.0,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -158,7 +159,10 @@ class AgentStep:
         ``fixed_sd``: without an estimator, the position [m] and velocity [m/s] deviations its
         states have (a real drone's motion capture in a world with sensing; 0: exact). With an
         estimator or a deviation every row grows by the live noise margin
-        (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries."""
+        (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries.
+        ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
+        markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
+        estimator sees: added in quadrature to the estimate's position deviation."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -171,6 +175,7 @@ class AgentStep:
         self.observer = observer
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
         self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
+        self.offset_sd_m = float(offset_sd_m)
         self.live = estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
@@ -221,6 +226,7 @@ class AgentStep:
 
             mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
+        offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
         return cls(
             QuadModel(agent.quad_params()),
             filter_config_for(agent, still, level, route, realism),
@@ -237,6 +243,7 @@ class AgentStep:
             observer=observer,
             monitor=mon,
             fixed_sd=fixed_sd,
+            offset_sd_m=offset_sd,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -341,7 +348,7 @@ class AgentStep:
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
-        self._commanded(t_s, state, u, d_w, airborne)
+        self._commanded(t_s, state, u, d_w, airborne, sensed.age_s)
         live_m = max(float(extra_nb.max(initial=0.0)), float(extra_obs.max(initial=0.0)))
         return StepResult(
             level=level,
@@ -390,7 +397,8 @@ class AgentStep:
         for f in frames or ():
             est.frame(f)
         e = est.estimate(t_s)
-        sd_now = (float(e.pos_std_m.max()), float(e.vel_std_mps.max()))
+        off2 = self.offset_sd_m * self.offset_sd_m
+        sd_now = (math.sqrt(float(e.pos_std_m.max()) ** 2 + off2), float(e.vel_std_mps.max()))
         est_out = np.array([*e.x_w, *e.v_w, *sd_now, e.age_s])  # (reported at the tick's time)
         if level is CommandLevel.ATTITUDE:
             d_w = np.clip(e.d_w, -lim, lim)
@@ -399,7 +407,7 @@ class AgentStep:
         if lead > 0.0:
             e = est.estimate(t_s + lead)
             state = QuadState(e.x_w, e.v_w, e.q, e.Omega_b)
-            sd_m = float(e.pos_std_m.max())
+            sd_m = math.sqrt(float(e.pos_std_m.max()) ** 2 + off2)
         return _Sensed(now, state, d_w, sd_m, sd_now, e.age_s, est_out, lim)
 
     def _monitor(
@@ -461,15 +469,22 @@ class AgentStep:
                 return np.array([0.0, 0.0, -p.land_speed_mps])
         return np.zeros(3)
 
-    def _commanded(self, t_s: float, state: QuadState, u: FloatArray, d_w: FloatArray | None, airborne: bool) -> None:
+    def _commanded(
+        self, t_s: float, state: QuadState, u: FloatArray, d_w: FloatArray | None, airborne: bool, age_s: float
+    ) -> None:
         """Tell the estimator (or the observer) the acceleration the command ``u`` asks from
-        when it acts, and keep it for the next tick's lead without one."""
+        when it acts, and keep it for the next tick's lead without one. At the attitude level
+        it is the thrust along the body axis the estimate has (:meth:`_tilted_accel_w`) while its
+        attitude is measured, and the thrust vector itself once the estimate is older than
+        ``ATTITUDE_COAST_S`` (a gap of motion capture: the attitude loop has flown the tilt asked
+        by then, and a held attitude would have the estimate accelerate along a tilt long gone)."""
         est, lead = self.estimator, self.lead_s
         if not airborne:
             self._observed = None
         tracked = est if est is not None else self._observed
         if tracked is not None:
-            a_w = self._tilted_accel_w(state, u) if self.level is CommandLevel.ATTITUDE else self._accel_w(state, u)
+            tilted = self.level is CommandLevel.ATTITUDE and age_s <= ATTITUDE_COAST_S
+            a_w = self._tilted_accel_w(state, u) if tilted else self._accel_w(state, u)
             tracked.command(t_s + lead, a_w)
         if est is None and lead > 0.0:
             self._a_w = self._accel_w(state, u)  # (the next tick's lead moves the state by it)

@@ -30,8 +30,8 @@ position error (own and neighbour's, independent: ``sqrt(2)`` times one) beyond 
 
 def design_std(realism: RealismSettings | None) -> tuple[float, float]:
     """The estimator's steady-state standard deviations of position [m] and velocity [m/s] when
-    it is read (``swarm.realism.sensing.steady_std``, the largest axis; (0, 0) without sensing):
-    what an agent without an estimator of its own (a real drone on the world's frames) says its
+    it is read (``swarm.realism.sensing.steady_std``, the largest axis, and in quadrature the
+    markers' constant offset ``centroid_offset_std_m``; (0, 0) without sensing): what an agent without an estimator of its own (a real drone on the world's frames) says its
     state's deviations are, and the envelope the safety monitor holds the live ones to
     (``swarm.safety.monitor``)."""
     if realism is None or not realism.sensing.enabled:
@@ -39,7 +39,10 @@ def design_std(realism: RealismSettings | None) -> tuple[float, float]:
     from swarm.realism.sensing import steady_std
 
     s = realism.sensing
-    return steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)
+    pos, vel = steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)
+    if s.centroid_offset_std_m > 0.0:  # the markers' offset from the centre of mass, which no estimate sees
+        pos = math.hypot(pos, s.centroid_offset_std_m)
+    return pos, vel
 
 
 def noise_margin_m(realism: RealismSettings | None) -> float:
@@ -136,8 +139,9 @@ def command_lead_s(realism: RealismSettings | None, control_hz: float) -> float:
     its command is a prediction, not a lag the filter does not know of."""
     if realism is None or realism.ideal:
         return 0.0
-    link = realism.comms.command
     tick = 1.0 / control_hz
+    comms = realism.comms.params()
+    link = comms.shared_radio.command_link(comms.command, tick)  # (with the radio's other drones' share)
     return math.ceil((link.delay_s + 0.5 * link.jitter_s) / tick - 1e-9) * tick
 
 

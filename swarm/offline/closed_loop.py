@@ -326,6 +326,7 @@ def simulate_swarm(
             ),
             lead_s=lead,
             monitor=mon,
+            offset_sd_m=r.sensing.centroid_offset_std_m if r is not None and sensing else 0.0,
         )
         for a in agents
     ]

@@ -43,6 +43,12 @@ from swarm.rotation import FloatArray, norm
 MAX_GAP_S = 0.5
 """An estimate this long after the last frame moves the filter's own state forward (:meth:`Estimator.estimate`)."""
 
+ATTITUDE_COAST_S = 0.05
+"""The last frame's attitude is turned forward by the body rates over its age, but no further than
+this [s]: the rates from frame differences are a low-passed guess, and over a gap of a motion
+capture's occlusion they would spin the estimate round (and with it the direction the estimator
+predicts the thrust in, so the position it predicts runs away); past it the attitude is held."""
+
 FIRMWARE_PREDICT_S = 0.01
 """The Crazyflie EKF's prediction period (``estimator_kalman.c``: ``PREDICT_RATE RATE_100_HZ``)."""
 
@@ -318,7 +324,7 @@ class Estimate(NamedTuple):
     Omega_b: FloatArray  # (3,) rad/s, body
     pos_std_m: FloatArray  # (3,) the filter's standard deviation of each coordinate
     vel_std_mps: FloatArray  # (3,)
-    age_s: float  # since the capture of the last frame fused (as the agent reckons it)
+    age_s: float  # since the capture of the last frame fused (as the agent reckons it), however long the gap
     d_w: FloatArray  # (3,) m/s^2, world: the acceleration the drone has beyond the one commanded (0: not estimated)
 
 
@@ -570,7 +576,7 @@ class Estimator:
         if t_s > self.t_fused_s:
             self._propagate(X, P, self.t_fused_s, t_s)
         rates = self._Omega_b if Omega_b is None else np.asarray(Omega_b, float)
-        q = quat_mul(self._q, quat_exp(rates * max(t_s - self._q_t_s, 0.0)))
+        q = quat_mul(self._q, quat_exp(rates * min(max(t_s - self._q_t_s, 0.0), ATTITUDE_COAST_S)))
         return Estimate(
             t_s,
             X[:, 0].copy(),
@@ -579,7 +585,7 @@ class Estimator:
             rates.copy(),
             np.sqrt(P[:, 0, 0]),
             np.sqrt(P[:, 1, 1]),
-            t_s - self.t_fused_s,
+            t_s - self._q_t_s,
             X[:, 2].copy(),
         )
 

@@ -10,6 +10,11 @@ field named (``world.realism.sensing.position_noise_m: ...``).
 * ``crazyflie_lab``: a Crazyflie 2.1 lab, every value with its source in
   :data:`PRESETS`. Where Crazyswarm2 warns about a quantity (motion-capture rate, link
   latency, lost packets), the preset sits at the limit it accepts without a warning.
+* ``crazyflie_lab_bad_day``: the lab on a bad day: ``crazyflie_lab`` with bodies lost to the
+  motion capture in bursts, two like bodies' identities swapped, jumps, the markers off each
+  drone's centre of mass, a sagging battery, eight drones on one radio with bursts of lost
+  commands, and drafts that differ between drones (each value's source or assumption in
+  :data:`PRESETS`).
 """
 
 from __future__ import annotations
@@ -36,8 +41,10 @@ _F = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 PRESETS: dict[str, dict[str, Any]] = {
     "ideal": {},
     "crazyflie_lab": {
-        # gym-pybullet-drones' measured Crazyflie models (swarm.realism.aero, the coefficients' defaults)
-        "aero": {"downwash": True, "drag": True, "ground_effect": True},
+        # gym-pybullet-drones' measured Crazyflie models of drag and ground effect (swarm.realism.aero,
+        # the coefficients' defaults); the downwash fitted to Neural-Swarm's Crazyflie flight logs
+        # (downwash_model: measured; docs/design.md, "The model of the world")
+        "aero": {"downwash": True, "drag": True, "ground_effect": True, "downwash_model": "measured"},
         "motors": {
             # CrazySim's Crazyflie model (model.sdf.jinja: timeConstantUp / timeConstantDown)
             "time_constant_up_s": 0.0125,
@@ -90,6 +97,48 @@ PRESETS: dict[str, dict[str, Any]] = {
         },
     },
 }
+
+
+PRESETS["crazyflie_lab_bad_day"] = merge(
+    PRESETS["crazyflie_lab"],
+    {
+        "sensing": {
+            # assumed (no published rate): a body lost once in 10 s of flight, for 0.3 s on average
+            # (a hand or a neighbour between it and the cameras, a marker in a reflection);
+            # MotionBuilder's and Vicon's documentation describe occlusion as bursts, not single frames
+            "occlusion_rate_hz": 0.1,
+            "occlusion_mean_s": 0.3,
+            # assumed: two like marker sets swapped once in 20 s of a run, for half a second
+            # (Preiss et al., ICRA 2017: why Crazyswarm tracks identities from the drones' motion)
+            "swap_rate_hz": 0.05,
+            "swap_duration_s": 0.5,
+            # assumed: one frame in 500 jumps 5 cm (a ghost marker joins the set)
+            "outlier_fraction": 0.002,
+            "outlier_m": 0.05,
+            # assumed: the markers' centroid 2 mm (1 sigma per axis) off each drone's centre of mass
+            "centroid_offset_std_m": 0.002,
+            # the agents' estimators refuse implausible frames (swarm.realism.sensing, the gate)
+            "estimator": {"gate_sigmas": 5.0},
+        },
+        "motors": {
+            # Bitcraze's PWM-to-thrust table (crazyflie-firmware src/drivers/src/motors.c) without
+            # the firmware's battery compensation: 1.8 % of thrust a minute over a 7-minute flight;
+            # batteries already flown up to 3 minutes at take-off
+            "battery_sag_fraction_per_min": 0.018,
+            "battery_start_spread_min": 3.0,
+        },
+        # assumed: drafts that differ between drones 0.3 m apart (a fan, a door, the neighbours'
+        # wakes), and the body's drag (a drag coefficient of 1 on half its 92 x 29 mm side)
+        "wind": {"relative_gust_std_mps": 0.2, "body_drag_area_m2": 1.3e-3},
+        "comms": {
+            # eight drones on one Crazyradio with Crazyswarm2's C++ link (its paper draft: 27 ms
+            # median for 8), 10 % of commands lost and in bursts (a Gilbert-Elliott chain: a burst
+            # of about 5 ticks begins on 2 % of ticks and loses half of its commands)
+            "shared_radio": {"drones_per_radio": 8, "backend": "cpp"},
+            "command": {"burst_enter_probability": 0.02, "burst_exit_probability": 0.2, "burst_loss_fraction": 0.5},
+        },
+    },
+)
 
 
 class AeroSettings(Strict):
@@ -310,7 +359,7 @@ class CommsSettings(Strict):
 class RealismSettings(Strict):
     """``world.realism``: see the module docstring and docs/design.md, "The model of the world"."""
 
-    preset: Literal["ideal", "crazyflie_lab"] = "ideal"
+    preset: Literal["ideal", "crazyflie_lab", "crazyflie_lab_bad_day"] = "ideal"
     aero: AeroSettings = AeroSettings()
     motors: MotorSettings = MotorSettings()
     wind: WindSettings = WindSettings()

@@ -76,9 +76,9 @@ class MonitorParams:
     no estimate to check."""
     estimate_age_s: float = 0.15
     """Own estimate: seconds without a fused motion-capture frame before ``ESTIMATE_AGE``."""
-    estimate_lost_s: float = 0.5
-    """Own estimate: seconds without a fused frame before ``ESTIMATE_LOST`` (the estimator's
-    ``MAX_GAP_S``: it coasts no further)."""
+    estimate_lost_s: float = 1.0
+    """Own estimate: seconds without a fused frame before ``ESTIMATE_LOST`` (past the
+    estimator's gate's ``gate_reset_s``, after which it takes any frame)."""
     neighbour_age_s: float = 0.1
     """A neighbour's state older than this [s] (``failure.neighbour_timeout_s``) breaches."""
     infeasible_s: float = 0.25

@@ -56,6 +56,8 @@ def _status_info(st: dict[str, Any]) -> str:
     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
     if st.get("stalls"):
         info += f"  [yellow]stalls {st['stalls']}[/]"
+    if st.get("acting"):
+        info += f"  [yellow]monitor: {st['acting']} acting[/]"
     if st.get("dead"):
         info += f"  [red]dead {','.join(st['dead'])}[/]"
     return info
@@ -184,10 +186,12 @@ def run(
         for k in SUMMARY_KEYS:
             click.echo(f"{k:>26}: {metrics.get(k)}")
         for aid, a in metrics["agents"].items():
+            acted = {n: c for n, c in (a.get("monitor") or {}).get("action_ticks", {}).items() if c}
             click.echo(
                 f"{aid:>26}: reached={a['reached_goal']} t_goal={a['time_to_goal_s']} "
                 f"path={a['path_length_m']:.2f} m min_h={a['min_h']} min_row_h={a['min_row_h']} "
                 f"infeasible={a['infeasible_ticks']}"
+                + (f" monitor={','.join(f'{n}:{c}' for n, c in acted.items())}" if acted else "")
             )
     click.echo(f"run folder: {out}")
     sys.exit(code)

@@ -97,6 +97,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "infeasible": "i",
         "stalls": "i",
         "dead": "ls",
+        "acting": "i",
     },
     # a contact that began at this tick; dead: one of the two is a dead agent's drone (landing,
     # or left to the firmware), counted apart from collisions among live agents
@@ -520,6 +521,7 @@ FIELD_DOCS: dict[str, str] = {
     "late": "late ticks so far",
     "stalls": "stalled ticks so far",
     "dead": "agents declared dead",
+    "acting": "agents whose safety monitor slows, holds or lands their drone now (their newest command's)",
     "a": "one side of the contact (agent or obstacle id)",
     "b": "other side of the contact",
     "agents": "agents the tick waited for",

@@ -28,6 +28,21 @@ Safety figures, all from the measured (ground-truth) states:
 * ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
 * ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
   stalled short of it; the same definition for every method.
+
+The safety monitor (:mod:`swarm.safety.monitor`), from the verdicts the agents' commands carry
+(:class:`MonitorFigures`):
+
+* per agent ``monitor``: ``action_ticks`` (ticks it acted, per action: warn, slow, hold, land),
+  ``breach_ticks`` (ticks each check breached, per name of ``BREACH_NAMES``),
+  ``first_action_s`` (sim time of its first slow or stronger; None: never) and
+  ``landed_by_monitor`` (it ever had the action land);
+* per agent ``max_live_margin_m``: the largest live noise margin a filter row kept [m] (None: no
+  command); with an estimate (world.realism.sensing) ``max_estimate_sd_m`` (the largest position
+  standard deviation of the estimate it acted on [m]) and ``max_estimate_age_s`` (its oldest
+  estimate since a motion-capture frame [s]), None without;
+* run-level ``monitor``: ``action_ticks`` and ``breach_ticks`` summed over the agents (agent
+  ticks), ``acting_agents`` (the agents it ever slowed, held or landed) and ``landed_agents``
+  (the agents it landed).
 """
 
 from __future__ import annotations
@@ -48,6 +63,7 @@ from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
 from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
+from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.tuning import obstacle_horizon_s
 
@@ -250,6 +266,65 @@ class SafetyFigures:
         }
 
 
+ACTION_NAMES = tuple(a.name.lower() for a in Action if a > Action.NONE)
+"""The monitor's actions ``metrics.json`` counts, weakest first (warn, slow, hold, land)."""
+
+
+class MonitorFigures:
+    """The safety monitor's figures of one agent (see the module docstring), from its recorded
+    commands: :meth:`see` each, then :meth:`figures`."""
+
+    def __init__(self) -> None:
+        self.action_ticks = dict.fromkeys(ACTION_NAMES, 0)
+        self.breach_ticks = dict.fromkeys(BREACH_NAMES.values(), 0)
+        self.first_action_s: float | None = None
+        self.max_live_margin_m: float | None = None
+        self.max_sd_m: float | None = None
+        self.max_age_s: float | None = None
+
+    def see(self, r: dict[str, Any]) -> None:
+        action = int(r.get("monitor", 0))
+        if action > Action.NONE:
+            name = Action(min(action, Action.LAND)).name.lower()
+            self.action_ticks[name] += 1
+            if action >= Action.SLOW and (self.first_action_s is None or r["t"] < self.first_action_s):
+                self.first_action_s = float(r["t"])
+        bits = int(r.get("breaches", 0))
+        if bits:
+            for b, name in BREACH_NAMES.items():
+                if bits & b:
+                    self.breach_ticks[name] += 1
+        self.max_live_margin_m = max(self.max_live_margin_m or 0.0, float(r.get("live_margin", 0.0)))
+        est = r.get("est", ())
+        if len(est) == 9:
+            self.max_sd_m = max(self.max_sd_m or 0.0, float(est[6]))
+            self.max_age_s = max(self.max_age_s or 0.0, float(est[8]))
+
+    def figures(self) -> dict[str, Any]:
+        return {
+            "monitor": {
+                "action_ticks": dict(self.action_ticks),
+                "breach_ticks": dict(self.breach_ticks),
+                "first_action_s": self.first_action_s,
+                "landed_by_monitor": self.action_ticks["land"] > 0,
+            },
+            "max_live_margin_m": self.max_live_margin_m,
+            "max_estimate_sd_m": self.max_sd_m,
+            "max_estimate_age_s": self.max_age_s,
+        }
+
+
+def _monitor_totals(agents: dict[str, Any]) -> dict[str, Any]:
+    """The run's monitor figures from its agents' (``metrics.json``'s run-level ``monitor``)."""
+    mons = {aid: a["monitor"] for aid, a in agents.items()}
+    return {
+        "action_ticks": {n: sum(m["action_ticks"][n] for m in mons.values()) for n in ACTION_NAMES},
+        "breach_ticks": {n: sum(m["breach_ticks"][n] for m in mons.values()) for n in BREACH_NAMES.values()},
+        "acting_agents": sorted(aid for aid, m in mons.items() if m["first_action_s"] is not None),
+        "landed_agents": sorted(aid for aid, m in mons.items() if m["landed_by_monitor"]),
+    }
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) and abs(x) < 1e8 else None
 
@@ -313,6 +388,7 @@ def compute(
     min_row_h: dict[str, float] = defaultdict(lambda: math.inf)
     solve_us: dict[str, array] = defaultdict(lambda: array("d"))
     estimates: dict[str, array] = defaultdict(lambda: array("d"))  # per agent: k, x (3) [m] (world.realism.sensing)
+    monitors: dict[str, MonitorFigures] = defaultdict(MonitorFigures)  # per agent: its safety monitor's figures
     final: dict[str, Any] = {}  # the last status
     live_ever: set[str] = set()
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
@@ -344,7 +420,8 @@ def compute(
             last_report[r["src"]] = r
             min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
-            if len(r.get("est", ())) == 6:
+            monitors[r["src"]].see(r)
+            if len(r.get("est", ())) in (6, 9):  # x, v (and since v10 the deviations and age)
                 estimates[r["src"]].extend((int(r["k"]), *(float(e) for e in r["est"][:3])))
         elif kind == "status":
             final = r
@@ -392,6 +469,7 @@ def compute(
             # world.realism.sensing: |estimate - true centre of mass| at the ticks it acted on [m]
             "estimate_error_p95_m": float(np.percentile(est_err, 95)) if est_err.size else None,
             "estimate_error_max_m": float(est_err.max()) if est_err.size else None,
+            **(monitors[a.id] if a.id in monitors else MonitorFigures()).figures(),
             **motion,
         }
     gaps = ledger.gaps(sent_counts(said or {}), int(final["k"]) if final.get("done") else None)
@@ -436,6 +514,7 @@ def compute(
         "estimate_error_max_m": max(
             (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
         ),
+        "monitor": _monitor_totals(agents),
         "agents": agents,
     }
 

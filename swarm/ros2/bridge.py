@@ -43,7 +43,19 @@ from swarm.shutdown import StopFlag
 
 NODE_NAME = "c3swarm_bridge"
 CLOCK_FIELDS = ("meas_ids", "meas", "items", "done")
-STATUS_FIELDS = ("status", "intervention", "solve_us", "row_ids", "h_rows", "min_h", "infeasible", "goal_reached")
+STATUS_FIELDS = (
+    "status",
+    "intervention",
+    "solve_us",
+    "row_ids",
+    "h_rows",
+    "min_h",
+    "infeasible",
+    "goal_reached",
+    "monitor",
+    "breaches",
+    "live_margin",
+)
 
 
 @dataclass

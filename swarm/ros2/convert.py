@@ -16,6 +16,7 @@ import numpy as np
 from swarm.errors import DecodeError
 from swarm.ros2.interfaces import store
 from swarm.rotation import FloatArray, quat_to_R
+from swarm.safety.monitor import BREACH_NAMES, Action
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/msg/DiagnosticStatus levels
 
@@ -91,11 +92,20 @@ def clock(t_s: float) -> Any:
 
 def filter_status(agent_id: str, command: dict[str, Any]) -> Any:
     """diagnostic_msgs/msg/DiagnosticStatus of an agent's last command record (its filter's
-    report): level OK for a clean solve, WARN for any other status, ERROR for ``failed``;
-    the message is the status; the values are the report's numbers."""
+    report and its safety monitor's verdict): level OK for a clean solve, WARN for any other
+    status or a monitor that slows or holds the drone, ERROR for ``failed`` or a monitor that
+    lands it; the message is the status (and the monitor's action when it acts); the values
+    are the report's numbers, the monitor's action and breaches (their names, comma-joined) and
+    the live margin [m]."""
     t = _t()
     status = str(command["status"])
     level = OK if status == "ok" else ERROR if status == "failed" else WARN
+    action = Action(min(max(int(command.get("monitor", 0)), 0), Action.LAND))
+    if action >= Action.LAND:
+        level = ERROR
+    elif action >= Action.SLOW:
+        level = max(level, WARN)
+    bits = int(command.get("breaches", 0))
     kv = t["diagnostic_msgs/msg/KeyValue"]
     h = np.asarray(command.get("h_rows", ()), float)
     values = {
@@ -106,12 +116,15 @@ def filter_status(agent_id: str, command: dict[str, Any]) -> Any:
         "rows": str(len(command.get("row_ids", ()))),
         "infeasible_ticks": str(int(command["infeasible"])),
         "goal_reached": str(bool(command["goal_reached"])).lower(),
+        "monitor": action.name.lower(),
+        "breaches": ",".join(name for b, name in BREACH_NAMES.items() if bits & b),
+        "live_margin_m": f"{float(command.get('live_margin', 0.0)):.4g}",
         "t_s": f"{float(command['t']):.4f}",
     }
     return t["diagnostic_msgs/msg/DiagnosticStatus"](
         level=level,
         name=f"{agent_id}/safety_filter",
-        message=status,
+        message=status if action < Action.SLOW else f"{status}, monitor: {action.name.lower()}",
         hardware_id=agent_id,
         values=[kv(key=k, value=v) for k, v in values.items()],
     )

@@ -3,8 +3,10 @@
 A 3-D view of ``/scene`` and ``/tf`` (the world frame fixed), and per drone the plots a
 user of a safety filter looks at first: the smallest value ``min_h`` of its filter's rows
 so far in the run [m^2/s] (lower bounds of the exact barrier, escape rows left out) and the
-filter's intervention ``|u - u_ref|`` [N], the filter status over time,
-and the processes' log. ``docs/foxglove_layout.json`` is this layout for
+filter's intervention ``|u - u_ref|`` [N], the filter status over time, its safety
+monitor's action (0 none, 1 warn, 2 slow, 3 hold, 4 land: :class:`swarm.safety.monitor.Action`)
+and the largest live noise margin a row kept [m], and the processes' log.
+``docs/foxglove_layout.json`` is this layout for
 ``configs/swap_2.yaml`` (drones cf1 and cf2); every run folder gets its own
 ``foxglove_layout.json`` for its drones. Import it in Foxglove (Layouts, Import from file).
 """
@@ -16,6 +18,8 @@ from collections.abc import Sequence
 import foxglove.layouts as fl
 
 from swarm.runs.foxglove_scene import LOG_TOPIC, SCENE_TOPIC, WORLD_FRAME
+
+ACTION_SCALE = "0 none, 1 warn, 2 slow, 3 hold, 4 land"  # the monitor's plot: its action's values
 
 
 def _plot(title: str, field: str, agent_ids: Sequence[str], unit: str) -> fl.PlotPanel:
@@ -51,6 +55,8 @@ def run_layout(agent_ids: Sequence[str]) -> fl.Layout:
             fl.SplitItem(content=_plot("smallest row h", "min_h", agent_ids, "m^2/s")),
             fl.SplitItem(content=_plot("filter intervention", "intervention", agent_ids, "N")),
             fl.SplitItem(content=status),
+            fl.SplitItem(content=_plot("safety monitor", "monitor", agent_ids, ACTION_SCALE)),
+            fl.SplitItem(content=_plot("live noise margin", "live_margin", agent_ids, "m")),
         ],
     )
     left = fl.SplitContainer(

@@ -28,6 +28,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +42,7 @@ from swarm.net.cells import near_lists
 from swarm.net.messages import encode, frames_wire, warm_up
 from swarm.rotation import quat_to_R
 from swarm.runs.ledger import timing_sketch
+from swarm.safety.monitor import Action
 from swarm.shutdown import StopFlag
 from swarm.world.mocap import BodyEstimate, MocapRelay, connect
 from swarm.world.physics import DroneStates
@@ -85,11 +87,19 @@ class AgentSlot:
     reached_at_s: float | None = None
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
+    monitor: int = 0  # its safety monitor's action in its newest command (swarm.safety.monitor.Action)
     behind: bool = False  # lockstep: let a tick time out; not waited for until it answers again
 
 
+def monitor_acting(slots: Iterable[AgentSlot]) -> int:
+    """How many live agents' safety monitors slow, hold or land their drones (as their newest
+    commands say): the status's ``acting``."""
+    return sum(1 for s in slots if not s.dead and s.monitor >= Action.SLOW)
+
+
 STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
-COMMAND_FIELDS = ("level", "u", "status")  # what the world reads of a command (the report is the recorder's)
+# what the world reads of a command (the report is the recorder's): its monitor's action for the status
+COMMAND_FIELDS = ("level", "u", "status", "monitor")
 
 
 @dataclass
@@ -264,6 +274,8 @@ class World:
         if m["status"] != "ok":
             slot.infeasible += 1
         slot.solo = m["status"] != "ok"
+        if m.k >= slot.command_k:
+            slot.monitor = m["monitor"]
         if m.src in self.real:  # a real drone's command went to it by radio: recorded, not flown
             slot.command_k = max(slot.command_k, m.k)
             return
@@ -384,6 +396,7 @@ class World:
                 infeasible=sum(sl.infeasible for sl in slots.values()),
                 stalls=c.stalls,
                 dead=[a for a in names if slots[a].dead],
+                acting=monitor_acting(slots.values()),
             )
         solo = [a for a in names if slots[a].solo or slots[a].dead or a in self.unfiltered]
         self._put(

@@ -98,3 +98,64 @@ def test_metrics_from_a_stream_read_once_are_those_of_the_list(monkeypatch):
     listed = compute(cfg, sorted(recs, key=lambda r: r["k"]))
     assert streamed == listed
     assert streamed["min_separation_m"] == pytest.approx(math.hypot(0.04, 0.05))  # tick 17: 1.02 and 0.98
+
+
+def test_metrics_count_the_safety_monitors_actions_and_breaches_per_agent_and_run():
+    """The verdicts the recorded commands carry: ticks per action and per breach (the bitmask's
+    names), the first slow-or-stronger, whether the monitor landed the agent, the largest live
+    margin, and the estimate's largest deviation and age (est of 9 floats)."""
+    from swarm.safety.monitor import Action, Breach
+
+    cfg = resolve(
+        {
+            "version": 1,
+            "name": "mon",
+            "duration_s": 1.0,
+            "agents": [
+                {"id": "a", "start": [0, 0, 1], "goal": [1, 0, 1], "airframe": {"l_m": 0.0}},
+                {"id": "b", "start": [3, 0, 1], "goal": [5, 0, 1], "airframe": {"l_m": 0.0}},
+            ],
+        }
+    )
+    # a: two ticks of estimate_std (slow), one of estimate_age (hold), then lost (land) twice, and
+    # a warn on tick_overrun at the start; b: nothing but margins, no estimate
+    a_verdicts = [
+        (Action.WARN, Breach.TICK_OVERRUN),
+        (Action.NONE, Breach.NONE),
+        (Action.SLOW, Breach.ESTIMATE_STD),
+        (Action.SLOW, Breach.ESTIMATE_STD | Breach.NEIGHBOUR_AGE),
+        (Action.HOLD, Breach.ESTIMATE_AGE),
+        (Action.LAND, Breach.ESTIMATE_LOST),
+        (Action.LAND, Breach.NONE),
+    ]
+    recs = []
+    for k, (action, breaches) in enumerate(a_verdicts):
+        t = 0.1 * k
+        for aid, x in (("a", [0.0, 0, 1]), ("b", [3.0, 0, 1])):
+            recs.append({"kind": "measurement", "agent": aid, "topic": "/c", "k": k, "t": t, "x": x,
+                         "q": [0, 0, 0, 1], "v": [0, 0, 0]})  # fmt: skip
+        cmd = {"kind": "command", "k": k, "t": t, "status": "ok", "min_h": 1.0, "solve_us": 10.0, "infeasible": 0}
+        est = [0.0, 0, 1, 0, 0, 0, 0.01 * k, 0.002, 0.05 * k]  # x, v, position sd, velocity sd, age
+        recs.append({**cmd, "src": "a", "monitor": int(action), "breaches": int(breaches),
+                     "live_margin": 0.01 * k, "est": est})  # fmt: skip
+        recs.append({**cmd, "src": "b", "monitor": 0, "breaches": 0, "live_margin": 0.02, "est": []})
+    recs.append({"kind": "status", "t": 0.6, "k": 6, "live": ["a", "b"], "done": True})
+    m = compute(cfg, recs)
+    a, b = m["agents"]["a"], m["agents"]["b"]
+    assert a["monitor"]["action_ticks"] == {"warn": 1, "slow": 2, "hold": 1, "land": 2}
+    assert a["monitor"]["breach_ticks"]["estimate_std"] == 2
+    assert a["monitor"]["breach_ticks"]["neighbour_age"] == 1
+    assert a["monitor"]["breach_ticks"]["estimate_lost"] == 1 and a["monitor"]["breach_ticks"]["tick_overrun"] == 1
+    assert a["monitor"]["breach_ticks"]["infeasible"] == 0
+    assert a["monitor"]["first_action_s"] == pytest.approx(0.2)  # the first slow, not the warn
+    assert a["monitor"]["landed_by_monitor"]
+    assert a["max_live_margin_m"] == pytest.approx(0.06)
+    assert a["max_estimate_sd_m"] == pytest.approx(0.06) and a["max_estimate_age_s"] == pytest.approx(0.3)
+    assert a["estimate_error_max_m"] == pytest.approx(0.0)  # an est of 9 floats is read as an estimate
+    assert b["monitor"]["action_ticks"] == {"warn": 0, "slow": 0, "hold": 0, "land": 0}
+    assert b["monitor"]["first_action_s"] is None and not b["monitor"]["landed_by_monitor"]
+    assert b["max_live_margin_m"] == pytest.approx(0.02)
+    assert b["max_estimate_sd_m"] is None and b["max_estimate_age_s"] is None
+    assert m["monitor"]["action_ticks"] == {"warn": 1, "slow": 2, "hold": 1, "land": 2}
+    assert m["monitor"]["breach_ticks"]["estimate_std"] == 2
+    assert m["monitor"]["acting_agents"] == ["a"] and m["monitor"]["landed_agents"] == ["a"]

@@ -129,6 +129,43 @@ def test_messages_round_trip_through_cdr_with_their_units_and_frames():
     assert "MSG: builtin_interfaces/Time" in message_definition("geometry_msgs/msg/PoseStamped")
 
 
+def test_filter_status_carries_the_monitor_and_its_level_follows_the_monitors_action():
+    from swarm.safety.monitor import Action, Breach
+
+    base = {"t": 1.25, "status": "ok", "intervention": 0.5, "solve_us": 80.0, "min_h": 0.2, "row_ids": ["cf2"],
+            "h_rows": [0.3], "infeasible": 0, "goal_reached": False, "monitor": 0, "breaches": 0,
+            "live_margin": 0.0}  # fmt: skip
+
+    def status(**over):
+        msg = deserialize(serialize(convert.filter_status("cf1", {**base, **over}), _type("STATUS")), _type("STATUS"))
+        return msg.level, msg.message, {kv.key: kv.value for kv in msg.values}
+
+    level, message, values = status()
+    assert (level, message) == (convert.OK, "ok")
+    assert (values["monitor"], values["breaches"], values["live_margin_m"]) == ("none", "", "0")
+    level, _, values = status(monitor=int(Action.WARN), breaches=int(Breach.TICK_OVERRUN))
+    assert level == convert.OK and values["monitor"] == "warn" and values["breaches"] == "tick_overrun"
+    both = int(Breach.ESTIMATE_STD | Breach.NEIGHBOUR_AGE)
+    level, message, values = status(monitor=int(Action.SLOW), breaches=both, live_margin=0.0375)
+    assert (level, message) == (convert.WARN, "ok, monitor: slow")
+    assert values["breaches"] == "estimate_std,neighbour_age" and values["live_margin_m"] == "0.0375"
+    assert status(monitor=int(Action.HOLD), breaches=int(Breach.ESTIMATE_AGE))[0] == convert.WARN
+    level, message, values = status(monitor=int(Action.LAND), breaches=int(Breach.ESTIMATE_LOST))
+    assert (level, message, values["monitor"]) == (convert.ERROR, "ok, monitor: land", "land")
+    assert status(status="infeasible", monitor=int(Action.LAND))[0] == convert.ERROR
+    assert status(status="failed", monitor=int(Action.SLOW))[0] == convert.ERROR  # the filter's own ERROR kept
+    old = {k: v for k, v in base.items() if k not in ("monitor", "breaches", "live_margin")}
+    assert convert.filter_status("cf1", old).level == convert.OK  # a record from before the monitor
+    # the bridge keeps the monitor's fields of the commands it decodes
+    from swarm.net.messages import CommandBody, decode, encode_command, record_of
+    from swarm.ros2.bridge import STATUS_FIELDS
+
+    body = CommandBody("attitude", np.zeros(4), "ok", monitor=int(Action.LAND), breaches=int(Breach.DISTURBANCE))
+    m = decode(encode_command("r", "cf1", 1, 0.5, 60, body), "r", ("command",), STATUS_FIELDS)
+    bridged = convert.filter_status("cf1", record_of(m))
+    assert bridged.level == convert.ERROR and {kv.key: kv.value for kv in bridged.values}["breaches"] == "disturbance"
+
+
 def _type(name: str) -> str:
     return TYPES[Kind[name]]
 

@@ -129,5 +129,7 @@ def test_the_shipped_layout_is_the_layout_of_the_default_swap() -> None:
         "/agent/cf1/command.intervention",
         '"panelType": "StateTransitions"',
         '"topicToRender": "/log"',
+        "/agent/cf1/command.monitor",  # the safety monitor's action, and the live margin it widened rows by
+        "/agent/cf2/command.live_margin",
     ):
         assert needle in text, needle

@@ -31,8 +31,9 @@ position error (own and neighbour's, independent: ``sqrt(2)`` times one) beyond 
 def design_std(realism: RealismSettings | None) -> tuple[float, float]:
     """The estimator's steady-state standard deviations of position [m] and velocity [m/s] when
     it is read (``swarm.realism.sensing.steady_std``, the largest axis, and in quadrature the
-    markers' constant offset ``centroid_offset_std_m``; (0, 0) without sensing): what an agent without an estimator of its own (a real drone on the world's frames) says its
-    state's deviations are, and the envelope the safety monitor holds the live ones to
+    markers' constant offset ``centroid_offset_std_m``; (0, 0) without sensing): what an agent
+    without an estimator of its own (a real drone on the world's frames) says its state's
+    deviations are, and the envelope the safety monitor holds the live ones to
     (``swarm.safety.monitor``)."""
     if realism is None or not realism.sensing.enabled:
         return 0.0, 0.0

@@ -248,7 +248,8 @@ def old_world_digest() -> str:
     the lab's worlds, hashed."""
     h = hashlib.sha256()
     for preset in ("ideal", "crazyflie_lab"):
-        r = RealismSettings.model_validate(preset)
+        # (the lab as it was before the bad day: its downwash then the gym_pybullet fit)
+        r = RealismSettings.model_validate({"preset": preset, "aero": {"downwash_model": "gym_pybullet"}})
         plant = r.plant([NOMINAL] * 5, DT, seed=7)
         rng = np.random.default_rng(0)
         for _ in range(300):

@@ -78,14 +78,17 @@ def test_the_parts_add_up_and_follow_the_lab_settings():
     assert all(np.array_equal(a, b) for a, b in zip(out, again, strict=True))
 
 
-def test_a_hovering_lab_drone_under_another_is_pushed_down_by_about_a_weight():
-    p = PlantParams(aero=LAB.aero.params())
-    plant = Plant(p, [NOMINAL] * 2, DT, seed=0)
+def test_a_hovering_lab_drone_under_another_is_pushed_down_by_the_measured_fit():
+    # the lab's downwash is the fit to Neural-Swarm's flights: 0.285 of the thrust above at 0.3 m
+    # below (docs/design.md); gym-pybullet-drones' fit, its named option, pushes with the whole weight
     x = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.3]])
     f = np.full((2, 4), NOMINAL.weight_N / 4)
-    out = plant.step(x, np.zeros((2, 3)), np.tile(np.eye(3), (2, 1, 1)), f)
-    assert out.downwash_w[0, 2] == pytest.approx(-NOMINAL.weight_N)  # the cap: the thrust above
-    assert out.downwash_w[1, 2] == 0.0
+    for model, fraction in (("measured", 0.285), ("gym_pybullet", 1.0)):
+        aero = LAB.aero.model_copy(update={"downwash_model": model})
+        plant = Plant(PlantParams(aero=aero.params()), [NOMINAL] * 2, DT, seed=0)
+        out = plant.step(x, np.zeros((2, 3)), np.tile(np.eye(3), (2, 1, 1)), f)
+        assert out.downwash_w[0, 2] == pytest.approx(-fraction * NOMINAL.weight_N, rel=0.02)
+        assert out.downwash_w[1, 2] == 0.0
 
 
 def test_rk4_with_an_extra_force_accelerates_as_f_over_m():

@@ -31,7 +31,23 @@ def test_the_lab_preset_turns_every_imperfection_on():
     assert r.wind.gust_std_mps > 0 and r.sensing.enabled
     assert (r.sensing.rate_hz, r.sensing.latency_s) == (100.0, 0.010)
     assert not r.comms.params().perfect
-    assert set(PRESETS) == {"ideal", "crazyflie_lab"}
+    assert r.aero.downwash_model == "measured"
+    assert set(PRESETS) == {"ideal", "crazyflie_lab", "crazyflie_lab_bad_day"}
+
+
+def test_the_bad_day_is_the_lab_and_every_failure_of_a_bad_day():
+    lab = RealismSettings.model_validate("crazyflie_lab")
+    bad = resolve(scenario("crazyflie_lab_bad_day")).world.realism
+    s = bad.sensing
+    assert s.occlusion_rate_hz > 0 and s.swap_rate_hz > 0 and s.outlier_fraction > 0 and s.centroid_offset_std_m > 0
+    assert s.estimator.gate_sigmas > 0  # the agents refuse implausible frames
+    assert bad.motors.battery_sag_fraction_per_min > 0 and bad.wind.relative_gust_std_mps > 0
+    assert bad.comms.shared_radio.drones_per_radio > 1 and bad.comms.command.burst_enter_probability > 0
+    assert (bad.aero, bad.motors.time_constant_up_s, s.rate_hz) == (
+        lab.aero,
+        lab.motors.time_constant_up_s,
+        lab.sensing.rate_hz,
+    )
 
 
 def test_a_field_beside_the_preset_overrides_it_and_keeps_the_rest():

@@ -297,7 +297,9 @@ class AgentStep:
         taking off): its observer rests, and starts afresh from the state of its next airborne tick.
         ``world_late_s`` [s] (how far the world's clock is behind the wall clock) and
         ``tick_overrun`` (the agent's last tick took longer than a tick) are the shell's readings
-        for the safety monitor.
+        for the safety monitor, whose action changes the reference of a mission, not of a real
+        drone's take-off (``airborne`` False) or landing (``landing``): its agent lands it by its
+        flight plan on ``land`` (``swarm.agents.agent``).
 
         Stages: sense (the state acted on, and its deviation), widen (every row by the live noise
         margin), monitor (the verdict on what the margins assume), reference (the tracker's, or
@@ -318,7 +320,8 @@ class AgentStep:
         if tracker is None:
             held = self._held(t_s, state, nb)
             tracker = self.tracker
-        held = self._act(verdict.action, held, tracker, state)
+        if airborne and not landing:  # (a real drone's take-off and landing are its flight plan's)
+            held = self._act(verdict.action, held, tracker, state)
         if held is not None:
             F_ref = tracker.thrust_vector(model, state.x_w, state.v_w, held)  # hover, or back out of the passage
         else:

@@ -36,9 +36,14 @@ margin_violations, deadlocks, infeasible ticks and time ratios), orca, orca_path
 paths the C3BF agents plan, among walls), horizon_s, buffer_mps, contact_s, free_braking, gamma,
 sensing_radius_m, ellipsoid (null: the default), realism (``--realism``: the world's preset),
 estimate_error_p95_m (the worst run's 95th percentile of |estimate - truth|, m; null without motion
-capture).
+capture), estimate_error_max_m (the largest), monitor_ticks (agent ticks the safety monitor slowed,
+held and landed, ``swarm.safety.monitor``), landed_by_monitor (agents it landed),
+home_or_landed_rate (runs with no contact in which every agent reached its goal or was landed by
+its monitor), unguarded_ticks (agent ticks an estimate's true error exceeded its live bound while
+the monitor was not acting), max_live_margin_m (the largest live noise margin a row kept).
 
     python -m tools.bench_liveness --realism crazyflie_lab --no-orca   # the same scenes in the lab
+    python -m tools.bench_liveness --realism crazyflie_lab_bad_day --no-orca   # and on its bad day
 
 Families among walls (``doorway`` 2 to 8 abreast, ``corridor`` two flows of 4, ``trap``,
 ``forest`` at two densities, ``swarm.offline.scenario``) fly the paths each agent plans
@@ -76,6 +81,7 @@ from swarm.offline.scenario import (
 )
 from swarm.planning import PlannerSettings, StaticObstacles, plan
 from swarm.route import path_for
+from swarm.safety.monitor import Action
 
 PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
 
@@ -196,8 +202,16 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         "infeasible": o.infeasible_ticks,
         "ratios": o.time_ratios,
         "estimate_error_p95_m": None if err is None else float(np.percentile(err, 95)),
+        "estimate_error_max_m": None if err is None else float(err.max()),
         "commands_lost": log.commands_lost,
         "states_lost": log.states_lost,
+        "monitor_ticks": {a.name.lower(): log.action_ticks(a) for a in (Action.SLOW, Action.HOLD, Action.LAND)},
+        "breach_ticks": {k: v for k, v in log.breach_ticks.items() if v},
+        "landed_by_monitor": sum(log.landed_by_monitor),
+        "home_or_landed": o.collisions == 0
+        and all(t is not None or landed for t, landed in zip(log.time_to_goal_s, log.landed_by_monitor, strict=True)),
+        "unguarded_ticks": log.unguarded_ticks,
+        "max_live_margin_m": None if log.live_margin_m is None else float(log.live_margin_m.max()),
     }
 
 
@@ -292,6 +306,12 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "mean_free_time_ratio": round(float(np.mean(free)), 3) if free else None,
         "worst_free_time_ratio": round(float(np.max(free)), 3) if free else None,
         "estimate_error_p95_m": max((r["estimate_error_p95_m"] or 0.0 for r in runs), default=0.0) or None,
+        "estimate_error_max_m": max((r.get("estimate_error_max_m") or 0.0 for r in runs), default=0.0) or None,
+        "monitor_ticks": {k: sum(r.get("monitor_ticks", {}).get(k, 0) for r in runs) for k in ("slow", "hold", "land")},
+        "landed_by_monitor": sum(r.get("landed_by_monitor", 0) for r in runs),
+        "home_or_landed_rate": sum(bool(r.get("home_or_landed", r["success"])) for r in runs) / len(runs),
+        "unguarded_ticks": sum(r.get("unguarded_ticks", 0) for r in runs),
+        "max_live_margin_m": max((r.get("max_live_margin_m") or 0.0 for r in runs), default=0.0) or None,
         "per_run": runs,
     }
 
@@ -388,7 +408,7 @@ if __name__ == "__main__":
     )
     ap.add_argument(
         "--realism",
-        choices=["ideal", "crazyflie_lab"],
+        choices=["ideal", "crazyflie_lab", "crazyflie_lab_bad_day"],
         default="ideal",
         help="world.realism of every scene (crazyflie_lab: no ORCA, which takes velocities, not commands)",
     )

@@ -157,7 +157,11 @@ def liveness_lab(out: Path, jobs: int) -> None:
     lab's world (``world.realism: crazyflie_lab``) and, from the same code, in the ideal world, side
     by side."""
     del out
-    for realism, name in (("crazyflie_lab", "liveness_lab"), ("ideal", "liveness_lab_ideal")):
+    for realism, name in (
+        ("crazyflie_lab", "liveness_lab"),
+        ("ideal", "liveness_lab_ideal"),
+        ("crazyflie_lab_bad_day", "liveness_bad_day"),
+    ):
         args = ["--seeds", "2", "--jobs", str(jobs), "--no-orca", "--realism", realism]
         _tool_lines("tools.bench_liveness", [*args, *ENGINE.flags()], DOCS / f"{name}.jsonl")
         stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
@@ -533,14 +537,31 @@ def _sweep_table(path: Path) -> str:
 
 def _lab_table(path: Path) -> str:
     """EXPERIMENTS.md section 5's table: each point of the liveness benchmark in the lab's world
-    (``path``) beside the same point in the ideal world, same code (``liveness_lab_ideal.jsonl``)."""
+    (``path``) beside the same point in the ideal world, same code (``liveness_lab_ideal.jsonl``),
+    and on the lab's bad day (``liveness_bad_day.jsonl``), with what the safety monitor did."""
     ideal = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(path.parent / "liveness_lab_ideal.jsonl")}
+    bad_path = path.parent / "liveness_bad_day.jsonl"
+    bad = {(r["scene"], r["rho"], r["exact"]): r for r in _jsonl(bad_path)} if bad_path.exists() else {}
     out = [
         "| scene | rho | start | ideal: success, contacts, inside the safety radius, downwash pair-ticks, "
         "mean ratio | lab: success, contacts, inside the safety radius, downwash pair-ticks, mean ratio | "
-        "lab: estimate p95 [mm], commands lost |",
-        "|" + "---|" * 6,
+        "lab: estimate p95 / max [mm], commands lost | bad day: home or landed, contacts, inside the safety "
+        "radius, mean ratio | bad day: monitor slow / hold / land ticks, landed, unguarded ticks, estimate max [mm] |",
+        "|" + "---|" * 8,
     ]
+
+    def bad_cells(r: dict | None) -> tuple[str, str]:
+        if r is None:
+            return "-", "-"
+        ratio = "-" if r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
+        m = r.get("monitor_ticks", {})
+        err = r.get("estimate_error_max_m")
+        return (
+            f"{r.get('home_or_landed_rate', r['success_rate']):.2f}, {r['collisions']}, {r['margin_violations']}, "
+            f"{ratio}",
+            f"{m.get('slow', 0)} / {m.get('hold', 0)} / {m.get('land', 0)}, {r.get('landed_by_monitor', 0)}, "
+            f"{r.get('unguarded_ticks', 0)}, {'-' if err is None else f'{1000 * err:.0f}'}",
+        )
 
     def cells(r: dict | None) -> str:
         if r is None:
@@ -552,10 +573,11 @@ def _lab_table(path: Path) -> str:
     for r in _jsonl(path):
         random = r["family"] in ("sphere_field", "forest")
         start = "random field" if random else ("exact" if r["exact"] else "perturbed")
-        err = r.get("estimate_error_p95_m")
+        err, top = r.get("estimate_error_p95_m"), r.get("estimate_error_max_m")
         lost = sum(run.get("commands_lost", 0) for run in r["per_run"])
-        lab = "-" if err is None else f"{1000 * err:.1f}, {lost}"
-        row = [r["scene"], f"{r['rho']:g}", start, cells(ideal.get((r["scene"], r["rho"], r["exact"]))), cells(r), lab]
+        lab = "-" if err is None else f"{1000 * err:.1f} / {'-' if top is None else f'{1000 * top:.1f}'}, {lost}"
+        key = (r["scene"], r["rho"], r["exact"])
+        row = [r["scene"], f"{r['rho']:g}", start, cells(ideal.get(key)), cells(r), lab, *bad_cells(bad.get(key))]
         out.append("| " + " | ".join(row) + " |")
     return "\n".join(out)
 

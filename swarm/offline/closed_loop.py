@@ -7,6 +7,7 @@ Used by tests, the liveness benchmark and quick studies."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -285,6 +286,7 @@ def simulate_swarm(
     realism: RealismSettings | None = None,
     seed: int = 0,
     monitor: MonitorSettings | None = None,
+    occlusions: Sequence[tuple[int, float, float]] = (),
 ) -> SwarmLog:
     """Fly a swarm in one process, as a lockstep run of the agent processes with neighbours by
     bundles does: at every tick each agent's control step (:class:`swarm.step.AgentStep`, the
@@ -298,7 +300,8 @@ def simulate_swarm(
     process makes it (the plant, motion capture and each agent's estimator, the delay and loss of
     states and commands: :class:`_Plant`, ``swarm.net.neighbours.HeardNeighbours``). No I/O; the
     benchmark and tests use it. ``monitor``: each agent's safety monitor (None: the default
-    settings, as the agent processes run it)."""
+    settings, as the agent processes run it). ``occlusions``: scripted motion-capture occlusions,
+    (agent index, from [s], until [s]) each (``MocapSensor.hide``; needs sensing)."""
     for i, a in enumerate(agents):
         if a.config.level is not CommandLevel.ATTITUDE:
             raise InputError(f"agents[{i}].config.level: simulate_swarm flies the attitude level, got {a.config.level}")
@@ -340,6 +343,11 @@ def simulate_swarm(
         if a.start_velocity_w is not None:
             s.v_w = np.asarray(a.start_velocity_w, dtype=float).copy()
     plant = _Plant(model, CommandLevel.ATTITUDE, states, [0.0] * n, physics_hz, control_hz, r, seed, names)
+    if occlusions:
+        if plant.mocap is None:
+            raise InputError("simulate_swarm: occlusions need motion capture (world.realism.sensing)")
+        for drone, t0, t1 in occlusions:
+            plant.mocap.hide(drone, t0, t1)
     p = model.params
     everyone = np.ones(n, dtype=bool)
     goals = np.array([a.goal_w for a in agents])

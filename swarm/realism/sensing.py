@@ -169,6 +169,7 @@ class MocapSensor:
         self._visible_from = np.zeros(n, np.int64)  # per drone: the first frame after its burst of occlusion
         self._swap: tuple[int, int, int] | None = None  # (drone, drone, the first frame after the swap)
         self._offset: FloatArray | None = None  # (n, 3) m: the centroids' offsets
+        self._hidden: list[tuple[int, int, int]] = []  # scripted occlusions: (drone, first frame, first frame after)
         if p.centroid_offset_std_m > 0.0:
             self._offset = normals(int(self.seed), Stream.MOCAP_CENTROID, np.arange(n), 0, 3) * p.centroid_offset_std_m
 
@@ -184,6 +185,12 @@ class MocapSensor:
         while self._in_flight and self._in_flight[0][0] <= t_s + 1e-12:
             out.append(heapq.heappop(self._in_flight)[3])
         return out
+
+    def hide(self, drone: int, from_s: float, until_s: float) -> None:
+        """A scripted occlusion: no frame of ``drone`` is captured from ``from_s`` until ``until_s``
+        [s] (an experiment's failure at a chosen moment; counted in ``occluded``)."""
+        r = self.p.rate_hz
+        self._hidden.append((drone, math.ceil(from_s * r - 1e-9), math.ceil(until_s * r - 1e-9)))
 
     def _occluded(self, i: int, seq: int) -> bool:
         """Whether drone ``i`` is hidden at frame ``seq``: in a burst, or one begins (its length drawn now)."""
@@ -230,6 +237,9 @@ class MocapSensor:
         swap = self._swap_at(seq, x_w) if p.swap_rate_hz > 0.0 and self.n >= 2 else None
         for i in range(self.n):
             if p.occlusion_rate_hz > 0.0 and self._occluded(i, seq):
+                self.occluded += 1
+                continue
+            if self._hidden and any(d == i and a <= seq < b for d, a, b in self._hidden):
                 self.occluded += 1
                 continue
             if p.drop_fraction > 0.0:

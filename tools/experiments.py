@@ -592,7 +592,14 @@ def _imperfection_table(path: Path) -> str:
     from tools.bench_imperfections import AXES
 
     lines = _jsonl(path)
-    scale = {"s": (1000.0, "ms"), "m": (1000.0, "mm"), "m/s": (1.0, "m/s"), "fraction": (100.0, "%")}
+    scale = {
+        "s": (1000.0, "ms"),
+        "m": (1000.0, "mm"),
+        "m/s": (1.0, "m/s"),
+        "fraction": (100.0, "%"),
+        "drones": (1.0, "drones"),
+        "fraction/min": (100.0, "%/min"),
+    }
     out = []
     for axis, (unit, levels) in AXES.items():
         k, name = scale[unit]
@@ -605,9 +612,11 @@ def _imperfection_table(path: Path) -> str:
                     continue
                 seps = [_sep(got.get(lv)) for lv in levels]
                 hits = [lv for lv in levels if lv in got and got[lv]["collisions"]]
-                rows.append([method, scene, *seps, "none" if not hits else f"{hits[0] * k:g} {name}"])
+                first = f"{hits[0] * k:g} {name}" if hits else "none" if len(got) == len(levels) else "-"
+                rows.append([method, scene, *seps, first])
         if rows:
-            out.append(f"**{axis}** (closest centres [m]; x: a contact)\n\n" + _table(head, rows))
+            note = "; orca: the ideal world at the first level only" if any(r[0] == "orca" for r in rows) else ""
+            out.append(f"**{axis}** (closest centres [m]; x: a contact{note})\n\n" + _table(head, rows))
     return "\n\n".join(out)
 
 

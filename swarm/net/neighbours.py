@@ -146,7 +146,8 @@ def _rows(table, slots, k_max, t_now, lost, out, kept, sd_out, age_out):
     ``lost``: the table's (timeout_s, growth_mps, hard_limit_s, drop lost ones 1.0 / keep
     them stopped 0.0, accel_bound_mps2, velocity_error_mps, sigmas). A row's velocity error is
     the larger of velocity_error_mps and sigmas x the deviation its state carries; sd_out[m] the
-    position deviation [m] row m's state carries, age_out[m] its age [s]. Returns the number of rows."""
+    position deviation [m] row m's state carries, age_out[m] its age [s] (0 for a gone or lost
+    neighbour's stopped row: no longer a prediction). Returns the number of rows."""
     sl_k, sl_t, sl_x, sl_v, sl_r, sl_solo, sl_sd, _, sl_gone = table
     timeout_s, growth_mps, hard_limit_s, drop = lost[0], lost[1], lost[2], lost[3] > 0.5
     accel, vel_err0, sigmas = lost[4], lost[5], lost[6]
@@ -159,7 +160,8 @@ def _rows(table, slots, k_max, t_now, lost, out, kept, sd_out, age_out):
             continue
         age = max(0.0, t_now - sl_t[i, j])
         ob = out[m]
-        if sl_gone[i] or age > hard_limit_s:
+        lost_now = sl_gone[i] or age > hard_limit_s
+        if lost_now:
             if drop:
                 continue
             for d in range(3):
@@ -181,7 +183,7 @@ def _rows(table, slots, k_max, t_now, lost, out, kept, sd_out, age_out):
             ob.axis[d] = 0.0
         ob.is_agent = True
         sd_out[m] = sl_sd[i, j, 0]
-        age_out[m] = age
+        age_out[m] = 0.0 if lost_now else age
         kept[n] = True
         m += 1
     return m

@@ -8,10 +8,10 @@ with what the agent knows at that tick (docs/design.md, "The control step").
 A call: the state acted on (the estimate, with its deviation and age) and its body centre; every
 row widened by the live noise margin; the safety monitor's verdict (``swarm.safety.monitor``);
 the route's rules (replan a stalled path, give way at a narrow passage, brake before turning away
-from a wall: ``swarm.route``) and the monitor's action (slow, hold, land); the reference thrust vector (the path tracker, with the right-hand tie-break); at the rotor
-level the rotor thrusts that fly it; the C3BF-QP filter against the obstacles and the
-neighbours; the command the plant flies (the Crazyflie setpoint at the attitude level, the
-rotor thrusts at the rotor level). No I/O; the shell brings the states and carries the result.
+from a wall: ``swarm.route``) and the monitor's action (slow, hold, land); the reference thrust
+vector (the path tracker, with the right-hand tie-break); at the rotor level the rotor thrusts
+that fly it; the C3BF-QP filter against the obstacles and the neighbours; the command the plant
+flies (the Crazyflie setpoint at the attitude level, the rotor thrusts at the rotor level). No I/O; the shell brings the states and carries the result.
 """
 
 from __future__ import annotations

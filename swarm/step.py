@@ -11,7 +11,8 @@ the route's rules (replan a stalled path, give way at a narrow passage, brake be
 from a wall: ``swarm.route``) and the monitor's action (slow, hold, land); the reference thrust
 vector (the path tracker, with the right-hand tie-break); at the rotor level the rotor thrusts
 that fly it; the C3BF-QP filter against the obstacles and the neighbours; the command the plant
-flies (the Crazyflie setpoint at the attitude level, the rotor thrusts at the rotor level). No I/O; the shell brings the states and carries the result.
+flies (the Crazyflie setpoint at the attitude level, the rotor thrusts at the rotor level). No
+I/O; the shell brings the states and carries the result.
 """
 
 from __future__ import annotations

@@ -40,7 +40,8 @@ capture), estimate_error_max_m (the largest), monitor_ticks (agent ticks the saf
 held and landed, ``swarm.safety.monitor``), landed_by_monitor (agents it landed),
 home_or_landed_rate (runs with no contact in which every agent reached its goal or was landed by
 its monitor), unguarded_ticks (agent ticks an estimate's true error exceeded its live bound while
-the monitor was not acting), max_live_margin_m (the largest live noise margin a row kept).
+the monitor was not acting), agent_ticks (agents x ticks flown), max_live_margin_m (the largest
+live noise margin a row kept).
 
     python -m tools.bench_liveness --realism crazyflie_lab --no-orca   # the same scenes in the lab
     python -m tools.bench_liveness --realism crazyflie_lab_bad_day --no-orca   # and on its bad day
@@ -211,6 +212,7 @@ def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
         "home_or_landed": o.collisions == 0
         and all(t is not None or landed for t, landed in zip(log.time_to_goal_s, log.landed_by_monitor, strict=True)),
         "unguarded_ticks": log.unguarded_ticks,
+        "agent_ticks": int(log.x_b_w.shape[0] * log.x_b_w.shape[1]),
         "max_live_margin_m": None if log.live_margin_m is None else float(log.live_margin_m.max()),
     }
 
@@ -311,6 +313,7 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "landed_by_monitor": sum(r.get("landed_by_monitor", 0) for r in runs),
         "home_or_landed_rate": sum(bool(r.get("home_or_landed", r["success"])) for r in runs) / len(runs),
         "unguarded_ticks": sum(r.get("unguarded_ticks", 0) for r in runs),
+        "agent_ticks": sum(r.get("agent_ticks", 0) for r in runs),
         "max_live_margin_m": max((r.get("max_live_margin_m") or 0.0 for r in runs), default=0.0) or None,
         "per_run": runs,
     }

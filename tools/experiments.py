@@ -167,13 +167,30 @@ def liveness_lab(out: Path, jobs: int) -> None:
         stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
 
 
+LAB_AXES = ("latency", "noise", "gusts", "mass")
+BAD_DAY_AXES = ("occlusion", "swap", "radio", "battery", "turbulence")
+"""``tools.bench_imperfections``' axes: the lab's imperfections, and the bad day's failures (each
+part its own file, table and plot)."""
+
+
+def _imperfections(jobs: int, axes: tuple[str, ...], name: str) -> None:
+    dest = DOCS / f"{name}.jsonl"
+    args = ["--jobs", str(jobs), *(f"--axis={a}" for a in axes)]
+    _tool_lines("tools.bench_imperfections", args, dest)
+    subprocess.run([sys.executable, "-m", "tools.bench_imperfections", "--plot", str(dest)], cwd=ROOT, check=True)
+    stamp(name, command=["python", "-m", "tools.bench_imperfections", *args])
+
+
 def imperfections(out: Path, jobs: int) -> None:
     """Each imperfection alone, raised until contact (``tools.bench_imperfections``), and its plot."""
     del out
-    dest = DOCS / "imperfections.jsonl"
-    _tool_lines("tools.bench_imperfections", ["--jobs", str(jobs)], dest)
-    subprocess.run([sys.executable, "-m", "tools.bench_imperfections", "--plot", str(dest)], cwd=ROOT, check=True)
-    stamp("imperfections", command=["python", "-m", "tools.bench_imperfections", "--jobs", str(jobs)])
+    _imperfections(jobs, LAB_AXES, "imperfections")
+
+
+def imperfections_bad_day(out: Path, jobs: int) -> None:
+    """Each failure of the lab's bad day alone, raised until contact, and its plot."""
+    del out
+    _imperfections(jobs, BAD_DAY_AXES, "imperfections_bad_day")
 
 
 def faults(out: Path, jobs: int) -> None:
@@ -743,6 +760,7 @@ GENERATED = {
     "liveness_lab": (DOCS / "liveness_lab.jsonl", _lab_table),
     "paper_lab": (DOCS / "paper_lab.json", _paper_lab_table),
     "imperfections": (DOCS / "imperfections.jsonl", _imperfection_table),
+    "imperfections_bad_day": (DOCS / "imperfections_bad_day.jsonl", _imperfection_table),
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     "access": (DOCS / "bench_access.jsonl", _access_table),
@@ -784,6 +802,7 @@ PARTS = {
     "liveness_lab": liveness_lab,
     "paper_lab": paper_lab,
     "imperfections": imperfections,
+    "imperfections_bad_day": imperfections_bad_day,
     "faults": faults,
     "filter": filter_bench,
     "swarm": swarm_bench,

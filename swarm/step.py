@@ -313,7 +313,9 @@ class AgentStep:
         nb = neighbours.arrays
         obs = obstacles.arrays
         extra_nb = extra_obs = _NO_ESTIMATE
-        nb_sd = np.zeros(len(nb)) if neighbours.sd_m is None else neighbours.sd_m
+        nb_sd = _NO_ESTIMATE if neighbours.sd_m is None else neighbours.sd_m  # (len 0: no row carries one)
+        if self.live and len(nb_sd) != len(nb):
+            nb_sd = np.zeros(len(nb))
         if self.live:
             extra_nb, extra_obs = live_margin_m(sensed.sd_m, nb_sd), live_margin_m(sensed.sd_m, np.zeros(len(obs)))
             nb, obs = nb.widened(extra_nb), obs.widened(extra_obs)
@@ -435,12 +437,18 @@ class AgentStep:
         if mon is None:
             return CLEAR
         nb_sd = nb_age = 0.0
-        if len(nb):
-            d = nb.c_w - x_b_w
-            near = np.einsum("ij,ij->i", d, d) <= self.config.sensing_radius_m**2
-            if near.any():
-                nb_sd = float(nb_sd_m[near].max())
-                nb_age = 0.0 if nb_age_s is None else float(nb_age_s[near].max())
+        p = mon.p
+        if len(nb):  # (the neighbours in range only where some reading could breach)
+            top_sd = float(nb_sd_m.max()) if self.live else 0.0
+            top_age = 0.0 if nb_age_s is None else float(nb_age_s.max())
+            if top_sd > p.std_envelope_m or top_age > p.neighbour_age_s:
+                d = nb.c_w - x_b_w
+                near = np.einsum("ij,ij->i", d, d) <= self.config.sensing_radius_m**2
+                if near.any():
+                    nb_sd = float(nb_sd_m[near].max()) if self.live else 0.0
+                    nb_age = 0.0 if nb_age_s is None else float(nb_age_s[near].max())
+            else:
+                nb_sd, nb_age = top_sd, top_age
         clipped = d_w is not None and bool((np.abs(d_w) >= sensed.clip_mps2 * (1.0 - 1e-9)).any())
         return mon.check(
             Readings(

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
+from typing import NamedTuple
 
 
 class Action(IntEnum):
@@ -113,8 +114,7 @@ class MonitorParams:
         return Action.WARN
 
 
-@dataclass(frozen=True)
-class Readings:
+class Readings(NamedTuple):
     """What the monitor checks at one tick (0 or inf where the agent has no such reading)."""
 
     t_s: float  # s: the tick's sim time
@@ -128,8 +128,7 @@ class Readings:
     tick_overrun: bool = False  # the agent's previous tick took longer than a tick
 
 
-@dataclass(frozen=True)
-class Verdict:
+class Verdict(NamedTuple):
     """The monitor's decision at one tick."""
 
     breaches: Breach  # the checks that breached at this tick
@@ -187,6 +186,8 @@ class SafetyMonitor:
             b |= Breach.WORLD_LATE
         if r.tick_overrun:
             b |= Breach.TICK_OVERRUN
+        if not b and not self._until:  # (the common tick: nothing to count, nothing held)
+            return CLEAR
         asked = Action.NONE
         for one in Breach:
             if one and one in b:
@@ -195,7 +196,9 @@ class SafetyMonitor:
                 asked = max(asked, p.grade(one))
         if asked > Action.NONE:
             self._until[asked] = r.t_s + p.settle_s
-        action = max((a for a, until in self._until.items() if until > r.t_s or a is asked), default=Action.NONE)
+        for a in [a for a, until in self._until.items() if until <= r.t_s and a is not asked]:
+            del self._until[a]  # (expired)
+        action = max(self._until, default=Action.NONE)
         if action is Action.LAND:
             self._until[Action.LAND] = math.inf  # latched
         if action > Action.NONE:

@@ -226,12 +226,12 @@ class AgentStep:
         if monitor is not None:
             from swarm.config import FailureSettings as _Failure
 
-            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
+            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure(), control_hz)
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
         return cls(
             QuadModel(agent.quad_params()),
-            filter_config_for(agent, still, level, route, realism),
+            filter_config_for(agent, still, level, route, realism, control_hz),
             PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,

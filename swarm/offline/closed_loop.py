@@ -311,7 +311,9 @@ def simulate_swarm(
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
     lead = command_lead_s(r, control_hz)
-    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE)
+    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE, control_hz)
+    limits = [a.config.accel_limit_mps2 for a in agents]  # the swarm's agreed acceleration (swarm.tuning)
+    accel = None if r is None or any(x is None for x in limits) else max(x for x in limits if x is not None)
     steps = [
         AgentStep(
             model,
@@ -333,10 +335,8 @@ def simulate_swarm(
         )
         for a in agents
     ]
-    heard = [
-        NearNeighbours(set(names) - {names[i]}, neighbour_table(_FAILURE, model.params, r), math.inf, names[i], comms)
-        for i in range(n)
-    ]
+    table = neighbour_table(_FAILURE, model.params, r, control_hz, accel)
+    heard = [NearNeighbours(set(names) - {names[i]}, table.blank(), math.inf, names[i], comms) for i in range(n)]
     near_m = np.array([a.config.sensing_radius_m + _NEAR_MARGIN_M for a in agents])
     states = [QuadState.hover(a.start_w) for a in agents]
     for s, a in zip(states, agents, strict=True):
@@ -439,7 +439,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism),
+                filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism, cfg.time.control_hz),
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,

@@ -332,6 +332,7 @@ def simulate_swarm(
             lead_s=lead,
             monitor=mon,
             offset_sd_m=r.sensing.centroid_offset_std_m if r is not None and sensing else 0.0,
+            publish_ahead=a.config.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
         )
         for a in agents
     ]
@@ -375,7 +376,7 @@ def simulate_swarm(
             for j in range(n):
                 if j != i:
                     heard[j].take(
-                        names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True, sd=res.sd
+                        names[i], t + res.ahead_s, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, True, sd=res.sd
                     )
         for i, res in enumerate(results):
             plant.send(i, res.command, k)

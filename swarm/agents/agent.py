@@ -242,7 +242,7 @@ class AgentProcess:
         """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
         course the planner gives for that goal from here (``swarm.ros2.goals.course``); a real
         drone's mission becomes that path."""
-        c = course(self.me, self.still, self.step.level, x_w, goal_w)
+        c = course(self.me, self.still, self.step.level, x_w, goal_w, self.cfg.world.realism, self.cfg.time.control_hz)
         self.step.follow(c.goal_w, c.tracker, c.route, c.filter_config)
         if self.plan is not None:
             self.plan.mission = c.tracker

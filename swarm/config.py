@@ -575,6 +575,29 @@ class Ros2Settings(_Strict):
     bag: bool = False  # write the run as a ROS 2 bag (MCAP, ros2msg/cdr) into <run>/ros2_bag at its end
 
 
+class ScriptSettings(_Strict):
+    """A run steered by a script (``swarm.script``, docs/scripting.md): its drones hold where
+    they start until a script's client sends them take-off, go-to, land or stop; the run lasts
+    until the script says it is done or ``duration_s`` (the limit) passes. Through the run's
+    Zenoh router, whose access control lets the run's ``script`` user steer ``drones`` alone.
+    Off by default (nothing is subscribed)."""
+
+    enabled: bool = False
+    drones: list[str] | None = None  # the drones a script may steer (None: every drone)
+    # the volume a goal must lie in [m, world]: [[x_min, y_min, z_min], [x_max, y_max, z_max]]
+    bounds_m: list[Vec3] = Field([[-10.0, -10.0, 0.0], [10.0, 10.0, 4.0]], min_length=2, max_length=2)
+    min_speed_mps: float = Field(0.05, gt=0)  # a go-to's speed [m/s] from its duration is at least this
+
+    @model_validator(mode="after")
+    def _box(self) -> ScriptSettings:
+        lo, hi = self.bounds_m
+        if not all(math.isfinite(v) for v in (*lo, *hi)):
+            raise ValueError("bounds_m: must be finite")
+        if any(a >= b for a, b in zip(lo, hi, strict=True)):
+            raise ValueError(f"bounds_m: {list(lo)} is not below {list(hi)} on every axis")
+        return self
+
+
 def machine_cpus() -> int:
     """CPUs this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -615,6 +638,7 @@ class ScenarioConfig(_Strict):
     gui: bool = False
     limits: LimitSettings = LimitSettings()
     ros2: Ros2Settings = Ros2Settings()
+    script: ScriptSettings = ScriptSettings()
     world: WorldSettings = WorldSettings()
     monitor: MonitorSettings = MonitorSettings()
 
@@ -792,6 +816,22 @@ class ScenarioConfig(_Strict):
         return self
 
     @model_validator(mode="after")
+    def _script(self) -> ScenarioConfig:
+        """A script joins through the run's router and steers drones of the run."""
+        if not self.script.enabled:
+            return self
+        if self.network.topology not in ("auto", "router"):
+            raise ValueError(
+                f"script.enabled: a script joins through the run's Zenoh router; network.topology "
+                f"{self.network.topology} has none (use router or auto)"
+            )
+        ids = [a.id for a in self.agents]
+        for i, d in enumerate(self.script.drones or []):
+            if d not in ids:
+                raise ValueError(f"script.drones.{i}: no agent {d!r} in this config (agents: {', '.join(ids)})")
+        return self
+
+    @model_validator(mode="after")
     def _star(self) -> ScenarioConfig:
         if self.network.topology == "star":
             why = self._star_blocker()
@@ -833,7 +873,7 @@ class ScenarioConfig(_Strict):
         """``network.topology`` with ``auto`` resolved (see :class:`NetworkSettings`)."""
         if self.network.topology != "auto":
             return self.network.topology
-        if self.ros2.enabled:  # ROS 2 participants join through the router
+        if self.ros2.enabled or self.script.enabled:  # ROS 2 participants and scripts join through the router
             return "router"
         loopback = self.network.host in ("localhost", "::1") or self.network.host.startswith("127.")
         if loopback and self._star_blocker() is None:
@@ -879,6 +919,13 @@ class ScenarioConfig(_Strict):
         an agent then hears the neighbours in about 1.6 times its interest disc, with
         about 130 cell subscriptions)."""
         return self.neighbours.cell_m or max(self.interest_radius_m(a.id) for a in self.agents) / 2
+
+    @property
+    def steerable(self) -> list[str]:
+        """The drones a script may steer (``script.drones``, or every drone); none without a script."""
+        if not self.script.enabled:
+            return []
+        return list(self.script.drones) if self.script.drones is not None else [a.id for a in self.agents]
 
     def agent(self, agent_id: str) -> AgentConfig:
         for a in self.agents:

@@ -23,3 +23,17 @@ class DecodeError(SwarmError, ValueError):
 
 class SecretsError(SwarmError, RuntimeError):
     """The run's credentials are missing, unreadable or open to other users."""
+
+
+class ScriptError(SwarmError, RuntimeError):
+    """A script's client cannot do what it was asked: the run not reached, the credentials
+    refused, the run over (``swarm.script``)."""
+
+
+class RefusedError(ScriptError, ValueError):
+    """An order refused before anything flew: an unknown drone, one the script may not
+    steer, a goal that is not finite, out of ``script.bounds_m`` or below the floor."""
+
+
+class ArrivalTimeoutError(ScriptError, TimeoutError):
+    """A drone did not arrive within the time given (run time)."""

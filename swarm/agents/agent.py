@@ -46,6 +46,7 @@ from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles
+from swarm.script.inbox import OrderInbox
 from swarm.shutdown import StopFlag
 from swarm.step import AgentStep, StepResult
 
@@ -236,13 +237,16 @@ class AgentProcess:
             self.source.follow(self.cell_subs, start_b[0])
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
         self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
+        self.orders = OrderInbox(session, cfg, self.id, self.run_id, self.counter) if self.id in cfg.steerable else None
         self.startup_cpu_s = time.process_time()
 
-    def retarget(self, x_w: FloatArray, goal_w: FloatArray) -> None:
-        """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
-        course the planner gives for that goal from here (``swarm.ros2.goals.course``); a real
-        drone's mission becomes that path."""
-        c = course(self.me, self.still, self.step.level, x_w, goal_w, self.cfg.world.realism, self.cfg.time.control_hz)
+    def retarget(self, x_w: FloatArray, goal_w: FloatArray, speed_mps: float | None = None) -> None:
+        """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2 or a
+        script), cruising at ``speed_mps`` [m/s] (None: its own ``speed_mps``): the course the
+        planner gives for that goal from here (``swarm.ros2.goals.course``); a real drone's
+        mission becomes that path."""
+        me = self.me if speed_mps is None else self.me.model_copy(update={"speed_mps": speed_mps})
+        c = course(me, self.still, self.step.level, x_w, goal_w, self.cfg.world.realism, self.cfg.time.control_hz)
         self.step.follow(c.goal_w, c.tracker, c.route, c.filter_config)
         if self.plan is not None:
             self.plan.mission = c.tracker
@@ -486,11 +490,15 @@ class AgentProcess:
                 continue
             if self.goals is not None:  # a goal, land or stop from ROS 2
                 self.goals.apply(self, msg["x"])
+            if self.orders is not None:  # a script's order
+                self.orders.apply(self, msg.t, msg.k, msg["x"])
             t0 = time.perf_counter()
             result = self.act(msg)
             if result is None:
                 break
             self.publish(msg, result)
+            if self.orders is not None:
+                self.orders.after(msg.t, msg.k, result.arrived, msg["x"])
             self.last_tick_s = time.perf_counter() - t0
             self.tick_s.add(self.last_tick_s)
 

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
 LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
 ROS2_BRIDGE, ROS2 = "ros2-bridge", "ros2"  # the run's ROS 2 bridge; ROS 2 participants (swarm.ros2)
+SCRIPT = "script"  # a script's client (swarm.script)
 
 
 def agent_user(agent_id: str) -> str:
@@ -40,7 +41,7 @@ def agent_user(agent_id: str) -> str:
 
 
 def run_users(agent_ids: list[str]) -> list[str]:
-    return [LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER, ROS2_BRIDGE, ROS2, *(agent_user(a) for a in agent_ids)]
+    return [LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER, ROS2_BRIDGE, ROS2, SCRIPT, *(agent_user(a) for a in agent_ids)]
 
 
 def make_secrets(folder: Path, agent_ids: list[str]) -> Path:
@@ -80,6 +81,7 @@ def acl(
     identified: bool = False,
     router: str | None = None,
     ros2: Ros2Keys | None = None,
+    steerable: list[str] | None = None,
 ) -> dict[str, Any]:
     """Zenoh's ``access_control`` section of one process of a run. Deny by default; anyone
     linked may subscribe and query in the run; the launcher may publish anywhere in it.
@@ -163,6 +165,12 @@ def acl(
         own |= {
             agent_user(a): [f"{root}/agent/{a}/**", f"{root}/alive/{a}", f"{root}/cell/*/*/*/{a}"] for a in agent_ids
         }
+        if steerable is not None:
+            own[SCRIPT] = [
+                *(f"{root}/script/order/{a}" for a in steerable),
+                f"{root}/script/done",
+                f"{root}/alive/script",
+            ]
         if ros2 is not None:
             own[ROS2_BRIDGE] = [f"{root}/ros2/**", f"{root}/alive/ros2", ros2.graph, *ros2.bridge]
             own[ROS2] = list(ros2.inbound)

@@ -106,6 +106,12 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "stall": {"agents": "ls", "wait_s": "f"},
     # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
     "goal": {"action": "s", "x": 3},
+    # a script -> an agent (swarm.script): takeoff (to height x[2] above where it is), goto x, land, stop
+    "order": {"order": "i", "action": "s", "x": 3, "yaw": "f", "speed": "f"},
+    # an agent -> the script and the record: its order taken (the goal it flies to), refused, or arrived
+    "report": {"order": "i", "action": "s", "x": 3, "state": "s", "why": "s"},
+    # a script -> the world: the experiment is over, end the run
+    "end": {"reason": "s"},
 }
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
@@ -526,7 +532,13 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
-    "action": "goal (fly to x), land or stop (hold where it is)",
+    "action": "goal or goto (fly to x), takeoff (climb to x's height), land or stop (hold where it is)",
+    "order": "the script's number of the order",
+    "yaw": "yaw asked [rad, world] (simulated drones hold their yaw: not flown)",
+    "speed": "cruise speed asked [m/s] (0: the drone's own speed_mps)",
+    "state": "taken (x: the goal flown to), refused (why), or arrived (within goal_tolerance_m of x)",
+    "why": "why the order was refused (empty otherwise)",
+    "reason": "why the script ended the run",
     "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
     "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",
     "est": "the state the agent acted on, its estimate with world.realism.sensing: centre of mass [m] and "

@@ -117,6 +117,23 @@ class Keys:
         """The ROS 2 bridge -> every agent: land, or stop where it is."""
         return f"{self.root}/ros2/all"
 
+    def order(self, agent_id: str) -> str:
+        """A script -> one agent: take off, go to, land or stop (``swarm.script``)."""
+        return f"{self.root}/script/order/{agent_id}"
+
+    @property
+    def script_done(self) -> str:
+        """A script -> the world: the experiment is over, end the run."""
+        return f"{self.root}/script/done"
+
+    def report(self, agent_id: str) -> str:
+        """One agent -> the script and the record: an order taken, refused or arrived."""
+        return f"{self.root}/agent/{agent_id}/report"
+
+    @property
+    def all_reports(self) -> str:
+        return f"{self.root}/agent/*/report"
+
     @property
     def everything(self) -> str:
         return f"{self.root}/**"
@@ -131,10 +148,18 @@ class Keys:
         return key.rsplit("/", 1)[-1]
 
 
-RECORDED = ("world/clock", "world/status", "world/collision", "world/stall", "world/*/measurement", "agent/*/command")
+RECORDED = (
+    "world/clock",
+    "world/status",
+    "world/collision",
+    "world/stall",
+    "world/*/measurement",
+    "agent/*/command",
+    "agent/*/report",
+)
 """The keys under ``swarm/<run>/`` the recorder records: the world's clock, status, contacts,
-stalls and real drones' measurements, and the agents' commands with their filter reports
-(not states, bundles or ticks: the clock carries every measured state)."""
+stalls and real drones' measurements, the agents' commands with their filter reports and
+their reports on a script's orders (not states, bundles or ticks: the clock carries every measured state)."""
 
 
 def session_config(
@@ -193,6 +218,7 @@ class Role(StrEnum):
     OBSERVER = "observer"  # anything else that joins a run (a test, a user's tool)
     ROUTER = "router"  # the Zenoh router of network.topology: router
     ROS2 = "ros2-bridge"  # the run's ROS 2 bridge (swarm.ros2.bridge)
+    SCRIPT = "script"  # a script's client (swarm.script)
 
 
 ROUTER_WAIT_S = 20.0  # how long a client tries to reach the router before its session fails to open
@@ -259,6 +285,7 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         identified=identified,
         router=router,
         ros2=ros2,
+        steerable=cfg.steerable if cfg.script.enabled else None,
     )
     conf.insert_json5("access_control", json.dumps(rules))
 

@@ -396,6 +396,7 @@ def compute(
     stalls: list[dict[str, Any]] = []
     figures = _TickFigures(cfg)
     newest_k = -1
+    orders = OrderFigures()
     skipped = 0  # ticks the world flew unpublished (realtime with real drones, behind the wall clock)
     for r in records:
         kind = r["kind"]
@@ -430,6 +431,8 @@ def compute(
             (dead_contacts if r.get("dead") else collisions).append(r)
         elif kind == "stall":
             stalls.append({"t_s": r["t"], "k": r["k"], "agents": r["agents"], "wait_s": r["wait_s"]})
+        elif kind == "report":
+            orders.see(r)
     figures.take(pending, obstacles_at, before=None)
     bar, min_sep, min_clear, index = figures.bar, figures.min_sep, figures.min_clear, figures.index
 
@@ -515,8 +518,35 @@ def compute(
             (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
         ),
         "monitor": _monitor_totals(agents),
+        "orders": orders.rows,
         "agents": agents,
     }
+
+
+class OrderFigures:
+    """A script's orders as the agents reported them (``swarm.script``): per order, its drone,
+    action, the goal flown [m, world], when it was taken and when it arrived [s, sim time]
+    (None: not yet), or why it was refused."""
+
+    def __init__(self) -> None:
+        self.by: dict[tuple[str, int], dict[str, Any]] = {}
+
+    def see(self, r: dict[str, Any]) -> None:
+        row = self.by.setdefault(
+            (r["src"], int(r["order"])),
+            {"drone": r["src"], "order": int(r["order"]), "action": r["action"], "goal_m": None,
+             "taken_s": None, "arrived_s": None, "refused": None},
+        )  # fmt: skip
+        if r["state"] == "taken":
+            row["goal_m"], row["taken_s"] = [float(v) for v in r["x"]], float(r["t"])
+        elif r["state"] == "arrived" and row["arrived_s"] is None:
+            row["arrived_s"] = float(r["t"])
+        elif r["state"] == "refused":
+            row["refused"] = r["why"]
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        return sorted(self.by.values(), key=lambda row: (row["taken_s"] or 0.0, row["drone"], row["order"]))
 
 
 class Silence:

@@ -196,6 +196,7 @@ class RunHandle:
         (out / "logs").mkdir(exist_ok=True)
         cfg_path = out / "config.yaml"
         cfg_path.write_text(dump(cfg))
+        (out / "run.json").write_text(json.dumps({"run": h.run}))  # the run's id, for a script (swarm.script)
         (out / "foxglove_layout.json").write_text(run_layout_json([a.id for a in cfg.agents]))
         common = [str(cfg_path), "--run", h.run, *(["--secrets", str(h.secrets)] if h.secrets else [])]
         cpus = cpu_plan(len(cfg.agents)) if cfg.time.pin_cpus else {}

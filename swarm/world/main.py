@@ -37,6 +37,7 @@ from ddsketch import DDSketch
 
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
 from swarm.net.messages import encode, frames_wire, warm_up
@@ -163,6 +164,8 @@ class World:
         self.behind_at_end_s = 0.0  # ... less what the world was behind it then [s]
         self.wall0 = time.monotonic()
         self.stop = StopFlag()
+        self.script_end: Any = None  # a script's end of the run (script.enabled)
+        self.ended_by_script = False
 
     # --- wiring -------------------------------------------------------------------
     def open(self, conf: Any) -> None:
@@ -172,6 +175,7 @@ class World:
         self.session = session = tp.open_session(conf)
         self.token = tp.declare_liveliness(session, keys.alive("world"))
         self.cmd_in = tp.Inbox(session, keys.all_commands)
+        self.script_end = tp.open_channel(session, keys.script_done, 8) if cfg.script.enabled else None
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
         self.pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in self.real}  # motion capture
         self.pub_tick = {a: session.declare_publisher(keys.tick(a)) for a in self.flown if self.cells}
@@ -365,8 +369,24 @@ class World:
         return TickView(ds, items, live, x_b, roster, measured, meas, frames)
 
     def is_done(self, k: int, view: TickView) -> bool:
+        """The last tick (``duration_s``), every drone at its goal (``stop_when_all_reached``;
+        not in a run a script steers, which lasts until the script ends it), a signal, or no
+        agent left."""
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
-        return bool(k == self.K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
+        by_goals = self.cfg.stop_when_all_reached and all_reached and not self.cfg.script.enabled
+        return bool(k == self.K or by_goals or self.script_ended() or self.stop or not view.live)
+
+    def script_ended(self) -> bool:
+        """A script (its ``end`` message, from the run's ``script`` user) has ended the run."""
+        if self.script_end is None:
+            return self.ended_by_script
+        for s in tp.drain(self.script_end):
+            m = tp.decode_sample(s, self.run_id, self.counter, ("end",))
+            if m is not None and m.src == access.SCRIPT:
+                print(f"world: the script ended the run ({m['reason']})", file=sys.stderr, flush=True)
+                self.script_end = None  # (ended: every later tick is past the end)
+                self.ended_by_script = True
+        return self.ended_by_script
 
     def publish(self, k: int, t: float, view: TickView, done: bool, status_every: int, skipped: int = 0) -> None:
         """Tick k out: the status (every ``status_every`` ticks and the last), the clock (with

@@ -71,3 +71,18 @@ def test_with_a_certificate_per_process_every_key_has_one_publisher():
     assert _may_publish(rules, "agent-cf2", "swarm/r/agent/cf2/state", True)
     assert not _may_publish(rules, "agent-cf2", "swarm/r/agent/cf1/state", True)
     assert not _may_publish(rules, "observer", "swarm/r/agent/cf1/state", True)
+
+
+def test_at_the_router_a_script_orders_only_the_drones_it_may_steer():
+    rules = access.acl("r", ["cf1", "cf2", "cf3"], flies_commands=False, router="router", steerable=["cf1", "cf2"])
+    assert _may_publish(rules, "script", "swarm/r/script/order/cf1", False)
+    assert _may_publish(rules, "script", "swarm/r/script/order/cf2", False)
+    assert not _may_publish(rules, "script", "swarm/r/script/order/cf3", False)
+    assert _may_publish(rules, "script", "swarm/r/script/done", False)
+    assert _may_publish(rules, "script", "swarm/r/alive/script", False)
+    for key in ("swarm/r/agent/cf1/command", "swarm/r/agent/cf1/report", "swarm/r/ros2/goal/cf1", "swarm/r/world/clock"):
+        assert not _may_publish(rules, "script", key, False), key
+    assert not _may_publish(rules, "agent-cf1", "swarm/r/script/order/cf1", False)
+    assert _may_publish(rules, "agent-cf1", "swarm/r/agent/cf1/report", False)
+    off = access.acl("r", ["cf1"], flies_commands=False, router="router")  # no script: nothing of it
+    assert not _may_publish(off, "script", "swarm/r/script/order/cf1", False)

@@ -80,7 +80,8 @@ def test_at_the_router_a_script_orders_only_the_drones_it_may_steer():
     assert not _may_publish(rules, "script", "swarm/r/script/order/cf3", False)
     assert _may_publish(rules, "script", "swarm/r/script/done", False)
     assert _may_publish(rules, "script", "swarm/r/alive/script", False)
-    for key in ("swarm/r/agent/cf1/command", "swarm/r/agent/cf1/report", "swarm/r/ros2/goal/cf1", "swarm/r/world/clock"):
+    others = ("swarm/r/agent/cf1/command", "swarm/r/agent/cf1/report", "swarm/r/ros2/goal/cf1", "swarm/r/world/clock")
+    for key in others:
         assert not _may_publish(rules, "script", key, False), key
     assert not _may_publish(rules, "agent-cf1", "swarm/r/script/order/cf1", False)
     assert _may_publish(rules, "agent-cf1", "swarm/r/agent/cf1/report", False)

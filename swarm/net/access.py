@@ -112,7 +112,9 @@ def acl(
     publishes, its liveliness tokens and its goals for the agents (``ros2/**``), and from
     a ROS 2 participant (``ros2``) puts on exactly the goal, land and stop topics and
     liveliness tokens (its nodes, publishers and subscriptions), nothing else: not a
-    drone's pose, not a key of the run. A client accepts what the router forwards."""
+    drone's pose, not a key of the run. It alone may call the bridge's services (queries on
+    their keys, ``ros2.services``): the router accepts no query on the domain's keys from
+    anyone else. A client accepts what the router forwards."""
     root = f"swarm/{run}"
     ros_keys = [ros2.data, ros2.graph] if ros2 is not None else []
     listen = [
@@ -174,6 +176,31 @@ def acl(
         if ros2 is not None:
             own[ROS2_BRIDGE] = [f"{root}/ros2/**", f"{root}/alive/ros2", ros2.graph, *ros2.bridge]
             own[ROS2] = list(ros2.inbound)
+            # the domain's keys are for listening, but a call of the bridge's services (a query)
+            # is a command like a goal: from a ROS 2 participant alone
+            rules[1]["key_exprs"] = [f"{root}/**"]
+            quiet = [m for m in listen if m != "query"]
+            rules.append(
+                {
+                    "id": "listen-ros2",
+                    "permission": "allow",
+                    "flows": ["ingress"],
+                    "messages": quiet,
+                    "key_exprs": ros_keys,
+                }
+            )
+            policies[0]["rules"].append("listen-ros2")
+            if ros2.services:
+                rules.append(
+                    {
+                        "id": "ros2-call",
+                        "permission": "allow",
+                        "flows": ["ingress"],
+                        "messages": ["query"],
+                        "key_exprs": list(ros2.services),
+                    }
+                )
+                policies.append({"rules": ["ros2-call"], "subjects": [ROS2]})
             rules.append(
                 {
                     "id": "ros2-graph",

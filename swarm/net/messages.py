@@ -104,8 +104,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "collision": {"a": "s", "b": "s", "dead": "b"},
     # a lockstep tick that waited longer than time.stall_warn_s for these agents' commands
     "stall": {"agents": "ls", "wait_s": "f"},
-    # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
-    "goal": {"action": "s", "x": 3},
+    # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), by x ("goal_relative"),
+    # climb to x[2] ("takeoff"), land, or hold ("stop"), in about duration seconds (0: at its own speed)
+    "goal": {"action": "s", "x": 3, "duration": "f"},
     # a script -> an agent (swarm.script): takeoff (to height x[2] above where it is), goto x, land, stop
     "order": {"order": "i", "action": "s", "x": 3, "yaw": "f", "speed": "f"},
     # an agent -> the script and the record: its order taken (the goal it flies to), refused, or arrived
@@ -534,6 +535,7 @@ FIELD_DOCS: dict[str, str] = {
     "wait_s": "how long it waited [s]",
     "action": "goal or goto (fly to x), takeoff (climb to x's height), land or stop (hold where it is)",
     "order": "the script's number of the order",
+    "duration": "how long the move should take [s] (0: at the drone's own speed_mps)",
     "yaw": "yaw asked [rad, world] (simulated drones hold their yaw: not flown)",
     "speed": "cruise speed asked [m/s] (0: the drone's own speed_mps)",
     "state": "taken (x: the goal flown to), refused (why), or arrived (within goal_tolerance_m of x)",

@@ -404,6 +404,25 @@ def open_channel(session: zenoh.Session, key: str, capacity: int = 4096) -> Any:
     return session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
 
 
+def open_queryable(session: zenoh.Session, key: str, capacity: int = 64) -> Any:
+    """A complete queryable (it answers for the whole of ``key``, as rmw_zenoh declares a
+    service's, so a query that targets complete queryables reaches it) whose queries queue in
+    a FIFO channel (no callback); drained with :func:`drain`."""
+    return session.declare_queryable(key, zenoh.handlers.FifoChannel(capacity), complete=True)
+
+
+def attachment_of(item: Any) -> bytes:
+    """A sample's or query's attachment (empty when it has none)."""
+    a = item.attachment
+    return b"" if a is None else bytes(a.to_bytes())
+
+
+def query_payload(query: Any) -> bytes:
+    """A query's payload (empty when it has none)."""
+    p = query.payload
+    return b"" if p is None else bytes(p.to_bytes())
+
+
 def drain(sub: Any) -> Iterator[Any]:
     """Every sample queued on ``sub`` right now, without blocking."""
     while True:

@@ -38,6 +38,7 @@ from swarm.net.messages import CLOCK_MEAS, Message, encode, record_of
 from swarm.ros2 import convert, graph
 from swarm.ros2.goals import GOAL, LAND, STOP
 from swarm.ros2.interfaces import deserialize, serialize, store
+from swarm.ros2.services import SERVICE_QOS, Service, ask_of, decode_request, empty_response, register, run_services
 from swarm.ros2.topics import TYPES, Kind, Topic, run_topics
 from swarm.shutdown import StopFlag
 
@@ -114,6 +115,17 @@ class Bridge:
                 self.in_subs.append(tp.open_channel(session, key, 64))
             else:
                 self.out[(t.kind, t.agent)] = Outlet(session.declare_publisher(key), graph.gid(token))
+        self.services: dict[str, Service] = {}  # key -> service
+        self.queryables: list[Any] = []
+        for entity_id, sv in enumerate(run_services(r.namespace, self.ids), start=len(self.tokens)):
+            token = node.endpoint_token(
+                entity_id, graph.Entity.SERVICE, sv.name, sv.srv_type, SERVICE_QOS, sv.type_hash
+            )
+            key = sv.key(r.domain_id)
+            self.services[key] = sv
+            self.queryables.append(tp.open_queryable(session, key, 64))
+            self.tokens.append(session.liveliness().declare_token(token))
+        register()  # the services' types, before the first request
         keys = self.keys
         self.clocks = tp.Inbox(session, keys.clock)
         self.real_meas = tp.open_channel(session, f"{keys.root}/world/*/measurement", 256)
@@ -234,6 +246,49 @@ class Bridge:
                     self.counter.drop(f"ros2 {topic.name}: {exc}")
                     print(f"ros2: dropped a message on {topic.name}: {exc}", file=sys.stderr, flush=True)
 
+    def serve(self) -> None:
+        """Answer every call of a service that arrived (Crazyswarm2's takeoff, land, go_to,
+        notify_setpoints_stop): its goals sent to the agents, then the (empty) response; a
+        request that cannot be taken gets an error reply, and is dropped and counted."""
+        for q in self.queryables:
+            for query in tp.drain(q):
+                sv = self.services.get(str(query.key_expr))
+                if sv is None:
+                    query.reply_err(b"no such service of this run")
+                    self.counter.drop("ros2: a query on a key the bridge does not serve")
+                    continue
+                try:
+                    seq, _, client_gid = graph.read_attachment(tp.attachment_of(query))
+                    self._serve(sv, tp.query_payload(query))
+                except DecodeError as exc:
+                    self.counter.drop(f"ros2 {sv.name}: {exc}")
+                    print(f"ros2: refused a call of {sv.name}: {exc}", file=sys.stderr, flush=True)
+                    query.reply_err(f"{sv.name}: {exc}".encode())
+                    continue
+                att = graph.attachment(seq, time.time_ns(), client_gid)
+                query.reply(query.key_expr, empty_response(sv.srv_type), attachment=att)
+
+    def _serve(self, sv: Service, data: bytes) -> None:
+        req = decode_request(data, sv.srv_type)
+        ask = ask_of(sv.kind, req)
+        if ask is None:
+            print(f"ros2: {sv.name}: nothing to do (no low-level setpoints from ROS 2)", file=sys.stderr, flush=True)
+            return
+        if ask.action == GOAL:
+            for a in [sv.agent] if sv.agent is not None else self.ids:
+                me = self.cfg.agent(a)
+                floor = me.filter.floor_z_m if me.filter.enabled else None
+                if ask.x_w[2] < 0.0 or (floor is not None and ask.x_w[2] < floor):
+                    raise DecodeError(f"go_to: z = {ask.x_w[2]:.3f} m is below {a}'s floor")
+        self.seq += 1
+        body = encode(
+            "goal", self.run, ROS2_BRIDGE, self.seq, 0.0, 0, action=ask.action, x=ask.x_w, duration=ask.duration_s
+        )
+        (self.goal_pubs[sv.agent] if sv.agent is not None else self.all_pub).put(body)
+        self.counts.goals += 1
+        x = np.round(ask.x_w, 3).tolist()
+        print(f"ros2: {sv.name} {ask.action} {x} in {ask.duration_s:.2f} s", file=sys.stderr, flush=True)
+
     def _steer(self, topic: Topic, data: bytes) -> None:
         try:
             msg = deserialize(data, topic.ros_type)
@@ -247,12 +302,13 @@ class Bridge:
             floor = me.filter.floor_z_m if me.filter.enabled else None
             if x[2] < 0.0 or (floor is not None and x[2] < floor):
                 raise DecodeError(f"goal: z = {x[2]:.3f} m is below {topic.agent}'s floor")
-            body = encode("goal", self.run, ROS2_BRIDGE, self.seq, 0.0, 0, action=GOAL, x=x)
+            body = encode("goal", self.run, ROS2_BRIDGE, self.seq, 0.0, 0, action=GOAL, x=x, duration=0.0)
             self.goal_pubs[topic.agent].put(body)
             print(f"ros2: {topic.agent} goal {np.round(x, 3).tolist()}", file=sys.stderr, flush=True)
         else:
             action = LAND if topic.kind is Kind.LAND else STOP
-            self.all_pub.put(encode("goal", self.run, ROS2_BRIDGE, self.seq, 0.0, 0, action=action, x=np.zeros(3)))
+            body = encode("goal", self.run, ROS2_BRIDGE, self.seq, 0.0, 0, action=action, x=np.zeros(3), duration=0.0)
+            self.all_pub.put(body)
             print(f"ros2: {action} for all", file=sys.stderr, flush=True)
         self.counts.goals += 1
 
@@ -283,6 +339,7 @@ def main(cfg: ScenarioConfig, run: str, conf: Any) -> int:
     print(f"ros2: bridging {len(bridge.ids)} drones on domain {cfg.ros2.domain_id}", file=sys.stderr, flush=True)
     while not stop and not bridge.done:
         bridge.steer()
+        bridge.serve()
         if bridge.world_gone():
             break
         now = time.monotonic()

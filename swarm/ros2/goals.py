@@ -10,6 +10,7 @@ taken once per tick, the newest first (no Python runs per message, nothing wakes
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
     from swarm.realism.settings import RealismSettings
 
 GOAL, LAND, STOP = "goal", "land", "stop"
+GOAL_RELATIVE, TAKEOFF = "goal_relative", "takeoff"  # Crazyswarm2's go_to (relative) and takeoff services
+ACTIONS = (GOAL, GOAL_RELATIVE, TAKEOFF, LAND, STOP)
+MIN_SPEED_MPS = 0.05  # a move's speed from its duration is at least this [m/s]
 
 
 class Course(NamedTuple):
@@ -67,11 +71,36 @@ def landing_goal(me: AgentConfig, x_w: FloatArray) -> FloatArray:
     return np.array([x_w[0], x_w[1], max(floor, 0.05)])
 
 
+def goal_of(me: AgentConfig, action: str, x: FloatArray, x_w: FloatArray) -> FloatArray | None:
+    """Where ``action`` sends agent ``me`` at ``x_w`` [m, world]: ``x`` (goal), ``x_w + x``
+    (goal_relative), straight up or down to height ``x[2]`` (takeoff); None if that is not
+    finite or is below the drone's floor (``filter.floor_z_m``) or the ground."""
+    here = np.asarray(x_w, dtype=float)
+    if action == GOAL:
+        goal = np.asarray(x, dtype=float)
+    elif action == GOAL_RELATIVE:
+        goal = here + np.asarray(x, dtype=float)
+    else:
+        goal = np.array([here[0], here[1], float(x[2])])
+    floor = me.filter.floor_z_m if me.filter.enabled and me.filter.floor_z_m is not None else 0.0
+    if not np.all(np.isfinite(goal)) or goal[2] < max(floor, 0.0):
+        return None
+    return goal
+
+
+def move_speed(me: AgentConfig, distance_m: float, duration_s: float) -> float | None:
+    """The cruise speed [m/s] that covers ``distance_m`` in ``duration_s`` [s], between
+    :data:`MIN_SPEED_MPS` and the drone's own ``speed_mps``; None (its own) for no duration."""
+    if not (duration_s > 0 and math.isfinite(duration_s)):
+        return None
+    return float(min(max(distance_m / duration_s, MIN_SPEED_MPS), me.speed_mps))
+
+
 class GoalInbox:
     """An agent's goals from the ROS 2 bridge: :meth:`apply` takes what has arrived and
     retargets the agent at its measured position (the newest message wins; one from a
     sender other than the bridge, or for another agent, or malformed, is dropped and
-    counted)."""
+    counted; so is a relative move or take-off that would go below the floor)."""
 
     def __init__(self, session: Any, keys: tp.Keys, agent_id: str, run: str, counter: tp.Counter) -> None:
         self.id, self.run, self.counter = agent_id, run, counter
@@ -88,7 +117,7 @@ class GoalInbox:
                 m = tp.decode_sample(s, self.run, self.counter, ("goal",))
                 if m is None:
                     continue
-                if m.src != ROS2_BRIDGE or m["action"] not in (GOAL, LAND, STOP):
+                if m.src != ROS2_BRIDGE or m["action"] not in ACTIONS:
                     self.counter.drop("goal: not from the ROS 2 bridge, or no such action")
                     continue
                 if newest is None or m.seq > newest.seq:
@@ -101,8 +130,13 @@ class GoalInbox:
         if m is None:
             return None
         action = str(m["action"])
-        if action == GOAL:
-            agent.retarget(x_w, m["x"])
+        if action in (GOAL, GOAL_RELATIVE, TAKEOFF):
+            goal = goal_of(agent.me, action, m["x"], x_w)
+            if goal is None:
+                self.counter.drop(f"goal: {action} by {m['x'].tolist()} is not finite or below the floor")
+                return None
+            speed = move_speed(agent.me, float(np.linalg.norm(goal - np.asarray(x_w))), float(m["duration"]))
+            agent.retarget(x_w, goal, speed)
         elif action == STOP:
             agent.retarget(x_w, x_w)
         else:

@@ -37,6 +37,7 @@ class Entity(StrEnum):
     NODE = "NN"
     PUBLISHER = "MP"
     SUBSCRIPTION = "MS"
+    SERVICE = "SS"
 
 
 def qos_key(depth: int = 10, best_effort: bool = False, transient_local: bool = False) -> str:
@@ -92,8 +93,8 @@ class Node:
     def endpoint_token(
         self, entity_id: int, kind: Entity, topic: str, ros_type: str, qos: str, type_hash: str | None = None
     ) -> str:
-        """The token of a publisher or subscription of this node on ``topic`` (its fully
-        qualified name)."""
+        """The token of a publisher, subscription or service server of this node on ``topic``
+        (its fully qualified name; a service's type and hash are the service's)."""
         node = self.token().split("/")
         node[4], node[5] = str(entity_id), kind.value
         return "/".join([*node, mangle(topic), dds_type_name(ros_type), type_hash or TYPE_HASHES[ros_type], qos])

@@ -82,19 +82,24 @@ class Ros2Keys:
     """The Zenoh keys of a run's ROS 2 side, for its access-control rules
     (``swarm.net.access.acl``): ``bridge`` the keys the bridge publishes, ``inbound`` the
     keys a ROS 2 participant may publish, ``data`` and ``graph`` everything of the domain
-    (subscribing) and its liveliness tokens."""
+    (subscribing) and its liveliness tokens, ``services`` the keys of the bridge's services
+    (``swarm.ros2.services``), which a ROS 2 participant may call."""
 
     bridge: tuple[str, ...]
     inbound: tuple[str, ...]
     data: str
     graph: str
+    services: tuple[str, ...] = ()
 
 
 def ros2_keys(domain_id: int, namespace: str, agent_ids: list[str]) -> Ros2Keys:
+    from swarm.ros2.services import run_services
+
     ts = run_topics(namespace, agent_ids)
     return Ros2Keys(
         bridge=tuple(t.key(domain_id) for t in ts if not t.inbound),
         inbound=tuple(t.key(domain_id) for t in ts if t.inbound),
         data=f"{domain_id}/**",
         graph=f"@ros2_lv/{domain_id}/**",
+        services=tuple(s.key(domain_id) for s in run_services(namespace, agent_ids)),
     )

@@ -9,6 +9,8 @@ messages, with a deadline."""
 
 from __future__ import annotations
 
+import json
+import math
 import threading
 import time
 from pathlib import Path
@@ -19,6 +21,7 @@ import zenoh
 
 from swarm.net import transport as tp
 from swarm.net.messages import encode
+from swarm.ros2 import graph
 from swarm.ros2.participant import ENV_FILE, read_env
 from swarm.runs.runfiles import read_records
 
@@ -75,7 +78,9 @@ def ros2_client(monkeypatch):
     """zenoh-ros2-sdk configured from a run's ros2.env (set by the test through ``join``); a
     test leaves (:func:`leave_ros2`) before it finishes its run, and the fixture after a failure
     (before ``start_run`` finishes the runs)."""
-    sdk.get_registry().messages_dir = MSGS  # no network: the upstream definitions shipped with the tests
+    registry = sdk.get_registry()
+    registry.messages_dir = MSGS  # no network: the upstream definitions shipped with the tests
+    registry._loaded_types.clear()  # (the registry outlives each session's type store: load them again)
 
     def join(h) -> None:
         for k, v in read_env(h.secrets / ENV_FILE).items():
@@ -192,7 +197,7 @@ def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run, ros2_c
         for _ in range(3):  # each forgery from the ROS 2 participant's own session, with its credentials
             ros.put(topics[(Kind.POSE, "cf1")], forged)  # a drone's pose: the bridge's topic
             ros.put(keys.command("cf1"), forged)  # a command for cf1: the run's key
-            as_bridge = encode("goal", h.run, "ros2-bridge", 1, 0.0, 0, action="goal", x=np.zeros(3))
+            as_bridge = encode("goal", h.run, "ros2-bridge", 1, 0.0, 0, action="goal", x=np.zeros(3), duration=0.0)
             ros.put(keys.ros2_goal("cf1"), as_bridge)
             ros.put(topics[(Kind.GOAL, "cf1")], b"\x00\x01\x00\x00")  # its own topic: allowed (the bridge drops it)
         # what the router let through has arrived once the genuine traffic after it has (one link, in order)
@@ -243,3 +248,128 @@ def test_the_run_as_a_ros2_bag_that_rosbags_reads(start_run):
             np.testing.assert_array_equal(recorded[round(t, 6)], [p.x, p.y, p.z])
             n += 1
     assert n == len(recorded) > 100  # every measurement of the run, each once
+
+
+# crazyflie_interfaces' service requests as the test knows them (IMRCLab/crazyswarm2
+# crazyflie_interfaces/srv/*.srv); every response is empty (rosidl's one member)
+SRV_REQUESTS = {
+    "Takeoff": "uint8 group_mask\nfloat32 height\nbuiltin_interfaces/Duration duration",
+    "Land": "uint8 group_mask\nfloat32 height\nbuiltin_interfaces/Duration duration",
+    "GoTo": "uint8 group_mask\nbool relative\ngeometry_msgs/Point goal\nfloat32 yaw\n"
+    "builtin_interfaces/Duration duration",
+}
+EMPTY = "uint8 structure_needs_at_least_one_member"
+
+
+def test_crazyswarm2s_services_take_off_fly_a_square_swap_and_land_the_swarm(start_run, ros2_client):
+    from swarm.ros2.services import SERVICE_HASHES
+
+    cfg = scenario(
+        "script_lab.yaml",
+        script={"enabled": False},
+        stop_when_all_reached=False,
+        ros2={"enabled": True},
+        time={"mode": "lockstep"},
+    )
+    h = start_run(cfg, "ros2_services")
+    ros2_client(h)
+    want = {
+        f"/{who}/{k}": f"crazyflie_interfaces/srv/{t}"
+        for who in ("cf1", "cf2", "cf3", "all")
+        for k, t in (
+            ("takeoff", "Takeoff"),
+            ("land", "Land"),
+            ("go_to", "GoTo"),
+            ("notify_setpoints_stop", "NotifySetpointsStop"),
+        )
+    }
+    deadline = time.monotonic() + 30.0
+    while True:  # `ros2 service list -t`, from the liveliness tokens
+        listed = dict(
+            sdk.get_service_names_and_types(domain_id=0, router_ip=cfg.network.host, router_port=h.cfg.network.port)
+        )
+        if all(listed.get(n) == [t] for n, t in want.items()) or time.monotonic() > deadline:
+            break
+    for name, srv_type in want.items():
+        assert listed.get(name) == [srv_type], (name, listed)
+
+    clients: dict[str, object] = {}
+
+    def call(name: str, srv: str, **fields):
+        if name not in clients:
+            clients[name] = sdk.ROS2ServiceClient(
+                name, f"crazyflie_interfaces/srv/{srv}", request_definition=SRV_REQUESTS[srv],
+                response_definition=EMPTY, node_name="c3swarm_test_calls", timeout=30.0,
+            )  # fmt: skip
+            assert clients[name].type_hash == SERVICE_HASHES[f"crazyflie_interfaces/srv/{srv}"]
+        return clients[name].call(**fields)
+
+    poses = {d: Poses(f"/{d}/pose") for d in ("cf1", "cf2", "cf3")}
+    for p in poses.values():
+        p.wait(lambda x: True, 60.0, "at all")
+    tol = cfg.goal_tolerance_m + 0.05
+    types = sdk.ZenohSession._instance.store.types
+    dur = types["builtin_interfaces/msg/Duration"]
+    point = types["geometry_msgs/msg/Point"]
+
+    assert call("/all/takeoff", "Takeoff", group_mask=0, height=1.0, duration=dur(sec=2, nanosec=0)) is not None
+    for p in poses.values():
+        p.wait(lambda x: abs(x[2] - 1.0) < tol, 60.0, "taken off to 1 m")
+    for corner in (np.array(c) for c in ([-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0])):
+        goal = point(x=corner[0], y=corner[1], z=corner[2])
+        assert call(
+            "/cf1/go_to", "GoTo", group_mask=0, relative=False, goal=goal, yaw=0.0, duration=dur(sec=2, nanosec=0)
+        )
+        poses["cf1"].wait(lambda x, c=corner: np.linalg.norm(x - c) < tol, 60.0, f"at {corner}")
+    a, b = poses["cf1"].got[-1][1], poses["cf2"].got[-1][1]
+    for d, x in (("cf1", b), ("cf2", a)):
+        goal = point(x=float(x[0]), y=float(x[1]), z=1.0)
+        assert call(
+            f"/{d}/go_to", "GoTo", group_mask=0, relative=False, goal=goal, yaw=0.0, duration=dur(sec=3, nanosec=0)
+        )
+    poses["cf1"].wait(lambda x: np.linalg.norm(x[:2] - b[:2]) < tol, 60.0, "swapped to cf2's place")
+    poses["cf2"].wait(lambda x: np.linalg.norm(x[:2] - a[:2]) < tol, 60.0, "swapped to cf1's place")
+
+    # refused with an error reply, nothing flown: not finite, a group, below the floor
+    nan_goal = point(x=math.nan, y=0.0, z=1.0)
+    assert (
+        call("/cf1/go_to", "GoTo", group_mask=0, relative=False, goal=nan_goal, yaw=0.0, duration=dur(sec=1, nanosec=0))
+        is None
+    )
+    low = point(x=0.0, y=0.0, z=0.1)
+    assert (
+        call("/cf3/go_to", "GoTo", group_mask=0, relative=False, goal=low, yaw=0.0, duration=dur(sec=1, nanosec=0))
+        is None
+    )
+    assert call("/all/takeoff", "Takeoff", group_mask=2, height=2.0, duration=dur(sec=1, nanosec=0)) is None
+
+    # a call is a command: from the run's ROS 2 credentials alone (another user's query gets no answer)
+    key = clients["/cf1/go_to"].keyexpr
+    stay = clients["/cf1/go_to"].session_mgr.store.serialize_cdr(
+        clients["/cf1/go_to"].request_msg_class(
+            group_mask=0, relative=True, goal=point(x=0.0, y=0.0, z=0.0), yaw=0.0, duration=dur(sec=1, nanosec=0)
+        ),
+        clients["/cf1/go_to"].request_store_type,
+    )
+    att = graph.attachment(1, time.time_ns(), bytes(16))
+    for user, answered in (("ros2", True), ("observer", False), ("script", False)):
+        s = _ros2_session(h, user)
+        try:
+            replies = list(
+                s.get(key, payload=bytes(stay), attachment=att, target=zenoh.QueryTarget.ALL_COMPLETE, timeout=10.0)
+            )
+        finally:
+            s.close()
+        assert bool(replies) == answered and all(r.ok is not None for r in replies), user
+
+    assert call("/all/land", "Land", group_mask=0, height=0.04, duration=dur(sec=2, nanosec=0)) is not None
+    floor = cfg.agents[0].filter.floor_z_m
+    for p in poses.values():
+        p.wait(lambda x: x[2] < floor + 0.05, 60.0, "landed to the floor")
+    leave_ros2()
+    h.finish("test done")
+    m = json.loads((h.out / "metrics.json").read_text())
+    assert m["collisions"] == 0
+    log = (h.out / "logs" / "ros2.log").read_text()
+    assert "/all/takeoff takeoff [0.0, 0.0, 1.0] in 2.00 s" in log and "/all/land land" in log, log[-2000:]
+    assert log.count("ros2: refused a call of") == 3, log[-2000:]

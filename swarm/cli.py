@@ -107,8 +107,9 @@ def run_scenario(
                     elif reason is None and time.monotonic() > limit:
                         reason = "wall-clock limit"
                 t_end = handle.progress.t_s
-                if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached
-                    bar.update(task, total=t_end, completed=t_end, info=f"{info}  (all goals reached)")
+                if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached, or a script
+                    why = "ended by the script" if cfg.script.enabled else "all goals reached"
+                    bar.update(task, total=t_end, completed=t_end, info=f"{info}  ({why})")
         finally:
             handle.finish(reason or "interrupted")
     return (0 if handle.reason == "completed" else 1), handle.result

@@ -17,3 +17,40 @@ def test_the_swap_example_flies_a_swap_and_prints_its_metrics(tmp_path):
     assert p.stdout.startswith("completed: collisions 0"), p.stdout
     m = json.loads((out / "metrics.json").read_text())
     assert m["all_reached_goal"] is True and m["collisions"] == 0
+
+
+def test_the_scripted_experiment_joins_a_running_swarm_and_flies_it(tmp_path):
+    # as the example's docstring says: `swarm run` in one shell, the script in another
+    out = tmp_path / "s1"
+    run = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "swarm.cli",
+            "run",
+            str(EXAMPLES.parent / "configs" / "script_lab.yaml"),
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        p = subprocess.run(
+            [sys.executable, str(EXAMPLES / "scripted_experiment.py"), str(out)],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert p.returncode == 0, p.stderr[-3000:]
+        assert run.wait(timeout=120) == 0, run.stderr.read()[-3000:] if run.stderr else ""
+    finally:
+        if run.poll() is None:
+            run.terminate()
+            run.wait(timeout=60)
+    lines = p.stdout.splitlines()
+    assert lines[0].startswith("joined run script_lab-") and lines[-1].endswith("landed"), p.stdout
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["stop_reason"] == "completed" and m["collisions"] == 0
+    assert len(m["orders"]) == 3 + 4 + 2 + 3 and all(o["arrived_s"] is not None for o in m["orders"])

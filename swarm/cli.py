@@ -50,9 +50,27 @@ _SECRETS = click.option(
 )
 
 
+def _console(stderr: bool = False) -> Any:
+    """A rich console that never cuts a line: off a terminal (a log, CI, a pipe) as wide as
+    a line needs (rich would take 80 columns, or ``COLUMNS``)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    if stream.isatty():
+        return Console(stderr=stderr)
+    return Console(stderr=stderr, width=100_000, soft_wrap=True)
+
+
+def _world_landed(out: Path) -> bool:
+    """Whether the world of the run in ``out`` took a land request (its summary line)."""
+    from swarm.runs.ledger import summaries
+
+    return summaries(out / "logs").get("world", {}).get("landing_from_s") is not None
+
+
 def _status_info(st: dict[str, Any]) -> str:
-    """The progress bar's line for the world's status message."""
-    sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
+    """The progress bar's line for the world's status message (min sep in mm)."""
+    sep = f"{1e3 * st['min_sep']:.0f} mm" if st["min_sep"] < 1e8 else "-"
     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
     if st.get("stalls"):
         info += f"  [yellow]stalls {st['stalls']}[/]"
@@ -74,37 +92,56 @@ def run_scenario(
     secrets: Path | None = None,
     live_port: int | None = None,
 ) -> tuple[int, dict[str, Any]]:
-    """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
+    """Run a whole scenario as separate processes with a progress bar; (exit code, metrics).
+
+    The first stop signal (Ctrl-C, SIGTERM, SIGHUP) lands every drone and ends the run when
+    they are down (``swarm.landing``; exit code 1, ``stop_reason`` "landed on request"); a
+    second one, or one before the world has ticked, stops every process at once: the
+    emergency stop (real drones' motors off where they fly; ``stop_reason`` "interrupted")."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from swarm.landing import LANDED, LANDING_BANNER, LANDING_NOW, Stop, stop_for
     from swarm.runs.launch import RunHandle
 
+    click.echo(LANDING_BANNER, err=True)
     with StopSignals() as interrupted:
         handle = RunHandle.start(
             cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted.now, secrets=secrets, live_port=live_port
         )
         bar = Progress(
             TextColumn("[bold]{task.description}"),
-            BarColumn(),
+            BarColumn(bar_width=20),
             TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
             TextColumn("{task.fields[info]}"),
             TimeElapsedColumn(),
             disable=not progress,
+            console=_console(stderr=True),
         )
         limit = time.monotonic() + handle.wall_limit_s
         reason: str | None = None
         info = ""
+        asked_s: float | None = None  # wall time of the last land request
         try:
             with bar:
                 task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
                 while reason is None:
                     reason = handle.poll(stop_on_agent_death, wait_s=0.05)
                     if handle.progress.status:
-                        info = _status_info(handle.progress.status)
+                        info = _status_info(handle.progress.status) + ("  [yellow]landing[/]" if asked_s else "")
                         bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
-                    if interrupted.now:
+                    what = stop_for(interrupted.count, bool(handle.progress.status))
+                    now = time.monotonic()
+                    if reason == "completed" and asked_s is not None and _world_landed(out):
+                        reason = LANDED
+                    elif reason is None and what is Stop.NOW:
                         reason = "interrupted"
-                    elif reason is None and time.monotonic() > limit:
+                    elif reason is None and what is Stop.LAND and (asked_s is None or now - asked_s > 1.0):
+                        if asked_s is None:
+                            bar.console.print(LANDING_NOW, markup=False, highlight=False)
+                            limit = now + 20.0 * cfg.time.land_timeout_s + 60.0
+                        handle.land("Ctrl-C")  # (repeated each second: each process takes the first)
+                        asked_s = now
+                    if reason is None and time.monotonic() > limit:
                         reason = "wall-clock limit"
                 t_end = handle.progress.t_s
                 if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached

@@ -106,6 +106,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "stall": {"agents": "ls", "wait_s": "f"},
     # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
     "goal": {"action": "s", "x": 3},
+    # the launcher -> the world and every agent (key land): land every drone and end the run
+    # once they are down; why (e.g. "Ctrl-C")
+    "land": {"why": "s"},
 }
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over

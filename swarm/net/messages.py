@@ -529,6 +529,7 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
+    "why": "why the launcher asks every drone to land (e.g. Ctrl-C)",
     "action": "goal (fly to x), land or stop (hold where it is)",
     "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
     "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",

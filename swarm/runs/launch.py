@@ -457,9 +457,7 @@ class RunHandle:
         down (``swarm.landing``); the run then ends as :data:`swarm.landing.LANDED`. Asking
         again repeats the request (each process takes the first)."""
         self._land_seq += 1
-        self._session.put(
-            tp.Keys(self.run).land, encode("land", self.run, "launcher", self._land_seq, 0.0, 0, why=why)
-        )
+        self._session.put(tp.Keys(self.run).land, encode("land", self.run, "launcher", self._land_seq, 0.0, 0, why=why))
 
     def finish(self, reason: str) -> str:
         """Let a completed (or landed) run's processes end by themselves, stop the rest, and

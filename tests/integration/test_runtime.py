@@ -12,6 +12,7 @@ import sys
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import numpy as np
@@ -218,49 +219,91 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
-def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
+def _swarm_run(tmp_path: Path, cfg_over: dict, *args: str) -> tuple[subprocess.Popen, Any, Path, str, Any]:
+    """``swarm run`` of circle_8 (``cfg_over`` merged) as a child of its own session, a
+    channel of the run's status messages this test may hear (the run's credentials), the
+    run folder, the run id, and the session the channel lives in (keep it)."""
     from swarm.config import dump, load
     from swarm.net import transport as tp
     from swarm.runs.launch import ensure_secrets, free_port
 
-    out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
-    cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
+    out, run_id = tmp_path / "out", f"stop-{time.monotonic_ns()}"
+    cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}, **cfg_over})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
-    secrets = ensure_secrets(cfg, tmp_path / "secrets")  # the run's credentials, so that this test may listen
+    secrets = ensure_secrets(cfg, tmp_path / "secrets")
     session = tp.open_session(
         tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
     )
     status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "swarm.cli",
-            "run",
-            str(tmp_path / "circle_8.yaml"),
-            "--out",
-            str(out),
-            "--no-progress",
-            "--run-id",
-            run_id,
-            "--secrets",
-            str(secrets),
-        ],
+        [sys.executable, "-m", "swarm.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
+         "--no-progress", "--run-id", run_id, "--secrets", str(secrets), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         start_new_session=True,
-    )
+        text=True,
+    )  # fmt: skip
+    return cli, status, out, run_id, session
+
+
+def _last_heights(out: Path) -> dict[str, float]:
+    """Each drone's height [m] in its last recorded measurement."""
+    return {a: float(xs[max(xs)][2]) for a, xs in trajectories(out).items()}
+
+
+# long enough that no drone is down by itself, slow enough that landing from 1 m takes seconds
+_STAY_UP = {"duration_s": 60.0, "stop_when_all_reached": False, "defaults": {"speed_mps": 0.3}}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_stop_signal_lands_every_drone_then_ends_the_run_and_keeps_the_recording(tmp_path, sig):
+    from swarm.config import load
+    from swarm.landing import DOWN_ABOVE_M, LANDED, LANDING_BANNER, LANDING_NOW, landing_height_m
+
+    cli, status, out, run_id, _session = _swarm_run(tmp_path, _STAY_UP)
     try:
-        first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking
+        first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking: drones fly
         assert first is not None
         cli.send_signal(sig)
-        cli.wait(timeout=60)
-        assert cli.returncode == 1  # interrupted, not completed
+        said, _ = cli.communicate(timeout=180)
+        assert cli.returncode == 1, said  # not the scenario's end
+        assert LANDING_BANNER in said and LANDING_NOW in said
+        m = json.loads((out / "metrics.json").read_text())
+        assert m["stop_reason"] == LANDED and m["complete"] is True
+        assert m["collisions"] == 0
+        heights = _last_heights(out)
+        cfg = load(out / "config.yaml")
+        down_m = {a.id: landing_height_m(a) + DOWN_ABOVE_M for a in cfg.agents}  # (simulated: the filter's floor)
+        assert len(heights) == 8 and all(z <= down_m[a] for a, z in heights.items()), heights
         assert _processes_mentioning(run_id) == []
-        assert (out / "run.mcap").exists() and json.loads((out / "metrics.json").read_text())[
-            "stop_reason"
-        ] == "interrupted"
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+        for pid in _processes_mentioning(run_id):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_a_second_stop_signal_is_the_emergency_stop(tmp_path):
+    """Realtime: landing from 1 m at 0.3 m/s takes 3 s of wall clock, whatever the machine's
+    pace, and the second Ctrl-C comes as soon as the first is answered."""
+    from swarm.landing import LANDING_NOW
+
+    cli, status, out, run_id, _session = _swarm_run(tmp_path, _STAY_UP, "--mode", "realtime")
+    try:
+        first = tp.wait_sample(status, time.monotonic() + 120)
+        assert first is not None
+        cli.send_signal(signal.SIGINT)
+        assert cli.stdout is not None
+        for line in cli.stdout:  # until the launcher says it lands them
+            if LANDING_NOW in line:
+                break
+        cli.send_signal(signal.SIGINT)
+        cli.communicate(timeout=60)
+        assert cli.returncode == 1
+        assert json.loads((out / "metrics.json").read_text())["stop_reason"] == "interrupted"
+        heights = _last_heights(out)
+        assert len(heights) == 8 and all(z > 0.5 for z in heights.values()), heights  # stopped in the air
+        assert _processes_mentioning(run_id) == []
     finally:
         if cli.poll() is None:
             os.killpg(cli.pid, signal.SIGKILL)

@@ -151,6 +151,22 @@ def run_scenario(
     return (0 if handle.reason == "completed" else 1), handle.result
 
 
+def print_summary(metrics: dict[str, Any]) -> None:
+    """``swarm run``'s summary of a run's ``metrics.json``: the run's figures and one row per
+    agent, each table with its metrics' meanings under it (``swarm.runs.readable``)."""
+    from swarm.offline.metrics import SUMMARY_KEYS
+    from swarm.runs.readable import fig, notes, print_table
+
+    print_table("run", ["metric", "value"], [[k, fig(metrics.get(k), k)] for k in SUMMARY_KEYS], notes(SUMMARY_KEYS))
+    cols = ("reached_goal", "time_to_goal_s", "path_length_m", "min_h", "min_row_h", "infeasible_ticks")
+    rows = []
+    for aid, a in metrics["agents"].items():
+        acted = {n: c for n, c in (a.get("monitor") or {}).get("action_ticks", {}).items() if c}
+        monitor = ", ".join(f"{n} {c}" for n, c in acted.items()) or "-"
+        rows.append([aid, *(fig(a.get(k), k) for k in cols), monitor])
+    print_table("agents", ["agent", *cols, "monitor"], rows, notes([*cols, "monitor"]))
+
+
 def _pin_cpu() -> None:
     """Set up a process of a run: pin it to the CPU ``swarm run`` chose for it
     (``time.pin_cpus``), every thread it has now (numpy's BLAS threads start at import)
@@ -217,19 +233,8 @@ def run(
         secrets=secrets,
         live_port=live_port,
     )
-    from swarm.offline.metrics import SUMMARY_KEYS
-
     if metrics.get("agents"):
-        for k in SUMMARY_KEYS:
-            click.echo(f"{k:>26}: {metrics.get(k)}")
-        for aid, a in metrics["agents"].items():
-            acted = {n: c for n, c in (a.get("monitor") or {}).get("action_ticks", {}).items() if c}
-            click.echo(
-                f"{aid:>26}: reached={a['reached_goal']} t_goal={a['time_to_goal_s']} "
-                f"path={a['path_length_m']:.2f} m min_h={a['min_h']} min_row_h={a['min_row_h']} "
-                f"infeasible={a['infeasible_ticks']}"
-                + (f" monitor={','.join(f'{n}:{c}' for n, c in acted.items())}" if acted else "")
-            )
+        print_summary(metrics)
     click.echo(f"run folder: {out}")
     sys.exit(code)
 
@@ -461,12 +466,10 @@ def report(run_dir: Path) -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
 def compare(config: str, filters: str, mode: str | None, realism: str | None, out: Path | None) -> None:
     """Run one scenario under each filter (in each world) and print the comparison table."""
-    from rich.console import Console
-    from rich.table import Table
-
     from swarm.realism.settings import PRESETS
-    from swarm.runs.compare import _fmt, columns, in_world
+    from swarm.runs.compare import cells, in_world
     from swarm.runs.compare import compare as run_compare
+    from swarm.runs.readable import print_table
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
     bad = [f for f in names if f not in ("c3bf", "hocbf", "none")]
@@ -486,13 +489,8 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, ou
             sys.exit(2)
     out = out or Path("runs") / f"compare-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     rows = run_compare(cfg, names, out, worlds)
-    table = Table(title=f"{cfg.name}: filters compared")
-    cols = columns(rows)
-    for _, title in cols:
-        table.add_column(title)
-    for r in rows:
-        table.add_row(*(_fmt(r.get(key)) for key, _ in cols))
-    Console().print(table)
+    header, body, legend = cells(rows)
+    print_table(f"{cfg.name}: filters compared", header, body, legend)
     click.echo(f"saved: {out / 'compare.md'}")
 
 
@@ -509,6 +507,7 @@ class _SweepProgress:
             MofNCompleteColumn(),
             TextColumn("{task.fields[failed]} failed, {task.fields[running]} running"),
             TimeElapsedColumn(),
+            console=_console(stderr=True),
         )
         self.task = self.bar.add_task("sweep", total=total, completed=done, failed=0, running=0)
         self.total, self.finished, self.failed, self.running = total, done, 0, 0
@@ -527,6 +526,8 @@ class _SweepProgress:
             self.bar.update(self.task, running=self.running)
 
     def done(self, row: dict[str, Any]) -> None:
+        from swarm.runs.readable import fig
+
         with self.lock:
             self.finished += 1
             self.failed += bool(row.get("error"))
@@ -539,7 +540,7 @@ class _SweepProgress:
             self.bar.console.print(
                 f"{head}: success={row['success']} collisions={row['collisions']} "
                 f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
-                f"time_to_goal_s={row['time_to_goal_s']}",
+                f"mean time_to_goal_s={fig(row['time_to_goal_s'], 'time_to_goal_s')}",
                 markup=False,
                 highlight=False,
                 soft_wrap=True,

@@ -19,6 +19,7 @@ from typing import Any
 from swarm.config import ScenarioConfig, resolve
 from swarm.runs.launch import RunHandle
 from swarm.runs.point import summarise
+from swarm.runs.readable import fig, markdown_table, notes
 from swarm.safety.barriers import BarrierKind
 from swarm.strict import merge
 
@@ -29,9 +30,9 @@ COLUMNS = (
     ("margin_violations", "inside the safety radius"),
     ("min_clearance_m", "closest to an obstacle surface [m]"),
     ("min_separation_m", "closest between agents [m]"),
-    ("min_h", "min exact h [m^2/s]"),
+    ("min_h", "min exact C3BF h [m^2/s]"),
     ("negative_h_ticks", "ticks with h < 0"),
-    ("max_time_to_goal_s", "time to goal [s] (latest)"),
+    ("max_time_to_goal_s", "latest time to goal [s]"),
     ("max_path_deviation_m", "largest path deviation [m]"),
     ("infeasible_ticks", "infeasible ticks"),
     ("all_reached_goal", "all reached goal"),
@@ -80,8 +81,9 @@ def compare(
     return rows
 
 
-def _fmt(v: Any) -> str:
-    return f"{v:.3f}" if isinstance(v, float) else ("-" if v is None else str(v))
+def _fmt(v: Any, key: str = "") -> str:
+    """A cell: ``swarm.runs.readable.fig``."""
+    return fig(v, key)
 
 
 def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
@@ -89,9 +91,15 @@ def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
     return tuple(c for c in COLUMNS if c[0] != "world" or any(r.get("world") for r in rows))
 
 
-def markdown(name: str, rows: list[dict[str, Any]]) -> str:
+def cells(rows: list[dict[str, Any]]) -> tuple[list[str], list[list[str]], list[str]]:
+    """The table's header, its cells, and the meaning of each column (its legend)."""
     cols = columns(rows)
-    head = "| " + " | ".join(title for _, title in cols) + " |"
-    rule = "|" + "---|" * len(cols)
-    body = ["| " + " | ".join(_fmt(r.get(key)) for key, _ in cols) + " |" for r in rows]
-    return "\n".join([f"# {name}: filters compared", "", head, rule, *body, ""])
+    body = [[_fmt(r.get(key), key) for key, _ in cols] for r in rows]
+    return [t for _, t in cols], body, notes([k for k, _ in cols], dict(cols))
+
+
+def markdown(name: str, rows: list[dict[str, Any]]) -> str:
+    header, body, legend = cells(rows)
+    return "\n".join(
+        [f"# {name}: filters compared", "", markdown_table(header, body), "", *(f"* {line}" for line in legend), ""]
+    )

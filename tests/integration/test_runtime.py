@@ -268,6 +268,7 @@ def test_a_stop_signal_lands_every_drone_then_ends_the_run_and_keeps_the_recordi
         said, _ = cli.communicate(timeout=180)
         assert cli.returncode == 1, said  # not the scenario's end
         assert LANDING_BANNER in said and LANDING_NOW in said
+        assert "| stop_reason | landed on request |" in said and "…" not in said  # markdown, nothing cut
         m = json.loads((out / "metrics.json").read_text())
         assert m["stop_reason"] == LANDED and m["complete"] is True
         assert m["collisions"] == 0

@@ -673,7 +673,7 @@ def scenario(kind: str, n: int | None, out: Path | None, room: str, **options: A
         if len(size) != 3 or not all(math.isfinite(v) and v > 0 for v in size):
             raise ValueError(f"--room {room}: give three positive sizes in metres, X,Y,Z (e.g. 8,8,3)")
         raw = generate(kind, n or 1, settings, radius_m=o["radius"], density=o["density"], gap_m=o["gap"])
-        raw = fit_room(raw, Room(size_m=size))  # type: ignore[arg-type]
+        raw = fit_room(raw, Room(size_m=(size[0], size[1], size[2])))
         raw["defaults"]["filter"]["rho"] = o["rho"]
         raw["defaults"]["tiebreak"] = {"kind": o["tiebreak"]}
         resolve(raw, f"generated {kind} scenario")  # validated before it is written

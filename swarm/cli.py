@@ -463,8 +463,15 @@ def report(run_dir: Path) -> None:
     "--realism",
     help="comma-separated world.realism presets to fly side by side (e.g. ideal,crazyflie_lab; default: the config's)",
 )
+@click.option(
+    "--seeds",
+    type=click.IntRange(min=1, max=100),
+    default=1,
+    show_default=True,
+    help="fly each filter with this many seeds (config seed, +1, ...): each cell the mean [min, max]",
+)
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
-def compare(config: str, filters: str, mode: str | None, realism: str | None, out: Path | None) -> None:
+def compare(config: str, filters: str, mode: str | None, realism: str | None, seeds: int, out: Path | None) -> None:
     """Run one scenario under each filter (in each world) and print the comparison table."""
     from swarm.realism.settings import PRESETS
     from swarm.runs.compare import cells, in_world
@@ -488,7 +495,7 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, ou
             click.echo(f"config error: {exc}", err=True)
             sys.exit(2)
     out = out or Path("runs") / f"compare-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    rows = run_compare(cfg, names, out, worlds)
+    rows = run_compare(cfg, names, out, worlds, seeds)
     header, body, legend = cells(rows)
     print_table(f"{cfg.name}: filters compared", header, body, legend)
     click.echo(f"saved: {out / 'compare.md'}")
@@ -540,7 +547,7 @@ class _SweepProgress:
             self.bar.console.print(
                 f"{head}: success={row['success']} collisions={row['collisions']} "
                 f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
-                f"mean time_to_goal_s={fig(row['time_to_goal_s'], 'time_to_goal_s')}",
+                f"mean_time_to_goal_s={fig(row['mean_time_to_goal_s'], 'mean_time_to_goal_s')}",
                 markup=False,
                 highlight=False,
                 soft_wrap=True,

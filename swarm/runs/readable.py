@@ -44,6 +44,7 @@ MEANINGS: dict[str, str] = {
     "dropped_messages": "messages the processes dropped as malformed, late or from the wrong sender",
     "lost_agents": "agents whose process died during the run",
     "stop_reason": "what ended the run",
+    "seeds": "how many seeds each row flew (world.realism's randomness; the ideal world repeats itself exactly)",
     "success": "every agent reached its goal with no contact",
     "deadlock": "some agent stopped short of its goal for good (1) or none did (0)",
 }
@@ -69,6 +70,12 @@ def fig(value: Any, key: str = "") -> str:
             text = f"{value:.3f}"
             return "0.000" if text == "-0.000" else text
         return f"{value:#.3g}".rstrip(".")
+    if isinstance(value, dict) and {"mean", "min", "max"} <= set(value):  # a spread over seeds
+        lo, hi = fig(value["min"], key), fig(value["max"], key)
+        mean = fig(float(value["mean"]), key if key.endswith(METRES_SUFFIXES + SECONDS_SUFFIXES) else "")
+        return lo if lo == hi else f"{mean} [{lo}, {hi}]"
+    if isinstance(value, dict) and {"yes", "n"} <= set(value):  # how many seeds said yes
+        return f"{value['yes']}/{value['n']}"
     if isinstance(value, list | tuple):
         return ", ".join(fig(v, key) for v in value) if value else "-"
     return str(value)

@@ -248,7 +248,7 @@ class Report:
             axv.set_ylabel("xyz"[j] + " [m]")
             axv.set_title(name)
             axv.grid(alpha=0.3)
-        marks = [
+        marks: list[Any] = [
             plt.Line2D([], [], marker="o", ls="", color="0.3", label="start"),
             plt.Line2D([], [], marker="x", ls="", color="0.3", label="goal"),
         ]

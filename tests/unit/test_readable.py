@@ -45,3 +45,22 @@ def test_compare_tables_carry_rounded_cells_and_each_columns_meaning():
     text = markdown("s", rows)
     assert "| ideal | c3bf | 0 | 0 | 0.119 | - | -0.00232 | 3 | 5.517 |" in text
     assert "* latest time to goal [s]: " + MEANINGS["max_time_to_goal_s"] in text
+
+
+def test_several_seeds_make_one_row_of_spreads_and_the_table_says_so():
+    from swarm.runs.compare import spread
+
+    def one(clear: float, reached: bool) -> dict:
+        return {"world": None, "filter": "c3bf", "collisions": 0, "min_clearance_m": clear, "min_separation_m": None,
+                "all_reached_goal": reached, "stop_reason": "completed"}  # fmt: skip
+
+    row = spread([one(0.1094, True), one(0.1212, False), one(0.1150, True)])
+    assert row["seeds"] == 3 and row["collisions"] == {"mean": 0.0, "min": 0, "max": 0, "n": 3}
+    assert row["min_clearance_m"]["n"] == 3 and row["min_separation_m"] is None
+    assert row["all_reached_goal"] == {"yes": 2, "n": 3} and row["stop_reason"] == "completed"
+    header, body, legend = cells([row])
+    cell = dict(zip(header, body[0], strict=True))
+    assert cell["seeds"] == "3" and cell["contacts"] == "0"
+    assert cell["closest to an obstacle surface [m]"] == "0.115 [0.109, 0.121]"
+    assert cell["all reached goal"] == "2/3"
+    assert any("mean [min, max]" in line for line in legend)

@@ -220,8 +220,10 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-def _swarm_run(tmp_path: Path, cfg_over: dict, *args: str) -> tuple[subprocess.Popen, Any, Path, str, Any]:
-    """``swarm run`` of circle_8 (``cfg_over`` merged) as a child of its own session, a
+def _swarm_run(
+    tmp_path: Path, cfg_over: dict, *args: str, config: str = "circle_8.yaml"
+) -> tuple[subprocess.Popen, Any, Path, str, Any]:
+    """``swarm run`` of ``config`` (``cfg_over`` merged) as a child of its own session, a
     channel of the run's status messages this test may hear (the run's credentials), the
     run folder, the run id, and the session the channel lives in (keep it)."""
     from swarm.config import dump, load
@@ -229,13 +231,9 @@ def _swarm_run(tmp_path: Path, cfg_over: dict, *args: str) -> tuple[subprocess.P
     from swarm.runs.launch import ensure_secrets, free_port
 
     out, run_id = tmp_path / "out", f"stop-{time.monotonic_ns()}"
-    cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}, **cfg_over})
+    cfg = load(CONFIGS / config, {"network": {"port": free_port()}, **cfg_over})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
     secrets = ensure_secrets(cfg, tmp_path / "secrets")
-    session = tp.open_session(
-        tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
-    )
-    status = tp.open_channel(session, tp.Keys(run_id).status)
     cli = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
          "--no-progress", "--run-id", run_id, "--secrets", str(secrets), *args],
@@ -244,6 +242,17 @@ def _swarm_run(tmp_path: Path, cfg_over: dict, *args: str) -> tuple[subprocess.P
         start_new_session=True,
         text=True,
     )  # fmt: skip
+    conf = tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
+    deadline = time.monotonic() + 60
+    while True:  # (a run through a router: its router comes up first)
+        try:
+            session = tp.open_session(conf)
+            break
+        except Exception:
+            if time.monotonic() > deadline or cli.poll() is not None:
+                raise
+            conf = tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
+    status = tp.open_channel(session, tp.Keys(run_id).status)
     return cli, status, out, run_id, session
 
 
@@ -277,6 +286,46 @@ def test_a_stop_signal_lands_every_drone_then_ends_the_run_and_keeps_the_recordi
         cfg = load(out / "config.yaml")
         down_m = {a.id: landing_height_m(a) + DOWN_ABOVE_M for a in cfg.agents}  # (simulated: the filter's floor)
         assert len(heights) == 8 and all(z <= down_m[a] for a, z in heights.items()), heights
+        assert _processes_mentioning(run_id) == []
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+        for pid in _processes_mentioning(run_id):
+            os.kill(pid, signal.SIGKILL)
+
+
+def _wait_sim_time(status: Any, run_id: str, t_s: float, timeout_s: float = 120.0) -> None:
+    """Until a status message of the run says sim time ``t_s`` [s] or later."""
+    from swarm.net.messages import decode
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        s = tp.wait_sample(status, deadline)
+        if s is not None and decode(tp.payload(s), run_id, ("status",)).t >= t_s:
+            return
+    raise AssertionError(f"the run did not reach t = {t_s} s")
+
+
+def test_a_stop_signal_lands_real_drones_by_their_flight_plan(tmp_path):
+    """mixed_sitl: two software-in-the-loop Crazyflies through cflib, and two simulated drones.
+    Ctrl-C once they fly: the real ones land by their flight plans (motors off on the ground),
+    the simulated ones descend to their floor, and the run ends as landed."""
+    from swarm.landing import LANDED
+
+    cli, status, out, run_id, _session = _swarm_run(
+        tmp_path, {"duration_s": 60.0, "stop_when_all_reached": False}, config="mixed_sitl.yaml"
+    )
+    try:
+        _wait_sim_time(status, run_id, 3.0)  # the real drones have taken off
+        cli.send_signal(signal.SIGINT)
+        said, _ = cli.communicate(timeout=180)
+        assert cli.returncode == 1, said
+        m = json.loads((out / "metrics.json").read_text())
+        assert m["stop_reason"] == LANDED and m["collisions"] == 0
+        for real in ("real1", "real2"):
+            log = (out / "logs" / f"agent-{real}.log").read_text()
+            assert "landing at t=" in log and "landed, motors off" in log, log[-2000:]
+            assert "emergency" not in log.lower(), log[-2000:]
         assert _processes_mentioning(run_id) == []
     finally:
         if cli.poll() is None:

@@ -99,6 +99,7 @@ def run_scenario(
     second one, or one before the world has ticked, stops every process at once: the
     emergency stop (real drones' motors off where they fly; ``stop_reason`` "interrupted")."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Column
 
     from swarm.landing import LANDED, LANDING_BANNER, LANDING_NOW, Stop, stop_for
     from swarm.runs.launch import RunHandle
@@ -108,11 +109,12 @@ def run_scenario(
         handle = RunHandle.start(
             cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted.now, secrets=secrets, live_port=live_port
         )
+        wrap = Column(no_wrap=False, overflow="fold")  # (a narrow terminal wraps the line, never cuts it)
         bar = Progress(
-            TextColumn("[bold]{task.description}"),
+            TextColumn("[bold]{task.description}", table_column=Column(no_wrap=False, overflow="fold")),
             BarColumn(bar_width=20),
-            TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
-            TextColumn("{task.fields[info]}"),
+            TextColumn("{task.completed:.1f}/{task.total:.1f} s sim", table_column=Column(no_wrap=True)),
+            TextColumn("{task.fields[info]}", table_column=wrap),
             TimeElapsedColumn(),
             disable=not progress,
             console=_console(stderr=True),

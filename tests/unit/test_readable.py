@@ -64,3 +64,12 @@ def test_several_seeds_make_one_row_of_spreads_and_the_table_says_so():
     assert cell["closest to an obstacle surface [m]"] == "0.115 [0.109, 0.121]"
     assert cell["all reached goal"] == "2/3"
     assert any("mean [min, max]" in line for line in legend)
+
+
+def test_every_figure_a_table_prints_has_its_meaning():
+    from swarm.offline.metrics import SUMMARY_KEYS
+    from swarm.runs.compare import COLUMNS
+
+    printed = [*SUMMARY_KEYS, *(k for k, _ in COLUMNS if k not in ("world", "filter"))]
+    printed += ["reached_goal", "time_to_goal_s", "path_length_m", "min_row_h", "infeasible_ticks", "monitor"]
+    assert [k for k in printed if k not in MEANINGS] == []

@@ -105,6 +105,9 @@ class StepResult:
     sd: tuple[float, float] = (0.0, 0.0)  # the published state's position [m] and velocity [m/s] deviations
     verdict: Verdict = CLEAR  # the safety monitor's at this step
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
+    # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
+    # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
+    ahead_s: float = 0.0
 
     @property
     def intervention(self) -> float:
@@ -146,6 +149,7 @@ class AgentStep:
         monitor: MonitorParams | None = None,
         fixed_sd: tuple[float, float] = (0.0, 0.0),
         offset_sd_m: float = 0.0,
+        publish_ahead: bool = False,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -164,7 +168,10 @@ class AgentStep:
         (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries.
         ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
         markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
-        estimator sees: added in quadrature to the estimate's position deviation."""
+        estimator sees: added in quadrature to the estimate's position deviation.
+        ``publish_ahead``: with a lead, the state it publishes is the one it filters, predicted for
+        when its command acts (it knows the commands in flight; its neighbours do not), so their rows
+        of it are a lead younger (docs/design.md, "Delay")."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -178,6 +185,7 @@ class AgentStep:
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
         self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
         self.offset_sd_m = float(offset_sd_m)
+        self.publish_ahead = publish_ahead and lead_s > 0.0
         self.live = estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
@@ -226,12 +234,13 @@ class AgentStep:
         if monitor is not None:
             from swarm.config import FailureSettings as _Failure
 
-            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
+            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure(), control_hz)
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
+        fc = filter_config_for(agent, still, level, route, realism, control_hz)
         return cls(
             QuadModel(agent.quad_params()),
-            filter_config_for(agent, still, level, route, realism),
+            fc,
             PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,
@@ -246,6 +255,7 @@ class AgentStep:
             monitor=mon,
             fixed_sd=fixed_sd,
             offset_sd_m=offset_sd,
+            publish_ahead=fc.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -349,9 +359,13 @@ class AgentStep:
             u, status = u_ref, FilterStatus.OK
         if not self.arrived:
             self.arrived = math.dist(now.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
-        pub_x, pub_v = (
-            (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
-        )
+        sd_pub = sensed.sd_now
+        if self.publish_ahead:
+            pub_x, pub_v, sd_pub = x_b, v_b, (sensed.sd_m, sensed.sd_now[1])
+        elif now is state:
+            pub_x, pub_v = x_b, v_b
+        else:
+            pub_x, pub_v = body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
@@ -372,9 +386,10 @@ class AgentStep:
             min_h=self.min_h,
             infeasible_ticks=self.infeasible,
             est=sensed.est,
-            sd=sensed.sd_now,
+            sd=sd_pub,
             verdict=verdict,
             live_margin_m=live_m,
+            ahead_s=self.lead_s if self.publish_ahead else 0.0,
         )
 
     def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:

@@ -119,7 +119,7 @@ def agent_key(fig: Any, ax: Any, agents: list[str], colours: dict[str, Any], ext
     sm = ScalarMappable(cmap=ListedColormap([colours[a] for a in agents]))
     sm.set_array(np.arange(len(agents)))
     sm.set_clim(-0.5, len(agents) - 0.5)
-    bar = fig.colorbar(sm, ax=ax, pad=0.02, fraction=0.04)
+    bar = fig.colorbar(sm, ax=ax, pad=0.12 if ax.name == "3d" else 0.02, fraction=0.04)  # (clear of a z label)
     step = max(1, len(agents) // 16)
     bar.set_ticks(np.arange(0, len(agents), step))
     bar.set_ticklabels([agents[i] for i in range(0, len(agents), step)], fontsize=7)

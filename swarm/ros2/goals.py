@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from swarm.control import PathTracker
+from swarm.landing import landing_height_m
 from swarm.model import CommandLevel
 from swarm.net import transport as tp
 from swarm.net.access import ROS2_BRIDGE
@@ -63,8 +64,7 @@ def course(
 def landing_goal(me: AgentConfig, x_w: FloatArray) -> FloatArray:
     """Where a simulated drone at ``x_w`` lands to: straight below, at the lowest height its
     filter keeps (``filter.floor_z_m``; 0.05 m with the floor off)."""
-    floor = me.filter.floor_z_m if me.filter.enabled and me.filter.floor_z_m is not None else 0.05
-    return np.array([x_w[0], x_w[1], max(floor, 0.05)])
+    return np.array([x_w[0], x_w[1], landing_height_m(me)])
 
 
 class GoalInbox:

@@ -66,8 +66,7 @@ from typing import Any
 import numpy as np
 
 from swarm.config import ScenarioConfig, resolve
-from swarm.model import QuadModel
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import (
     SwapSettings,
     circle_swap,
@@ -174,18 +173,7 @@ def points(quick: bool, seeds: int) -> Iterator[Point]:
 
 
 def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=cfg.seed,
-    )
+    log = fly_scenario(cfg)
     err = log.estimate_error_m
     o = outcome(cfg, log)
     free = free_times(cfg)

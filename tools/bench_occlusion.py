@@ -25,27 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import ScenarioConfig, load
-from swarm.model import QuadModel
-from swarm.offline.closed_loop import SwarmLog, outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import SwarmLog, fly_scenario, outcome
 from swarm.safety.monitor import Action
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _fly(cfg: ScenarioConfig, seed: int, occlusions: list[tuple[int, float, float]]) -> SwarmLog:
-    agents, obs = scenario_swarm(cfg)
-    return simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=seed,
-        occlusions=occlusions,
-    )
+    return fly_scenario(cfg.model_copy(update={"seed": seed}), occlusions)
 
 
 def converging_s(log: SwarmLog) -> float:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
+from swarm.build import agent_neighbour_table, agent_step
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays
 from swarm.model import QuadState, body_centre
@@ -141,13 +142,6 @@ class RealDrone:
         self.link.close()
 
 
-def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> AgentStep:
-    return AgentStep.of_agent(
-        cfg.agent(agent_id), still, cfg.goal_tolerance_m,
-        realism=cfg.world.realism, control_hz=cfg.time.control_hz, monitor=cfg.monitor, failure=cfg.failure,
-    )  # fmt: skip
-
-
 def _warm_up(step: AgentStep, source: NeighbourSource, agent_id: str, start_w: FloatArray) -> None:
     """The first tick loads numba's compiled code and pays every other first-call cost
     (about a second): pay it now, before the world can see this agent, so that no real
@@ -165,8 +159,13 @@ def warm_kernels(cfg: ScenarioConfig) -> None:
     forks find every compiled kernel loaded (or compiled, on a cold cache)."""
     sim = next((a.id for a in cfg.agents if a.backend == "sim"), None)
     if sim is not None:
-        step = _step_of(cfg, sim, StaticObstacles.of(list(cfg.obstacles)))
-        _warm_up(step, pick(cfg, sim, "warm-up", tp.Counter()), sim, np.asarray(cfg.agent(sim).start))
+        step = agent_step(cfg, sim)
+        _warm_up(
+            step,
+            pick(cfg, sim, "warm-up", tp.Counter(), agent_neighbour_table(cfg, sim)),
+            sim,
+            np.asarray(cfg.agent(sim).start),
+        )
 
 
 class AgentProcess:
@@ -181,10 +180,10 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = _step_of(cfg, agent_id, self.still)
+        self.step = agent_step(cfg, agent_id, self.still)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
-        self.source = pick(cfg, agent_id, run, self.counter)
+        self.source = pick(cfg, agent_id, run, self.counter, agent_neighbour_table(cfg, agent_id))
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.real = me.backend == "crazyflie"  # measured by motion capture on its own key, not in the clock
         self.ticked = cfg.uses_ticks and not self.real  # measured by its own tick message, not the clock

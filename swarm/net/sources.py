@@ -39,7 +39,6 @@ from swarm.net.neighbours import (
 from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import neighbour_table
 
 
 def _keep_newest(by_tick: dict, n: int) -> None:
@@ -391,15 +390,14 @@ class CellSource(_NearSource):
             subs.remove(self.keys.cell(c))
 
 
-def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSource:
+def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter, table: NeighbourTable) -> NeighbourSource:
     """The source ``agent_id`` of the scenario ``cfg`` (:class:`swarm.config.ScenarioConfig`)
-    hears its neighbours from, chosen once by its ``neighbours`` settings."""
+    hears its neighbours from, chosen once by its ``neighbours`` settings, keeping them in
+    ``table`` (``swarm.build.agent_neighbour_table``)."""
     others = {a.id for a in cfg.agents} - {agent_id}
     if cfg.neighbours.source == "world":
         return RosterSource(others)
     realism = cfg.world.realism
-    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism)
-    table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say (a run's own agent gone wrong)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
     comms = None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)

@@ -1,4 +1,4 @@
-"""The world process: the physics (``swarm.world.stepper``) wired to Zenoh, measurements out,
+"""The world process: the physics (``swarm.sim.stepper``) wired to Zenoh, measurements out,
 commands in.
 
     swarm world CONFIG [--run RUN] [--port P] [--gui]
@@ -44,9 +44,9 @@ from swarm.rotation import quat_to_R
 from swarm.runs.ledger import timing_sketch
 from swarm.safety.monitor import Action
 from swarm.shutdown import StopFlag
+from swarm.sim.physics import DroneStates
+from swarm.sim.stepper import Stepper
 from swarm.world.mocap import BodyEstimate, MocapRelay, connect
-from swarm.world.physics import DroneStates
-from swarm.world.stepper import Stepper
 
 
 def _ms(s: float | None) -> float | None:

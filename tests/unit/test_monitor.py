@@ -15,11 +15,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.config import ConfigError, FailureSettings, MonitorSettings, resolve
+from swarm.config import ConfigError, FailureSettings, MonitorSettings, WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.net.neighbours import NeighbourTable
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import circle_swap
 from swarm.realism.sensing import MocapFrame
 from swarm.realism.settings import RealismSettings
@@ -456,9 +456,9 @@ def test_in_the_ideal_world_a_swap_flies_bit_for_bit_the_same_with_the_monitor_o
     raw = circle_swap(2, 1.0)
     raw["duration_s"] = 4.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    off = simulate_swarm(MODEL, agents, obs, cfg.duration_s, monitor=MonitorSettings(enabled=False))
-    on = simulate_swarm(MODEL, agents, obs, cfg.duration_s)
+    cfg = cfg.model_copy(update={"world": WorldSettings()})
+    off = fly_scenario(cfg.model_copy(update={"monitor": MonitorSettings(enabled=False)}))
+    on = fly_scenario(cfg)
     assert on.x_b_w.tobytes() == off.x_b_w.tobytes()
     for log in (on, off):
         assert log.live_margin_m is not None and not log.live_margin_m.any()
@@ -504,10 +504,10 @@ def test_a_circle_in_the_bad_day_breaches_slows_and_holds_and_collides_with_noth
     raw = circle_swap(4, 1.5)
     raw["duration_s"] = 8.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    simulate_swarm(MODEL, agents, obs, 0.05, realism=bad, seed=2)  # (the compiled kernels loaded: not timed)
+    cfg = cfg.model_copy(update={"world": WorldSettings(realism=bad), "seed": 2})
+    fly_scenario(cfg.model_copy(update={"duration_s": 0.05}))  # (the compiled kernels loaded: not timed)
     t0 = time.perf_counter()
-    log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0, realism=bad, seed=2)
+    log = fly_scenario(cfg)
     took = time.perf_counter() - t0
     assert took < 10.0, took  # about 2 s on an idle machine
     assert sum(log.breach_ticks.values()) > 0

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.config import resolve
+from swarm.config import WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.net import statewire
 from swarm.net.neighbours import HeardNeighbours, NeighbourTable
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import circle_swap
 from swarm.realism.comms import LOST, MessageKind
 from swarm.realism.sensing import MocapFrame
@@ -37,10 +37,8 @@ def _fly(realism: RealismSettings | None, seed: int = 0, n: int = 4):
     raw = circle_swap(n, 1.5)
     raw["duration_s"] = 6.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0,
-                         realism=realism, seed=seed)  # fmt: skip
-    return cfg, log
+    cfg = cfg.model_copy(update={"world": WorldSettings(realism=realism or RealismSettings()), "seed": seed})
+    return cfg, fly_scenario(cfg)
 
 
 def test_the_ideal_world_changes_nothing_bit_for_bit():
@@ -77,11 +75,10 @@ def test_a_drone_whose_thrust_is_off_its_model_flies_where_it_is_sent(offset):
     off = {**over, "sensing": {"estimator": {"disturbance_walk_mps2": 0.0, "initial_disturbance_std_mps2": 0.0}}}
     cfg = resolve({"version": 1, "name": "hold", "duration_s": 8.0,
                    "agents": [{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0]}]})  # fmt: skip
-    agents, obs = scenario_swarm(cfg)
     ends = []
     for realism in (over, off):
-        log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, goal_tolerance_m=0.01,
-                             realism=RealismSettings.model_validate(realism), seed=1)  # fmt: skip
+        world = WorldSettings(realism=RealismSettings.model_validate(realism))
+        log = fly_scenario(cfg.model_copy(update={"world": world, "goal_tolerance_m": 0.01, "seed": 1}))
         ends.append((log.time_to_goal_s[0], float(log.x_b_w[-1, 0, 2])))
     (reached, _), (never, z_off) = ends
     assert reached is not None and reached < 5.0

@@ -163,13 +163,12 @@ def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
 
 
 def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
-    from swarm.model import QuadModel
-    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+    from swarm.config import WorldSettings
+    from swarm.offline.closed_loop import fly_scenario, outcome
     from swarm.offline.scenario import SwapSettings, circle_swap
 
     cfg = resolve(circle_swap(2, 1.0, SwapSettings(duration_s=3.0)))
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0)
+    log = fly_scenario(cfg.model_copy(update={"world": WorldSettings()}))
     o = outcome(cfg, log)
     r = 2 * 0.07 + cfg.agents[0].filter.margin_m
     p = log.x_b_w[:, 1] - log.x_b_w[:, 0]

@@ -30,7 +30,7 @@ from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.realism.comms import DelayLine, MessageKind
 from swarm.realism.plant import Plant
 from swarm.realism.sensing import MocapFrame, MocapSensor
-from swarm.world.physics import DroneStates, PhysicsWorld
+from swarm.sim.physics import DroneStates, PhysicsWorld
 
 GROUND_IMPACT_MPS = 0.5
 """A drone touching the ground slower than this [m/s] stands, takes off or lands on it:

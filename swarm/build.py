@@ -8,12 +8,14 @@ benchmarks that fly it. The config is read here, once; the core gets its plain v
 
 from __future__ import annotations
 
-from swarm.config import ScenarioConfig
+from swarm.config import FailureSettings, ScenarioConfig
+from swarm.model import QuadParams
 from swarm.net.neighbours import NeighbourTable
 from swarm.net.statewire import Plausible
 from swarm.planning import StaticObstacles
+from swarm.realism.settings import RealismSettings
 from swarm.step import AgentStep
-from swarm.tuning import neighbour_table
+from swarm.tuning import NOISE_SIGMAS, prediction_bounds
 
 
 def agent_step(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles | None = None) -> AgentStep:
@@ -41,3 +43,16 @@ def agent_neighbour_table(cfg: ScenarioConfig, agent_id: str) -> NeighbourTable:
     table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), cfg.world.realism)
     table.limits = Plausible.of(cfg)
     return table
+
+
+def neighbour_table(failure: FailureSettings, params: QuadParams, realism: RealismSettings | None) -> NeighbourTable:
+    """The neighbour table of an agent flying an airframe like ``params``: its ``failure``
+    settings, the prediction bounds of ``realism`` (:func:`prediction_bounds`), and with
+    ``realism.sensing`` each row's velocity error :data:`NOISE_SIGMAS` times the deviation its
+    state carries where that exceeds the bound (the one builder of every shell: :func:`agent_neighbour_table`)."""
+    accel, vel_err = prediction_bounds(params, realism)
+    sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
+    f = failure
+    return NeighbourTable(
+        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas
+    )

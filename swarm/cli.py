@@ -312,8 +312,8 @@ def record(
 ) -> None:
     """Start the recorder alone."""
     _pin_cpu()
+    from swarm.ledger import Ledger
     from swarm.net import transport as tp
-    from swarm.runs.ledger import Ledger
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
@@ -352,7 +352,7 @@ def ros2_bridge(config: str, run_id: str | None, port: int | None, secrets: Path
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="default RUN_DIR/ros2_bag")
 def ros2_bag(run_dir: Path, out: Path | None) -> None:
     """Write a run as a ROS 2 bag (MCAP, ros2msg/cdr) that ros2 bag, Foxglove and rosbags open."""
-    from swarm.ros2.bag import write_bag
+    from swarm.runs.bag import write_bag
 
     try:
         path, n = write_bag(run_dir, out)

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from swarm.net.neighbours import NeighbourTable
 from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
 from swarm.route import Route, plans_round_walls
@@ -86,19 +85,6 @@ def prediction_bounds(params: QuadParams, realism: RealismSettings | None) -> tu
         s = realism.sensing
         vel = NOISE_SIGMAS * steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)[1]
     return max_accel_mps2(params), vel
-
-
-def neighbour_table(failure: FailureSettings, params: QuadParams, realism: RealismSettings | None) -> NeighbourTable:
-    """The neighbour table of an agent flying an airframe like ``params``: its ``failure``
-    settings, the prediction bounds of ``realism`` (:func:`prediction_bounds`), and with
-    ``realism.sensing`` each row's velocity error :data:`NOISE_SIGMAS` times the deviation its
-    state carries where that exceeds the bound (the one builder of every shell)."""
-    accel, vel_err = prediction_bounds(params, realism)
-    sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
-    f = failure
-    return NeighbourTable(
-        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas
-    )
 
 
 def monitor_params(

@@ -26,6 +26,7 @@ from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
 from swarm.build import agent_neighbour_table, agent_step
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays
+from swarm.ledger import timing_sketch
 from swarm.model import QuadState, body_centre
 from swarm.net import transport as tp
 from swarm.net.messages import (
@@ -43,7 +44,6 @@ from swarm.net.sources import CellSource, NeighbourSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
-from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles

@@ -249,7 +249,7 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         router = "client"
     ros2 = None
     if cfg.ros2.enabled:
-        from swarm.ros2.topics import ros2_keys
+        from swarm.net.ros2.topics import ros2_keys
 
         ros2 = ros2_keys(cfg.ros2.domain_id, cfg.ros2.namespace, list(acc.agent_ids))
     rules = access.acl(

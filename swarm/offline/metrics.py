@@ -57,11 +57,11 @@ import numpy as np
 
 from swarm.config import ScenarioConfig
 from swarm.geometry import items_to_arrays, min_pair_distance, surface_clearance
+from swarm.ledger import Ledger, sent_counts
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
-from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import ObstacleArrays
@@ -376,7 +376,7 @@ def compute(
     in file order, read once: a stream (:class:`swarm.runs.runfiles.RecordingStream`) keeps
     an hour's recording out of memory. The barrier figures are taken a tick at a time once
     the measurements are :data:`TICK_WINDOW` ticks past it. ``said``: each process's summary
-    line (:func:`swarm.runs.ledger.summaries`): what it sent, to find what the recording lacks
+    line (:func:`swarm.ledger.summaries`): what it sent, to find what the recording lacks
     at the end of a stream, and what it dropped from whom, to name the offenders."""
     ledger = Ledger.of(cfg)
     silence = Silence()

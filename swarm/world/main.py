@@ -37,11 +37,11 @@ from ddsketch import DDSketch
 
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.ledger import timing_sketch
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
 from swarm.net.messages import encode, frames_wire, warm_up
 from swarm.rotation import quat_to_R
-from swarm.runs.ledger import timing_sketch
 from swarm.safety.monitor import Action
 from swarm.shutdown import StopFlag
 from swarm.sim.physics import DroneStates

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarm.build import neighbour_table
 from swarm.config import ConfigError, FailureSettings, MonitorSettings, WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.model import CommandLevel, QuadModel, QuadState
@@ -35,7 +36,7 @@ from swarm.safety.monitor import (
 )
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep
-from swarm.tuning import NOISE_SIGMAS, design_std, live_margin_m, monitor_params, neighbour_table
+from swarm.tuning import NOISE_SIGMAS, design_std, live_margin_m, monitor_params
 
 pytestmark = pytest.mark.unit
 

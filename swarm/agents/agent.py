@@ -40,7 +40,7 @@ from swarm.net.messages import (
     warm_up,
 )
 from swarm.net.neighbours import roster_arrays
-from swarm.net.sources import CellSource, NeighbourSource, pick
+from swarm.net.sources import NeighbourSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
@@ -222,17 +222,14 @@ class AgentProcess:
             ],
         )
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-        self.pub_state = (
-            session.declare_publisher(keys.state(self.id))
-            if self.source.publishes_state and not isinstance(self.source, CellSource)
-            else None
-        )
-        self.cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
+        self.state_pubs: dict[str, Any] = {}  # key -> publisher of this agent's state there
         self.cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
-        if isinstance(self.source, CellSource):  # listen to the cells near the start before anyone sees this agent
-            start = np.asarray(cfg.agent(self.id).start, float)
-            start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)
-            self.source.follow(self.cell_subs, start_b[0])
+        start = np.asarray(cfg.agent(self.id).start, float)
+        start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)[0]
+        self.source.follow(self.cell_subs, start_b)  # (cells: listen near the start before anyone sees this agent)
+        first = self.source.state_key(start_b)
+        if first is not None:
+            self.state_pubs[first] = session.declare_publisher(first)
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
         self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
         self.startup_cpu_s = time.process_time()
@@ -453,21 +450,19 @@ class AgentProcess:
             self.plan.land()
 
     def publish(self, msg: Message, result: StepResult) -> None:
-        """This agent's state (by cell, or on its own key) and then its command."""
-        keys, run, source = self.keys, self.run_id, self.source
+        """This agent's state (on the key its source gives: its own, or its cell's) and then its command."""
+        run, source = self.run_id, self.source
         if source.publishes_state:
             self.seq += 1
             body = StateBody(result.x_b_w, result.v_b_w, self.radius_m, result.solo, result.sd)
             state = encode_state(run, self.id, self.seq, msg.t, msg.k, body)
-            if isinstance(source, CellSource):
-                cell = source.cell_of(result.x_b_w)
-                pub = self.cell_pubs.get(cell)
+            key = source.state_key(result.x_b_w)
+            if key is not None:
+                pub = self.state_pubs.get(key)
                 if pub is None:
-                    pub = self.cell_pubs[cell] = self.session.declare_publisher(keys.cell_state(cell, self.id))
+                    pub = self.state_pubs[key] = self.session.declare_publisher(key)
                 pub.put(state)
-                source.follow(self.cell_subs, result.x_b_w)
-            elif self.pub_state is not None:
-                self.pub_state.put(state)
+            source.follow(self.cell_subs, result.x_b_w)
         self.seq += 1
         self.pub_cmd.put(
             encode_command(run, self.id, self.seq, msg.t, msg.k, command_body(result), self.counter.dropped)

@@ -504,7 +504,7 @@ class MocapSettings(_Strict):
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
 MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each is a Zenoh subscriber
-AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
+AGENTS_PER_CPU = 32  # limits.max_agents' default, per CPU of the machine (what has run: docs/benchmarks.md)
 
 
 MonitorAction = Literal["warn", "slow", "hold", "land"]

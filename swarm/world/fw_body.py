@@ -15,7 +15,7 @@
 * **Rigid body.** The project's equations (``swarm.model``: ``m v' = -m g e3 + T R e3``,
   ``J Omega' = tau - Omega x J Omega``, ``q' = q (x) (0, Omega) / 2``), integrated by the
   same RK4 as :func:`swarm.model.step_rk4`, compiled, because the firmware wants a step
-  every millisecond (the numpy step takes about 0.5 ms on this machine).
+  every millisecond (a numpy step takes half of that: docs/benchmarks.md).
 * **Ground.** A flat floor at z = 0: a body on it whose thrust cannot lift it rests there,
   level at its yaw, at rest.
 * **IMU.** The accelerometer measures the specific force (acceleration minus gravity) in

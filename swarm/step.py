@@ -67,6 +67,30 @@ the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an es
 wrong cannot tip the drone over."""
 
 
+class Sensing(NamedTuple):
+    """How an agent knows its own state (:class:`AgentStep`'s ``sensing``). ``estimator``: it acts
+    on its estimate from motion-capture frames (``world.realism.sensing``), never on the state it
+    is given. ``lead_s`` [s]: its command acts this much later (``swarm.tuning.command_lead_s``),
+    so it filters its state predicted to then (the estimate, or the given state moved by its last
+    command) against rows the caller gives at the same time. ``observer``: a real drone's
+    estimator of its disturbance alone, from the states it is given (it acts on them), run on the
+    ticks the caller says it is airborne. ``fixed_sd``: without an estimator, the position [m] and
+    velocity [m/s] deviations its states have (a real drone's motion capture in a world with
+    sensing; 0: exact). ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset
+    of the drone's markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``),
+    which no estimator sees: added in quadrature to the estimate's position deviation."""
+
+    estimator: Estimator | None = None
+    lead_s: float = 0.0
+    observer: EstimatorParams | None = None
+    fixed_sd: tuple[float, float] = (0.0, 0.0)
+    offset_sd_m: float = 0.0
+
+
+EXACT = Sensing()
+"""An agent that acts on the exact state it is given, at once."""
+
+
 class _Sensed(NamedTuple):
     """What the sense stage of a step found."""
 
@@ -140,31 +164,17 @@ class AgentStep:
         yaw_rad: float = 0.0,
         goal_tolerance_m: float = 0.15,
         landing: bool = False,
-        estimator: Estimator | None = None,
-        lead_s: float = 0.0,
-        observer: EstimatorParams | None = None,
+        sensing: Sensing = EXACT,
         monitor: MonitorParams | None = None,
-        fixed_sd: tuple[float, float] = (0.0, 0.0),
-        offset_sd_m: float = 0.0,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
         ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
         ``landing`` also builds the filter a real drone lands with (its floor off);
-        ``estimator``: the agent acts on its estimate from motion-capture frames
-        (``world.realism.sensing``), never on the state it is given; ``lead_s`` [s]: its command
-        acts this much later (``swarm.tuning.command_lead_s``), so it filters its state predicted
-        to then (the estimate, or the given state moved by its last command) against rows the
-        caller gives at the same time. ``observer``: a real drone's estimator of its disturbance
-        alone, from the states it is given (it acts on them), run on the ticks the caller says it
-        is airborne. ``monitor``: the safety monitor's parameters (None: no monitor).
-        ``fixed_sd``: without an estimator, the position [m] and velocity [m/s] deviations its
-        states have (a real drone's motion capture in a world with sensing; 0: exact). With an
-        estimator or a deviation every row grows by the live noise margin
-        (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries.
-        ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
-        markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
-        estimator sees: added in quadrature to the estimate's position deviation."""
+        ``sensing``: how it knows its own state (:class:`Sensing`: its estimator, command lead,
+        observer and deviations); with an estimator or a deviation every row grows by the live
+        noise margin (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the
+        row's state carries. ``monitor``: the safety monitor's parameters (None: no monitor)."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -172,13 +182,13 @@ class AgentStep:
         self.filt = SafetyFilter(model, config)
         self.filt_land = SafetyFilter(model, replace(config, floor_z_m=None)) if landing else None
         self.att = AttitudeController(model)
-        self.estimator = estimator
-        self.lead_s = lead_s
-        self.observer = observer
+        self.estimator = sensing.estimator
+        self.lead_s = sensing.lead_s
+        self.observer = sensing.observer
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
-        self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
-        self.offset_sd_m = float(offset_sd_m)
-        self.live = estimator is not None or self.fixed_sd[0] > 0.0
+        self.fixed_sd = (float(sensing.fixed_sd[0]), float(sensing.fixed_sd[1]))
+        self.offset_sd_m = float(sensing.offset_sd_m)
+        self.live = self.estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
         self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included) (no estimator)
@@ -240,12 +250,8 @@ class AgentStep:
             yaw_rad=agent.yaw_rad,
             goal_tolerance_m=goal_tolerance_m,
             landing=agent.backend == "crazyflie",
-            estimator=estimator,
-            lead_s=lead_s,
-            observer=observer,
+            sensing=Sensing(estimator, lead_s, observer, fixed_sd, offset_sd),
             monitor=mon,
-            fixed_sd=fixed_sd,
-            offset_sd_m=offset_sd,
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:

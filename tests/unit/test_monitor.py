@@ -35,7 +35,7 @@ from swarm.safety.monitor import (
     SafetyMonitor,
 )
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.step import AgentStep
+from swarm.step import AgentStep, Sensing
 from swarm.tuning import NOISE_SIGMAS, design_std, live_margin_m, monitor_params
 
 pytestmark = pytest.mark.unit
@@ -322,7 +322,7 @@ def test_the_live_margin_is_three_sigma_of_own_and_rows_deviations_in_quadrature
 def _hover_step(monitor: MonitorParams, start: np.ndarray, floor_z_m: float | None = None) -> AgentStep:
     """A step holding ``start`` with the lab's estimator (its own frames from :func:`_frame`)."""
     return AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE, floor_z_m=floor_z_m), PathTracker([start], 0.5),
-                     estimator=LAB.estimator(start, LEVEL_Q), monitor=monitor)  # fmt: skip
+                     sensing=Sensing(LAB.estimator(start, LEVEL_Q)), monitor=monitor)  # fmt: skip
 
 
 def _frame(k: int, t: float, at: np.ndarray, rng: np.random.Generator) -> MocapFrame:
@@ -409,7 +409,7 @@ def test_a_neighbours_carried_deviation_widens_its_row_by_the_live_margin():
     results, rows = [], []
     for neighbours in (carried, exact):
         step = AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE), PathTracker([start, [2.0, 0.0, 1.0]], 0.8),
-                         fixed_sd=own)  # fmt: skip
+                         sensing=Sensing(fixed_sd=own))  # fmt: skip
         seen = _spy(step)
         results.append(step(0.0, QuadState.hover(start), PILLAR, neighbours))
         rows.append(seen[-1])

@@ -26,7 +26,7 @@ from swarm.realism.sensing import MocapFrame
 from swarm.realism.settings import RealismSettings
 from swarm.safety.filter import FilterConfig
 from swarm.safety.obstacles import NamedObstacles
-from swarm.step import AgentStep
+from swarm.step import AgentStep, Sensing
 
 pytestmark = pytest.mark.unit
 
@@ -150,7 +150,7 @@ def test_an_agent_with_an_estimator_acts_on_its_estimate_not_on_the_state_it_is_
     lab = RealismSettings.model_validate("crazyflie_lab")
     start = np.array([0.0, 0.0, 1.0])
     step = AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE), PathTracker([start, [2.0, 0.0, 1.0]], 0.8),
-                     estimator=lab.estimator(start, np.array([0.0, 0.0, 0.0, 1.0])))  # fmt: skip
+                     sensing=Sensing(lab.estimator(start, np.array([0.0, 0.0, 0.0, 1.0]))))  # fmt: skip
     far = QuadState.hover([50.0, -50.0, 9.0])  # what it is handed: never read
     none = NamedObstacles.none()
     for k in range(20):  # frames at 100 Hz of a drone at rest at its start, 10 ms late
@@ -252,7 +252,8 @@ def test_a_command_that_acts_a_tick_late_is_filtered_for_then():
     assert command_lead_s(late, 100.0) == pytest.approx(0.03)  # 12 + 10 ms: 3 ticks
     start = np.array([0.0, 0.0, 1.0])
     cfg = FilterConfig(level=CommandLevel.ATTITUDE)
-    steps = [AgentStep(MODEL, cfg, PathTracker([start, [2.0, 0.0, 1.0]], 0.8), lead_s=lead) for lead in (0.0, 0.05)]
+    goal = [2.0, 0.0, 1.0]
+    steps = [AgentStep(MODEL, cfg, PathTracker([start, goal], 0.8), sensing=Sensing(lead_s=s)) for s in (0.0, 0.05)]
     state = QuadState(start.copy(), np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))
     none = NamedObstacles.none()
     first = [s(0.0, state, none, none) for s in steps]

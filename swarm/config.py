@@ -213,7 +213,7 @@ class CrazyflieSettings(_Strict):
     on_agent_loss: Literal["estop", "watchdog"] = "estop"
     # from the end of the take-off on, the agent estimates the acceleration its drone has beyond its
     # commands (a thrust map off the motors, a sagging battery, a mass off the model) from the
-    # motion capture and takes it off its thrust (swarm.step.real_drone_estimator); false: it does not
+    # motion capture and takes it off its thrust (swarm.build.real_drone_estimator); false: it does not
     disturbance_estimate: bool = True
 
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)

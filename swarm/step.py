@@ -1,8 +1,8 @@
-"""One agent's control step, the same in every shell (the agent process, ``simulate_swarm``,
+"""One agent's control step, the same in every shell (the agent process, ``fly_scenario``,
 ``simulate``): built once from the agent's settings, then called once per control tick
 with what the agent knows at that tick (docs/design.md, "The control step").
 
-    step = AgentStep.of_agent(agent_cfg, StaticObstacles.of(cfg.obstacles), cfg.goal_tolerance_m)
+    step = swarm.build.agent_step(cfg, agent_id)          # as every shell builds it
     result = step(t_s, state, obstacles, neighbours)       # -> StepResult
 
 A call: the state acted on (the estimate, with its deviation and age) and its body centre; every
@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,32 +33,15 @@ from swarm.control import (
     setpoint_vector,
 )
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
-from swarm.planning import StaticObstacles
 from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
-from swarm.route import Route, corner_cut_m, follows, path_for
+from swarm.route import Route, follows
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import command_lead_s, design_std, filter_config_for, live_margin_m, monitor_params
-
-if TYPE_CHECKING:
-    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
-    from swarm.realism.settings import RealismSettings
-
+from swarm.tuning import live_margin_m
 
 _NO_ESTIMATE = np.zeros(0)
-
-
-def real_drone_estimator() -> EstimatorParams:
-    """What a real Crazyflie's agent estimates its disturbance with (the acceleration its drone has
-    beyond its command: a thrust map off the drone's motors, a sagging battery, a mass off the
-    model): the ``crazyflie_lab`` preset's estimator (its sources are cited there) on the states
-    the world relays from the real motion capture, taken as measured at the tick's time (latency 0)."""
-    from swarm.realism.settings import RealismSettings
-
-    lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()
-    return replace(lab, latency_s=0.0)
 
 
 MAX_DISTURBANCE_FRACTION = 0.3
@@ -148,8 +131,8 @@ class StepResult:
 
 class AgentStep:
     """One agent's control step; holds what persists between ticks (its path tracker and
-    route, the filter's QP workspace, the running tallies). Build with :meth:`of_agent` from a
-    config, or from its parts (``simulate``, tests)."""
+    route, the filter's QP workspace, the running tallies). Built from a scenario's agent by
+    ``swarm.build.agent_step`` (every shell), or from its parts (``simulate``, tests)."""
 
     def __init__(
         self,
@@ -197,62 +180,6 @@ class AgentStep:
         self.infeasible = 0
         self.arrived = False
         self.solo = not filtered
-
-    @classmethod
-    def of_agent(
-        cls,
-        agent: AgentConfig,
-        still: StaticObstacles,
-        goal_tolerance_m: float,
-        level: CommandLevel | None = None,
-        realism: RealismSettings | None = None,
-        control_hz: float | None = None,
-        monitor: MonitorSettings | None = None,
-        failure: FailureSettings | None = None,
-    ) -> AgentStep:
-        """The step of a configured agent among the static obstacles ``still``: its path
-        planned round the walls (``swarm.route.path_for``), its filter tuned for that path
-        (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
-        ``realism.sensing`` a simulated drone's estimator, starting at its start with its start velocity (a real
-        drone acts on the states the world relays from the real motion capture, whose deviations
-        are taken as the design's, ``swarm.tuning.design_std``); with
-        ``control_hz`` its command's lead in that world; with ``monitor`` (and the scenario's
-        ``failure`` settings) its safety monitor."""
-        level = agent.command_level if level is None else level
-        lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
-        path_w, route = path_for(agent, still)
-        estimator = None
-        observer = None
-        if agent.crazyflie is not None and agent.crazyflie.disturbance_estimate:
-            observer = real_drone_estimator()
-        if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
-            half = 0.5 * agent.yaw_rad
-            estimator = realism.estimator(
-                np.asarray(agent.start, float),
-                np.array([0.0, 0.0, math.sin(half), math.cos(half)]),
-                v0_w=np.asarray(agent.start_velocity, float),
-            )
-        mon = None
-        if monitor is not None:
-            from swarm.config import FailureSettings as _Failure
-
-            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
-        fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
-        offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
-        return cls(
-            QuadModel(agent.quad_params()),
-            filter_config_for(agent, still, level, route, realism),
-            PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
-            goal_w=np.asarray(agent.final_goal, dtype=float),
-            route=route,
-            tiebreak=agent.tiebreak.pair,
-            filtered=agent.filter.enabled,
-            yaw_rad=agent.yaw_rad,
-            goal_tolerance_m=goal_tolerance_m,
-            landing=agent.backend == "crazyflie",
-            sensing=Sensing(estimator, lead_s, observer, fixed_sd, offset_sd),
-            monitor=mon,
-        )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
         """Fly a new course from this tick on (a goal from ROS 2): to ``goal_w`` [m, world] along

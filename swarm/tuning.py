@@ -6,18 +6,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
-from swarm.route import Route, plans_round_walls
+from swarm.route import Route
 from swarm.safety.monitor import Action, Breach, MonitorParams
 
 if TYPE_CHECKING:
-    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
-    from swarm.model import CommandLevel, QuadParams
+    from swarm.config import FailureSettings, MonitorSettings
+    from swarm.model import QuadParams
     from swarm.realism.settings import RealismSettings
     from swarm.safety.filter import FilterConfig
 
@@ -142,21 +141,30 @@ than the inputs give, by an amount that falls as ``1 / tau`` (the measurements: 
 section 4, "Among walls")."""
 
 
-def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float | None:
-    """The time horizon [s] of the agent's obstacle rows' horizon allowance: its
-    ``filter.obstacle_horizon_s``, else, when it plans round walls, its
-    ``planner.obstacle_horizon_s`` times ``max(1, u / (g`` :data:`HORIZON_SPEED_PER_GAIN_M` ``))``
-    for target speed ``u`` [m/s] and gain ``g`` [1/s] (3 s at 0.8 m/s and gamma 2, 6 s at
-    gamma 1), else None (the rows then keep ``filter.horizon_s``). On a planned path the path
-    takes the agent round the walls; the far pillars' cones along a corridor or a doorway's
-    line of sight would otherwise hold its velocity to a slit between them, where the velocity
-    buffer asks it to speed up (docs/design.md, "Reference paths")."""
-    if agent.filter.obstacle_horizon_s is not None:
-        return agent.filter.obstacle_horizon_s
-    tau = agent.planner.obstacle_horizon_s
-    if tau is None or not plans_round_walls(agent, obstacles):
+class HorizonSpec(NamedTuple):
+    """What :func:`obstacle_horizon_s` takes of an agent, as plain values
+    (``swarm.build.horizon_spec`` reads them off its config)."""
+
+    filter_s: float | None  # s: its filter's own obstacle horizon (filter.obstacle_horizon_s), or None
+    planner_s: float | None  # s: its planner's (planner.obstacle_horizon_s), or None
+    speed_mps: float  # m/s: its target speed
+    gamma: float  # 1/s: its filter's class-K gain
+
+
+def obstacle_horizon_s(spec: HorizonSpec, plans_round_walls: bool) -> float | None:
+    """The time horizon [s] of the agent's obstacle rows' horizon allowance: its filter's
+    (``spec.filter_s``), else, when it ``plans_round_walls`` (``swarm.route.plans_round_walls``),
+    its planner's times ``max(1, u / (g`` :data:`HORIZON_SPEED_PER_GAIN_M` ``))`` for target speed
+    ``u`` [m/s] and gain ``g`` [1/s] (3 s at 0.8 m/s and gamma 2, 6 s at gamma 1), else None (the
+    rows then keep ``filter.horizon_s``). On a planned path the path takes the agent round the
+    walls; the far pillars' cones along a corridor or a doorway's line of sight would otherwise
+    hold its velocity to a slit between them, where the velocity buffer asks it to speed up
+    (docs/design.md, "Reference paths")."""
+    if spec.filter_s is not None:
+        return spec.filter_s
+    if spec.planner_s is None or not plans_round_walls:
         return None
-    return tau * max(1.0, agent.speed_mps / (HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma))
+    return spec.planner_s * max(1.0, spec.speed_mps / (HORIZON_SPEED_PER_GAIN_M * spec.gamma))
 
 
 LANE_CONTACT_S = 0.75
@@ -165,22 +173,16 @@ lane: an agent of the other flow, passing in the next lane, is a few degrees out
 while far; a neighbour more than this from contact relaxes its radius instead of turning it."""
 
 
-def filter_config_for(
-    agent: AgentConfig,
-    obstacles: StaticObstacles,
-    level: CommandLevel,
-    route: Route | None = None,
-    realism: RealismSettings | None = None,  # (unused: the noise margin is live)
-) -> FilterConfig:
-    """The agent's filter settings at command ``level`` among the static ``obstacles``: its
-    configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
-    flying a lane (:func:`swarm.planning.keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
-    and no velocity buffer: a lane runs a few centimetres beyond the safety radius from a wall
-    and from the other flow's lane, on purpose, and the buffer asks every row for about 0.1 m/s
-    of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths").
-    The estimates' noise is not in the margin: each row grows by it live (:func:`live_margin_m`,
-    ``swarm.step``)."""
-    cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
+def filter_config_for(base: FilterConfig, obstacle_horizon: float | None, route: Route | None = None) -> FilterConfig:
+    """The agent's filter settings: its configured ones ``base`` (at its command level), with its
+    obstacle horizon ``obstacle_horizon`` [s] (:func:`obstacle_horizon_s`); with ``route`` (from
+    ``swarm.route.path_for``) flying a lane (:func:`swarm.planning.keep_right`), a contact horizon
+    of at least :data:`LANE_CONTACT_S` and no velocity buffer: a lane runs a few centimetres beyond
+    the safety radius from a wall and from the other flow's lane, on purpose, and the buffer asks
+    every row for about 0.1 m/s of velocity margin, which pushes drones off their lanes
+    (docs/design.md, "Reference paths"). The estimates' noise is not in the margin: each row grows
+    by it live (:func:`live_margin_m`, ``swarm.step``)."""
+    cfg = replace(base, obstacle_horizon_s=obstacle_horizon)
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
     return cfg

@@ -1,6 +1,6 @@
 """Imperfections one at a time: how far can each go before the swarm touches?
 
-Each point flies a scene in one process (``swarm.offline.closed_loop.simulate_swarm``, the same
+Each point flies a scene in one process (``swarm.offline.closed_loop.fly_scenario``, the same
 control step, plant, motion capture, links and safety monitor as the world and agent processes)
 with ONE imperfection of ``world.realism`` raised from zero and everything else ideal, under
 C3BF and HO-CBF, and prints one JSON line. The imperfections and their levels:

@@ -1,7 +1,7 @@
 """One drone occluded as the swarm converges: is the swarm still safe?
 
 Flies ``configs/circle_8.yaml`` (8 drones swapping across a circle, ``world.realism:
-crazyflie_lab``) in the in-process closed loop (``swarm.offline.closed_loop.simulate_swarm``, the
+crazyflie_lab``) in the in-process closed loop (``swarm.offline.closed_loop.fly_scenario``, the
 agents' own control step, estimator and safety monitor), once per seed without a failure to find
 when the swarm converges (the tick its closest pair is closest), then again with one drone's
 motion capture gone for ``--gap-s`` seconds ending ``--after-s`` after that moment

@@ -12,7 +12,7 @@ names, and in lockstep says how many messages that tick still waits for.
 
 The last three hold a :class:`swarm.net.neighbours.NeighbourTable` and, in lockstep, use
 exactly the states of tick k-1 (bundles and cells: of the neighbours the world names near
-the agent with tick k). Taking states and building rows is pure (``simulate_swarm`` feeds a
+the agent with tick k). Taking states and building rows is pure (``fly_scenario`` feeds a
 :class:`BundleSource` directly); :meth:`hear` decodes what the transport brings.
 """
 

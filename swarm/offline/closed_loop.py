@@ -122,7 +122,7 @@ class _Plant:
 
 @dataclass
 class SwarmLog:
-    """What :func:`simulate_swarm` measured. Distances between body centres."""
+    """What :func:`fly_scenario` measured. Distances between body centres."""
 
     t_s: FloatArray  # (T,) s
     x_b_w: FloatArray  # (T, N, 3) m, world: body centres
@@ -307,7 +307,7 @@ def _accel_w(step: AgentStep, res: StepResult, R: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True)
 class SwarmOutcome:
-    """How a :func:`simulate_swarm` run went, by the runtime's metric definitions."""
+    """How a :func:`fly_scenario` run went, by the runtime's metric definitions."""
 
     collisions: int  # contacts: agent pairs whose airframes touched, plus agent-obstacle contacts
     margin_violations: int  # pairs and agent-obstacles ever closer than the safety radius (body radii + margin)

@@ -2,7 +2,7 @@
 
 :func:`course` is pure: the path, route, tracker and filter settings an agent flies from
 where it is to a new goal, built exactly as the agent builds them for its configured goal
-at the start (``swarm.route.path_for``: planned round the walls when it plans round
+at the start (``swarm.build.path_of``: planned round the walls when it plans round
 walls, straight otherwise). :class:`GoalInbox` is the agent process's side: the bridge's
 goal messages (``swarm/<run>/ros2/goal/<id>`` and ``.../ros2/all``), queued by Zenoh and
 taken once per tick, the newest first (no Python runs per message, nothing wakes the agent).
@@ -14,15 +14,15 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from swarm.build import filter_of, path_of
 from swarm.control import PathTracker
 from swarm.model import CommandLevel
 from swarm.net import transport as tp
 from swarm.net.access import ROS2_BRIDGE
 from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
-from swarm.route import Route, corner_cut_m, path_for
+from swarm.route import Route, corner_cut_m
 from swarm.safety.filter import FilterConfig
-from swarm.tuning import filter_config_for
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig
@@ -46,11 +46,9 @@ def course(
     now = me.model_copy(
         update={"start": [float(v) for v in x_w], "goal": [float(v) for v in goal_w], "waypoints": None}
     )
-    path_w, route = path_for(now, obstacles)
+    path_w, route = path_of(now, obstacles)
     tracker = PathTracker(path_w, me.speed_mps, cut_m=corner_cut_m(route))
-    return Course(
-        np.asarray(goal_w, dtype=float), path_w, route, tracker, filter_config_for(now, obstacles, level, route)
-    )
+    return Course(np.asarray(goal_w, dtype=float), path_w, route, tracker, filter_of(now, obstacles, level, route))
 
 
 def landing_goal(me: AgentConfig, x_w: FloatArray) -> FloatArray:

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarm.build import filter_of, obstacle_horizon_of, path_of
 from swarm.config import WorldSettings, resolve
 from swarm.control import PathTracker, reference_thrust
 from swarm.model import CommandLevel, QuadModel, QuadState
@@ -21,7 +22,6 @@ from swarm.planning import LANE_MARGIN_M, PlannerSettings, StaticObstacles, clea
 from swarm.route import Route, corner_cut_m
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
-from swarm.tuning import obstacle_horizon_s
 
 from .helpers import planned
 
@@ -375,26 +375,26 @@ def test_a_drone_stopped_behind_in_the_passage_does_not_turn_the_flow_back():
 
 def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_then():
     from swarm.offline.scenario import circle_swap
-    from swarm.tuning import HORIZON_SPEED_PER_GAIN_M, filter_config_for, obstacle_horizon_s
+    from swarm.tuning import HORIZON_SPEED_PER_GAIN_M
 
     walled = resolve(corridor(1))
     still = StaticObstacles.of(list(walled.obstacles))
     a = walled.agents[0]
-    assert obstacle_horizon_s(a, still) == a.planner.obstacle_horizon_s == 3.0
-    assert filter_config_for(a, still, CommandLevel.ATTITUDE).obstacle_horizon_s == 3.0
+    assert obstacle_horizon_of(a, still) == a.planner.obstacle_horizon_s == 3.0
+    assert filter_of(a, still, CommandLevel.ATTITUDE).obstacle_horizon_s == 3.0
     for off in ({"obstacle_horizon_s": None}, {"kind": "none"}):
-        assert obstacle_horizon_s(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
+        assert obstacle_horizon_of(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
     mine = a.model_copy(update={"filter": a.filter.model_copy(update={"obstacle_horizon_s": 5.0})})
-    assert obstacle_horizon_s(mine, still) == 5.0  # the filter's own setting wins
+    assert obstacle_horizon_of(mine, still) == 5.0  # the filter's own setting wins
     paper = a.model_copy(update={"filter": a.filter.model_copy(update={"gamma": 1.0})})  # 0.8 m/s at gain 1
     assert a.speed_mps / a.filter.gamma <= HORIZON_SPEED_PER_GAIN_M < paper.speed_mps / paper.filter.gamma
-    assert obstacle_horizon_s(paper, still) == pytest.approx(6.0)  # stretched by speed / gain over 0.4 m
+    assert obstacle_horizon_of(paper, still) == pytest.approx(6.0)  # stretched by speed / gain over 0.4 m
     slow = paper.model_copy(update={"speed_mps": 0.3})
-    assert obstacle_horizon_s(slow, still) == 3.0  # within 0.4 m: as written, never shortened
-    assert obstacle_horizon_s(paper.model_copy(update={"speed_mps": 1.2}), still) == pytest.approx(9.0)
+    assert obstacle_horizon_of(slow, still) == 3.0  # within 0.4 m: as written, never shortened
+    assert obstacle_horizon_of(paper.model_copy(update={"speed_mps": 1.2}), still) == pytest.approx(9.0)
     open_space = resolve(circle_swap(4))
-    assert obstacle_horizon_s(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
-    assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
+    assert obstacle_horizon_of(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
+    assert filter_of(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
         0
     ].filter.filter_config(CommandLevel.ATTITUDE)
 
@@ -416,7 +416,7 @@ def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home(
     agents = planned(cfg)
     still = StaticObstacles.of(list(cfg.obstacles))
     assert all(a.config.obstacle_horizon_s == pytest.approx(6.0) for a in agents)
-    assert obstacle_horizon_s(cfg.agents[0], still) == pytest.approx(6.0)
+    assert obstacle_horizon_of(cfg.agents[0], still) == pytest.approx(6.0)
     # in the world the config says (swarm scenario writes the lab's), as its margins are sized for
     log = fly_scenario(cfg)
     o = outcome(cfg, log)
@@ -521,27 +521,27 @@ def test_lanes_are_for_long_passages_wide_enough_and_can_be_turned_off():
 
 
 def test_a_lane_flying_agent_gets_the_lane_contact_horizon_and_no_buffer_and_only_it():
-    from swarm.route import follows, path_for
-    from swarm.tuning import LANE_CONTACT_S, filter_config_for
+    from swarm.route import follows
+    from swarm.tuning import LANE_CONTACT_S
 
     cfg = resolve(corridor(1))
     still = StaticObstacles.of(list(cfg.obstacles))
     a = cfg.agents[0]
-    _, route = path_for(a, still)
+    _, route = path_of(a, still)
     assert route is not None and route.lanes and follows(route)
     assert not follows(None)
-    lane = filter_config_for(a, still, CommandLevel.ATTITUDE, route)
+    lane = filter_of(a, still, CommandLevel.ATTITUDE, route)
     assert lane.contact_s == LANE_CONTACT_S and lane.buffer_mps == 0.0
-    plain = filter_config_for(a, still, CommandLevel.ATTITUDE)
+    plain = filter_of(a, still, CommandLevel.ATTITUDE)
     assert plain.contact_s == a.filter.contact_s == 0.0 and plain.buffer_mps == a.filter.buffer_mps > 0
     longer = a.model_copy(update={"filter": a.filter.model_copy(update={"contact_s": 2.0})})
-    assert filter_config_for(longer, still, CommandLevel.ATTITUDE, route).contact_s == 2.0  # a longer one kept
+    assert filter_of(longer, still, CommandLevel.ATTITUDE, route).contact_s == 2.0  # a longer one kept
     raw = corridor(1)
     raw["defaults"]["planner"] = {"lanes": False}
     off = resolve(raw)
-    _, in_turn = path_for(off.agents[0], still)
+    _, in_turn = path_of(off.agents[0], still)
     assert not follows(in_turn)  # the tie-break turns from every agent ahead, as in the open
-    turn = filter_config_for(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
+    turn = filter_of(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
     assert turn.contact_s == 0.0 and turn.buffer_mps == a.filter.buffer_mps
 
 

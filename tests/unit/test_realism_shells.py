@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from swarm.build import step_of
 from swarm.config import WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.errors import ConfigError
@@ -94,10 +95,10 @@ def test_only_a_simulated_drone_acts_on_an_estimate_from_the_worlds_frames():
     mixed = Path(__file__).parents[2] / "configs" / "mixed_sitl.yaml"
     cfg = load(mixed, {"world": {"realism": "crazyflie_lab"}, "neighbours": {"source": "agents"}})
     still = StaticObstacles.of(list(cfg.obstacles))
-    kinds = {a.backend: AgentStep.of_agent(a, still, cfg.goal_tolerance_m, realism=cfg.world.realism).estimator
+    kinds = {a.backend: step_of(a, still, cfg.goal_tolerance_m, realism=cfg.world.realism).estimator
              for a in cfg.agents}  # fmt: skip
     assert kinds["sim"] is not None and kinds["crazyflie"] is None
-    observers = {a.backend: AgentStep.of_agent(a, still, cfg.goal_tolerance_m).observer for a in cfg.agents}
+    observers = {a.backend: step_of(a, still, cfg.goal_tolerance_m).observer for a in cfg.agents}
     assert observers["sim"] is None and observers["crazyflie"] is not None  # (its disturbance alone)
 
 
@@ -113,7 +114,7 @@ def _real_hold(offset: float, estimate: bool, takeoff_s: float = 0.0, seconds: f
                    "time": {"mode": "realtime"},
                    "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0],
                                "crazyflie": real}]})  # fmt: skip
-    step = AgentStep.of_agent(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=100.0)
+    step = step_of(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=100.0)
     p = step.model.params
     x, v, q = np.array([0.0, 0.0, 1.0]), np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
     hold = PathTracker([x.copy(), [1.0, 0.0, 1.0]], 0.5)

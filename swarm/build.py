@@ -11,6 +11,7 @@ the control step get plain values (``swarm.route.PathSpec``, ``swarm.tuning.Hori
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -30,8 +31,11 @@ from swarm.step import AgentStep, Sensing
 from swarm.tuning import (
     NOISE_SIGMAS,
     HorizonSpec,
+    agreed_accel_mps2,
     command_lead_s,
+    delay_speed_mps,
     design_std,
+    expected_ages,
     filter_config_for,
     monitor_params,
     obstacle_horizon_s,
@@ -72,7 +76,10 @@ def step_of(
     velocity (a real drone acts on the states the world relays from the real motion capture, whose
     deviations are taken as the design's, ``swarm.tuning.design_std``), and a real drone's
     disturbance observer where it asks for one; with ``control_hz`` its command's lead in that
-    world; with ``monitor`` (and the scenario's ``failure`` settings) its safety monitor."""
+    world, and where the swarm's delay contract binds there (``swarm.tuning.agreed_accel_mps2``) its
+    command within the agreed acceleration, its cruise speed within what its neighbours may not
+    yet know of (:func:`cruise_speed_mps`) and its published state the one predicted for when its
+    command acts; with ``monitor`` (and the scenario's ``failure`` settings) its safety monitor."""
     level = agent.command_level if level is None else level
     lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
     path_w, route = path_of(agent, still)
@@ -87,13 +94,17 @@ def step_of(
             np.array([0.0, 0.0, math.sin(half), math.cos(half)]),
             v0_w=np.asarray(agent.start_velocity, float),
         )
-    mon = None if monitor is None else monitor_params(monitor, realism, failure or FailureSettings())
     fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
     offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
+    fc = filter_of(agent, still, level, route, realism, control_hz)
+    ahead = lead_s if fc.accel_limit_mps2 is not None else 0.0  # (the swarm's delay contract binds)
+    mon = None
+    if monitor is not None:
+        mon = monitor_params(monitor, realism, failure or FailureSettings(), control_hz, neighbours_ahead_s=ahead)
     return AgentStep(
         QuadModel(agent.quad_params()),
-        filter_of(agent, still, level, route),
-        PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
+        fc,
+        PathTracker(path_w, cruise_speed_mps(agent, realism, control_hz), cut_m=corner_cut_m(route)),
         goal_w=np.asarray(agent.final_goal, dtype=float),
         route=route,
         tiebreak=agent.tiebreak.pair,
@@ -101,7 +112,7 @@ def step_of(
         yaw_rad=agent.yaw_rad,
         goal_tolerance_m=goal_tolerance_m,
         landing=agent.backend == "crazyflie",
-        sensing=Sensing(estimator, lead_s, observer, fixed_sd, offset_sd),
+        sensing=Sensing(estimator, lead_s, observer, fixed_sd, offset_sd, publish_ahead=ahead > 0.0),
         monitor=mon,
     )
 
@@ -143,30 +154,78 @@ def obstacle_horizon_of(agent: AgentConfig, still: StaticObstacles) -> float | N
 
 
 def filter_of(
-    agent: AgentConfig, still: StaticObstacles, level: CommandLevel, route: Route | None = None
+    agent: AgentConfig,
+    still: StaticObstacles,
+    level: CommandLevel,
+    route: Route | None = None,
+    realism: RealismSettings | None = None,
+    control_hz: float | None = None,
 ) -> FilterConfig:
-    """``agent``'s filter settings at command ``level`` among ``still`` on ``route``
-    (``swarm.tuning.filter_config_for``)."""
-    return filter_config_for(agent.filter.filter_config(level), obstacle_horizon_of(agent, still), route)
+    """``agent``'s filter settings at command ``level`` among ``still`` on ``route``, in the world
+    ``realism`` ticking at ``control_hz`` (``swarm.tuning.filter_config_for``, with its agreed
+    acceleration, :func:`agent_accel_mps2`)."""
+    base = agent.filter.filter_config(level)
+    return filter_config_for(
+        base, obstacle_horizon_of(agent, still), route, agent_accel_mps2(agent, realism, control_hz)
+    )
+
+
+def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float | None:
+    """The agreed acceleration (``swarm.tuning.agreed_accel_mps2``) of ``agent``'s airframe and
+    filter settings."""
+    return agreed_accel_mps2(agent.quad_params(), realism, control_hz, agent.filter.delay_growth_m)
+
+
+def cruise_speed_mps(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float:
+    """The speed [m/s] ``agent`` cruises at (``swarm.tuning.delay_speed_mps``): its ``speed_mps``,
+    held within what its neighbours may not yet know of where the swarm's delay contract binds
+    (an attitude-level agent with an agreed acceleration)."""
+    a = agent_accel_mps2(agent, realism, control_hz) if agent.command_level is CommandLevel.ATTITUDE else None
+    return delay_speed_mps(agent.speed_mps, a, realism, control_hz)
+
+
+def swarm_accel_mps2(
+    agents: Sequence[AgentConfig], realism: RealismSettings | None, control_hz: float | None
+) -> float | None:
+    """The acceleration [m/s^2] an agent's neighbour rows may assume of every other agent of
+    ``agents``: the largest of their agreed bounds (:func:`agent_accel_mps2`), or None (the
+    airframe's) where any one of them keeps none (it flies the rotor level, or has
+    ``filter.delay_growth_m`` null)."""
+    bounds = [
+        agent_accel_mps2(a, realism, control_hz) if a.command_level is CommandLevel.ATTITUDE else None for a in agents
+    ]
+    return None if not bounds or any(b is None for b in bounds) else max(b for b in bounds if b is not None)
 
 
 def agent_neighbour_table(cfg: ScenarioConfig, agent_id: str) -> NeighbourTable:
     """The neighbour table of agent ``agent_id`` of ``cfg``: the scenario's failure settings,
     the prediction bounds of its airframe in ``world.realism`` (:func:`neighbour_table`) and the
     run's plausibility limits on what a neighbour's state may say (``swarm.net.statewire.Plausible``)."""
-    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), cfg.world.realism)
+    realism, hz = cfg.world.realism, cfg.time.control_hz
+    accel = swarm_accel_mps2(cfg.agents, realism, hz)
+    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism, hz, accel)
     table.limits = Plausible.of(cfg)
     return table
 
 
-def neighbour_table(failure: FailureSettings, params: QuadParams, realism: RealismSettings | None) -> NeighbourTable:
-    """The neighbour table of an agent flying an airframe like ``params``: its ``failure``
-    settings, the prediction bounds of ``realism`` (``swarm.tuning.prediction_bounds``), and with
-    ``realism.sensing`` each row's velocity error ``NOISE_SIGMAS`` times the deviation its state
-    carries where that exceeds the bound (:func:`agent_neighbour_table` adds the run's limits)."""
+def neighbour_table(
+    failure: FailureSettings,
+    params: QuadParams,
+    realism: RealismSettings | None,
+    control_hz: float | None = None,
+    accel_mps2: float | None = None,
+) -> NeighbourTable:
+    """The neighbour table of an agent flying an airframe like ``params`` at ``control_hz``
+    [Hz]: its ``failure`` settings, with the timeout counted beyond the rows' expected age
+    (``swarm.tuning.expected_ages``: a known delay is predicted through, not a loss); the
+    prediction bounds of ``realism`` (``swarm.tuning.prediction_bounds``), the acceleration the
+    swarm agreed (``accel_mps2``, :func:`swarm_accel_mps2`) in place of the airframe's where given;
+    and with ``realism.sensing`` each row's velocity error ``NOISE_SIGMAS`` times the deviation its
+    state carries where that exceeds the bound (:func:`agent_neighbour_table` adds the run's limits)."""
     accel, vel_err = prediction_bounds(params, realism)
+    if accel_mps2 is not None:
+        accel = min(accel, accel_mps2)
     sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
     f = failure
-    return NeighbourTable(
-        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas
-    )
+    timeout = f.neighbour_timeout_s + expected_ages(realism, control_hz).neighbour_s
+    return NeighbourTable(timeout, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas)

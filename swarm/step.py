@@ -61,13 +61,17 @@ class Sensing(NamedTuple):
     velocity [m/s] deviations its states have (a real drone's motion capture in a world with
     sensing; 0: exact). ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset
     of the drone's markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``),
-    which no estimator sees: added in quadrature to the estimate's position deviation."""
+    which no estimator sees: added in quadrature to the estimate's position deviation.
+    ``publish_ahead``: with a lead, the state it publishes is the one it filters, predicted for
+    when its command acts (it knows the commands in flight; its neighbours do not), so their rows
+    of it are a lead younger (docs/design.md, "Delay")."""
 
     estimator: Estimator | None = None
     lead_s: float = 0.0
     observer: EstimatorParams | None = None
     fixed_sd: tuple[float, float] = (0.0, 0.0)
     offset_sd_m: float = 0.0
+    publish_ahead: bool = False
 
 
 EXACT = Sensing()
@@ -112,6 +116,9 @@ class StepResult:
     sd: tuple[float, float] = (0.0, 0.0)  # the published state's position [m] and velocity [m/s] deviations
     verdict: Verdict = CLEAR  # the safety monitor's at this step
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
+    # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
+    # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
+    ahead_s: float = 0.0
 
     @property
     def intervention(self) -> float:
@@ -155,9 +162,10 @@ class AgentStep:
         ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
         ``landing`` also builds the filter a real drone lands with (its floor off);
         ``sensing``: how it knows its own state (:class:`Sensing`: its estimator, command lead,
-        observer and deviations); with an estimator or a deviation every row grows by the live
-        noise margin (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the
-        row's state carries. ``monitor``: the safety monitor's parameters (None: no monitor)."""
+        observer, deviations and whether it publishes its state ahead); with an estimator or a
+        deviation every row grows by the live noise margin (``swarm.tuning.live_margin_m``) of the
+        agent's deviation now and the one the row's state carries. ``monitor``: the safety
+        monitor's parameters (None: no monitor)."""
         self.model, self.config, self.level = model, config, config.level
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
@@ -171,6 +179,7 @@ class AgentStep:
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
         self.fixed_sd = (float(sensing.fixed_sd[0]), float(sensing.fixed_sd[1]))
         self.offset_sd_m = float(sensing.offset_sd_m)
+        self.publish_ahead = sensing.publish_ahead and self.lead_s > 0.0
         self.live = self.estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
@@ -282,9 +291,13 @@ class AgentStep:
             u, status = u_ref, FilterStatus.OK
         if not self.arrived:
             self.arrived = math.dist(now.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
-        pub_x, pub_v = (
-            (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
-        )
+        sd_pub = sensed.sd_now
+        if self.publish_ahead:
+            pub_x, pub_v, sd_pub = x_b, v_b, (sensed.sd_m, sensed.sd_now[1])
+        elif now is state:
+            pub_x, pub_v = x_b, v_b
+        else:
+            pub_x, pub_v = body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
@@ -305,9 +318,10 @@ class AgentStep:
             min_h=self.min_h,
             infeasible_ticks=self.infeasible,
             est=sensed.est,
-            sd=sensed.sd_now,
+            sd=sd_pub,
             verdict=verdict,
             live_margin_m=live_m,
+            ahead_s=self.lead_s if self.publish_ahead else 0.0,
         )
 
     def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:
@@ -374,7 +388,8 @@ class AgentStep:
         if len(nb):  # (the neighbours in range only where some reading could breach)
             top_sd = float(nb_sd_m.max()) if self.live else 0.0
             top_age = 0.0 if nb_age_s is None else float(nb_age_s.max())
-            if top_sd > p.std_envelope_m or top_age > p.neighbour_age_s:
+            nb_env = p.std_envelope_m if p.neighbour_std_envelope_m is None else p.neighbour_std_envelope_m
+            if top_sd > nb_env or top_age > p.neighbour_age_s:
                 d = nb.c_w - x_b_w
                 near = np.einsum("ij,ij->i", d, d) <= self.config.sensing_radius_m**2
                 if near.any():

@@ -245,7 +245,9 @@ def fly_scenario(cfg: ScenarioConfig, occlusions: Sequence[tuple[int, float, flo
         for i, res in enumerate(results):  # this tick's states, which the next tick uses
             for j in range(n):
                 if j != i:
-                    heard[j].take(names[i], t, k, res.x_b_w, res.v_b_w, radius[i], res.solo, bundled=True, sd=res.sd)
+                    heard[j].take(
+                        names[i], t + res.ahead_s, k, res.x_b_w, res.v_b_w, radius[i], res.solo, bundled=True, sd=res.sd
+                    )
         for i, res in enumerate(results):
             world.send(names[i], res.command, t, k)
         for j in range(cfg.time.substeps):

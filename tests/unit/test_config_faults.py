@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 import subprocess
 import sys
 import time
@@ -42,7 +43,10 @@ def test_swarm_run_refuses_each_bad_file_with_exit_2_fast_and_starts_nothing(tmp
         slowest = max(slowest, took)
         assert p.returncode == 2, (case, p.returncode, p.stderr[-2000:])
         lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-        assert lines == [lines[0]] and lines[0].startswith(f"config error: {path}: "), (case, p.stderr)
+        assert lines == [lines[0]] and re.match(rf"config error: {re.escape(str(path))}(:\d+)?: ", lines[0]), (
+            case,
+            p.stderr,
+        )  # the file, and the line where the key is written
         assert needle in lines[0], (case, lines[0])
         assert "Traceback" not in p.stderr
         assert not out.exists(), f"{case}: a run folder was made"

@@ -218,7 +218,7 @@ class CrazyflieSettings(_Strict):
     on_agent_loss: Literal["estop", "watchdog"] = "estop"
     # from the end of the take-off on, the agent estimates the acceleration its drone has beyond its
     # commands (a thrust map off the motors, a sagging battery, a mass off the model) from the
-    # motion capture and takes it off its thrust (swarm.step.real_drone_estimator); false: it does not
+    # motion capture and takes it off its thrust (swarm.build.real_drone_estimator); false: it does not
     disturbance_estimate: bool = True
 
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
@@ -509,7 +509,7 @@ class MocapSettings(_Strict):
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
 MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each is a Zenoh subscriber
-AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
+AGENTS_PER_CPU = 32  # limits.max_agents' default, per CPU of the machine (what has run: docs/benchmarks.md)
 
 
 MonitorAction = Literal["warn", "slow", "hold", "land"]

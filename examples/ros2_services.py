@@ -22,9 +22,9 @@ import numpy as np
 import zenoh_ros2_sdk as sdk
 
 from swarm.config import load
-from swarm.ros2.interfaces import message_definition
+from swarm.net.ros2.interfaces import message_definition
+from swarm.net.ros2.services import EMPTY_RESPONSE, REQUESTS
 from swarm.ros2.participant import ENV_FILE, read_env
-from swarm.ros2.services import EMPTY_RESPONSE, REQUESTS
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "ros2_lab.yaml"
 SQUARE = [[-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0]]  # m, world

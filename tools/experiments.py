@@ -552,7 +552,7 @@ def _sweep_table(path: Path) -> str:
             "yes" if r["success"] == "1" else "no",
             f"{r['collisions']} / {r.get('margin_violations') or '-'}",
             num(r["min_clearance_m"], ".3f"),
-            num(r["time_to_goal_s"], ".2f"),
+            num(r.get("mean_time_to_goal_s", r.get("time_to_goal_s", "")), ".2f"),  # (older results: time_to_goal_s)
             num(r["max_path_deviation_m"], ".2f"),
             r["infeasible_ticks"],
         ]

@@ -23,10 +23,14 @@ from typing import Any
 import numpy as np
 
 from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
+from swarm.agents.orders import OrderInbox
+from swarm.build import agent_neighbour_table, agent_step
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays
+from swarm.ledger import timing_sketch
 from swarm.model import QuadState, body_centre
 from swarm.net import transport as tp
+from swarm.net.access import LAUNCHER
 from swarm.net.messages import (
     CommandBody,
     Message,
@@ -38,15 +42,13 @@ from swarm.net.messages import (
     warm_up,
 )
 from swarm.net.neighbours import roster_arrays
-from swarm.net.sources import CellSource, NeighbourSource, pick
+from swarm.net.sources import NeighbourSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
-from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles
-from swarm.script.inbox import OrderInbox
 from swarm.shutdown import StopFlag
 from swarm.step import AgentStep, StepResult
 
@@ -142,13 +144,6 @@ class RealDrone:
         self.link.close()
 
 
-def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> AgentStep:
-    return AgentStep.of_agent(
-        cfg.agent(agent_id), still, cfg.goal_tolerance_m,
-        realism=cfg.world.realism, control_hz=cfg.time.control_hz, monitor=cfg.monitor, failure=cfg.failure,
-    )  # fmt: skip
-
-
 def _warm_up(step: AgentStep, source: NeighbourSource, agent_id: str, start_w: FloatArray) -> None:
     """The first tick loads numba's compiled code and pays every other first-call cost
     (about a second): pay it now, before the world can see this agent, so that no real
@@ -166,8 +161,13 @@ def warm_kernels(cfg: ScenarioConfig) -> None:
     forks find every compiled kernel loaded (or compiled, on a cold cache)."""
     sim = next((a.id for a in cfg.agents if a.backend == "sim"), None)
     if sim is not None:
-        step = _step_of(cfg, sim, StaticObstacles.of(list(cfg.obstacles)))
-        _warm_up(step, pick(cfg, sim, "warm-up", tp.Counter()), sim, np.asarray(cfg.agent(sim).start))
+        step = agent_step(cfg, sim)
+        _warm_up(
+            step,
+            pick(cfg, sim, "warm-up", tp.Counter(), agent_neighbour_table(cfg, sim)),
+            sim,
+            np.asarray(cfg.agent(sim).start),
+        )
 
 
 class AgentProcess:
@@ -182,10 +182,10 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = _step_of(cfg, agent_id, self.still)
+        self.step = agent_step(cfg, agent_id, self.still)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
-        self.source = pick(cfg, agent_id, run, self.counter)
+        self.source = pick(cfg, agent_id, run, self.counter, agent_neighbour_table(cfg, agent_id))
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.real = me.backend == "crazyflie"  # measured by motion capture on its own key, not in the clock
         self.ticked = cfg.uses_ticks and not self.real  # measured by its own tick message, not the clock
@@ -207,6 +207,8 @@ class AgentProcess:
         self.last_tick_s = 0.0  # wall time [s] the last tick took
         self.tick_budget_s = 1.0 / cfg.time.control_hz
         self.action = Action.NONE  # the safety monitor's action at the last tick
+        self.land_asked = False  # the launcher asked every drone to land (swarm.landing) ...
+        self.landing = False  # ... and this agent has turned to land
         _warm_up(self.step, self.source, agent_id, np.asarray(me.start, float))
         self.plan = FlightPlan(me) if self.real else None  # a real drone's phases (after the warm-up)
 
@@ -221,20 +223,18 @@ class AgentProcess:
                 self.tick_key if self.ticked else keys.clock,
                 *self.source.subscriptions(),
                 *([self.meas_key] if self.real else []),
+                keys.land,
             ],
         )
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-        self.pub_state = (
-            session.declare_publisher(keys.state(self.id))
-            if self.source.publishes_state and not isinstance(self.source, CellSource)
-            else None
-        )
-        self.cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
+        self.state_pubs: dict[str, Any] = {}  # key -> publisher of this agent's state there
         self.cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
-        if isinstance(self.source, CellSource):  # listen to the cells near the start before anyone sees this agent
-            start = np.asarray(cfg.agent(self.id).start, float)
-            start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)
-            self.source.follow(self.cell_subs, start_b[0])
+        start = np.asarray(cfg.agent(self.id).start, float)
+        start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)[0]
+        self.source.follow(self.cell_subs, start_b)  # (cells: listen near the start before anyone sees this agent)
+        first = self.source.state_key(start_b)
+        if first is not None:
+            self.state_pubs[first] = session.declare_publisher(first)
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
         self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
         self.orders = OrderInbox(session, cfg, self.id, self.run_id, self.counter) if self.id in cfg.steerable else None
@@ -309,6 +309,8 @@ class AgentProcess:
             self.on_tick(m)
         elif m.kind == "clock" and key == self.keys.clock:
             self.on_clock(m)
+        elif m.kind == "land" and key == self.keys.land and m.src == LAUNCHER:
+            self.land_asked = True
         else:
             self.counter.drop(f"unexpected {m.kind} on {key}")
 
@@ -458,21 +460,19 @@ class AgentProcess:
             self.plan.land()
 
     def publish(self, msg: Message, result: StepResult) -> None:
-        """This agent's state (by cell, or on its own key) and then its command."""
-        keys, run, source = self.keys, self.run_id, self.source
+        """This agent's state (on the key its source gives: its own, or its cell's) and then its command."""
+        run, source = self.run_id, self.source
         if source.publishes_state:
             self.seq += 1
             body = StateBody(result.x_b_w, result.v_b_w, self.radius_m, result.solo, result.sd)
             state = encode_state(run, self.id, self.seq, msg.t + result.ahead_s, msg.k, body)
-            if isinstance(source, CellSource):
-                cell = source.cell_of(result.x_b_w)
-                pub = self.cell_pubs.get(cell)
+            key = source.state_key(result.x_b_w)
+            if key is not None:
+                pub = self.state_pubs.get(key)
                 if pub is None:
-                    pub = self.cell_pubs[cell] = self.session.declare_publisher(keys.cell_state(cell, self.id))
+                    pub = self.state_pubs[key] = self.session.declare_publisher(key)
                 pub.put(state)
-                source.follow(self.cell_subs, result.x_b_w)
-            elif self.pub_state is not None:
-                self.pub_state.put(state)
+            source.follow(self.cell_subs, result.x_b_w)
         self.seq += 1
         self.pub_cmd.put(
             encode_command(run, self.id, self.seq, msg.t, msg.k, command_body(result), self.counter.dropped)
@@ -488,10 +488,14 @@ class AgentProcess:
             msg = self.next_message()
             if msg is None:
                 continue
-            if self.goals is not None:  # a goal, land or stop from ROS 2
+            if self.goals is not None and not self.landing:  # a goal, land or stop from ROS 2
                 self.goals.apply(self, msg["x"])
-            if self.orders is not None:  # a script's order
+            if self.orders is not None and not self.landing:  # a script's order
                 self.orders.apply(self, msg.t, msg.k, msg["x"])
+            if self.land_asked and not self.landing:  # the launcher's land request (Ctrl-C), latched
+                self.landing = True
+                print(f"agent {self.id}: landing at t={msg.t:.2f} s (the launcher asked)", file=sys.stderr)
+                self.land(msg["x"])
             t0 = time.perf_counter()
             result = self.act(msg)
             if result is None:

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from swarm.errors import SecretsError
 
 if TYPE_CHECKING:
-    from swarm.ros2.topics import Ros2Keys
+    from swarm.net.ros2.topics import Ros2Keys
 
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
 LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
@@ -98,7 +98,8 @@ def acl(
     the agents' states and liveliness tokens; in the process that ``flies_commands`` (the
     world, which accepts every agent's link) only agent ``X`` may publish under
     ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
-    any linked session may.
+    any linked session may. The launcher's land request (``land``: ``swarm.landing``) is
+    accepted from anyone linked, as the launcher's link may be one it accepted.
 
     ``router``: ``"router"`` for the run's router (``network.topology: router``) or a
     star's bundle relay, which accepts every link it has, so it knows every sender by its
@@ -107,7 +108,7 @@ def acl(
     router: it accepts everything of the run the router forwards.
 
     ``ros2`` (``ros2.enabled``, through the router only): the keys of the run's ROS 2 side
-    (``swarm.ros2.topics.ros2_keys``). Anyone linked may subscribe to the domain's data and
+    (``swarm.net.ros2.topics.ros2_keys``). Anyone linked may subscribe to the domain's data and
     liveliness; the router accepts from the bridge (``ros2-bridge``) the topics it
     publishes, its liveliness tokens and its goals for the agents (``ros2/**``), and from
     a ROS 2 participant (``ros2``) puts on exactly the goal, land and stop topics and
@@ -212,7 +213,7 @@ def acl(
             )
             policies.append({"rules": ["ros2-graph"], "subjects": [ROS2]})  # (subject ROS2: below)
     else:
-        shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*")]
+        shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*", "land")]
         if not flies_commands:
             shared.append(f"{root}/agent/*/command")
         rules.append(

@@ -25,14 +25,9 @@ from swarm.model import all_finite
 from swarm.net import statewire
 from swarm.realism.sensing import MocapFrame
 
-VERSION = 10  # 2: the clock carries the measurements and obstacles; the command the filter report
-# 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
-# 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
-# 6: the tick message (one agent's measurement, obstacles and near neighbours)
-# 7: the state as a fixed binary record, and the router's bundle of them (swarm.net.statewire)
-# 8: the tick names the agents the world has seen go ("gone")
-# 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
-# 10: the state carries its estimate's deviations; the command the monitor's verdict and the live margin
+VERSION = 10
+"""The schema version every message carries; a message of another is dropped and counted
+(what each version added: docs/design.md, "Processes and messages")."""
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -107,6 +102,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), by x ("goal_relative"),
     # climb to x[2] ("takeoff"), land, or hold ("stop"), in about duration seconds (0: at its own speed)
     "goal": {"action": "s", "x": 3, "duration": "f"},
+    # the launcher -> the world and every agent (key land): land every drone and end the run
+    # once they are down; why (e.g. "Ctrl-C")
+    "land": {"why": "s"},
     # a script -> an agent (swarm.script): takeoff (to height x[2] above where it is), goto x, land, stop
     "order": {"order": "i", "action": "s", "x": 3, "yaw": "f", "speed": "f"},
     # an agent -> the script and the record: its order taken (the goal it flies to), refused, or arrived
@@ -533,13 +531,14 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
-    "action": "goal or goto (fly to x), takeoff (climb to x's height), land or stop (hold where it is)",
+    "action": "goal or goto (fly to x), goal_relative (by x), takeoff (climb to x's height), land or stop "
+    "(hold where it is)",
     "order": "the script's number of the order",
     "duration": "how long the move should take [s] (0: at the drone's own speed_mps)",
     "yaw": "yaw asked [rad, world] (simulated drones hold their yaw: not flown)",
     "speed": "cruise speed asked [m/s] (0: the drone's own speed_mps)",
     "state": "taken (x: the goal flown to), refused (why), or arrived (within goal_tolerance_m of x)",
-    "why": "why the order was refused (empty otherwise)",
+    "why": "why the launcher asks every drone to land (e.g. Ctrl-C); why an order was refused (empty otherwise)",
     "reason": "why the script ended the run",
     "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
     "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",

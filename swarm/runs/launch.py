@@ -25,9 +25,10 @@ from secrets import token_hex
 from typing import Any
 
 from swarm.config import ScenarioConfig, dump
+from swarm.landing import LANDED
 from swarm.net import access
 from swarm.net import transport as tp
-from swarm.net.messages import DecodeError, decode
+from swarm.net.messages import DecodeError, decode, encode
 from swarm.runs import forkserver
 from swarm.runs.foxglove_layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
@@ -163,6 +164,7 @@ class RunHandle:
         self.result: dict[str, Any] = {}  # metrics.json as finish() wrote it
         self._session: Any = None
         self._status: Any = None  # the run's status channel (tp.open_channel), once started
+        self._land_seq = 0  # land requests sent (:meth:`land`)
 
     @classmethod
     def start(
@@ -175,10 +177,14 @@ class RunHandle:
         cancelled: Callable[[], bool] = lambda: False,
         secrets: Path | None = None,
         live_port: int | None = None,
+        stand_ins: dict[str, tuple[str, list[str]]] | None = None,
     ) -> RunHandle:
         """Start the recorder, the world and the first agent, wait for that agent's
         liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
         the other agents. An exception while starting stops what was started.
+        ``stand_ins``: agent id -> (a module, its extra arguments) run in that agent's place with
+        the agent's own arguments and credentials (an attack's rogue member of the run:
+        ``tools.rogue``).
 
         With ``network.access_control`` (the default) the run's credentials are in
         ``secrets`` (default ``out/secrets``; made there unless it already holds them,
@@ -236,7 +242,11 @@ class RunHandle:
             for i, a in enumerate(cfg.agents):
                 if cancelled():  # stopped while the first agent came up: start no more
                     break
-                h._spawn(f"agent-{a.id}", ["-m", "swarm.cli", "agent", *common, "--id", a.id], cpus.get(i))
+                module, extra = ("swarm.cli", ["agent"]), []
+                if stand_ins and a.id in stand_ins:
+                    module, extra = (stand_ins[a.id][0], []), stand_ins[a.id][1]
+                args = ["-m", module[0], *module[1], *common, "--id", a.id, *extra]
+                h._spawn(f"agent-{a.id}", args, cpus.get(i))
                 if i == 0:
                     h._wait_alive(a.id, cancelled)
         except BaseException:
@@ -451,10 +461,17 @@ class RunHandle:
             time.sleep(0.05)
         return False
 
+    def land(self, why: str) -> None:
+        """Ask the world and every agent to land every drone and end the run once they are
+        down (``swarm.landing``); the run then ends as :data:`swarm.landing.LANDED`. Asking
+        again repeats the request (each process takes the first)."""
+        self._land_seq += 1
+        self._session.put(tp.Keys(self.run).land, encode("land", self.run, "launcher", self._land_seq, 0.0, 0, why=why))
+
     def finish(self, reason: str) -> str:
-        """Let a completed run's processes end by themselves, stop the rest, and write
-        ``metrics.json`` from the recording."""
-        if reason == "completed":
+        """Let a completed (or landed) run's processes end by themselves, stop the rest, and
+        write ``metrics.json`` from the recording."""
+        if reason in ("completed", LANDED):
             self._wait_procs(["recorder"], 15.0)
             self._wait_procs([n for n in self.procs if n.startswith("agent-")], 5.0)
             if "sitl" in self.procs:  # the stand-ins end once their guards have handed each drone back
@@ -467,8 +484,8 @@ class RunHandle:
         return reason
 
     def ros2_bag(self) -> None:
-        """The run as a ROS 2 bag in ``ros2_bag/`` (``ros2.bag``; swarm.ros2.bag)."""
-        from swarm.ros2.bag import write_bag
+        """The run as a ROS 2 bag in ``ros2_bag/`` (``ros2.bag``; swarm.runs.bag)."""
+        from swarm.runs.bag import write_bag
 
         try:
             write_bag(self.out)

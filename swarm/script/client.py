@@ -11,7 +11,7 @@
 The client is a Zenoh session of the run's ``script`` user, linked to the run's router with
 the run's credentials (``<run>/secrets``, or a copy on another machine). It hears the world's
 clock (every simulated drone's measurement, each tick) and the real drones' motion capture,
-sends orders to the agents (``swarm.script.orders``) and hears their reports. It cannot fly
+sends orders to the agents (``swarm.agents.orders``) and hears their reports. It cannot fly
 anything itself: each order only moves the reference of a drone's agent, whose safety filter
 still decides every command, and the router refuses the ``script`` user everything but orders
 for the drones ``script.drones`` names, the run's end and its own liveliness.
@@ -36,13 +36,13 @@ from typing import Any, NamedTuple
 import numpy as np
 import zenoh
 
+from swarm.agents.orders import Action, check_point, cruise_speed, steerable
 from swarm.config import ScenarioConfig, load
 from swarm.errors import ArrivalTimeoutError, RefusedError, ScriptError
 from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.messages import CLOCK_MEAS, encode
 from swarm.rotation import FloatArray
-from swarm.script.orders import Action, check_point, cruise_speed, steerable
 
 RUN_FILE = "run.json"  # in a run folder: the run's id (swarm.runs.launch)
 POLL_S = 0.002  # wall time between looks at what arrived while waiting [s]

@@ -26,8 +26,8 @@ def scenario(file: str, **over: object) -> ScenarioConfig:
 def start_run(tmp_path: Path) -> Iterator:
     handles: list[RunHandle] = []
 
-    def start(cfg: ScenarioConfig, name: str = "run") -> RunHandle:
-        h = RunHandle.start(cfg, tmp_path / name)
+    def start(cfg: ScenarioConfig, name: str = "run", **kw: Any) -> RunHandle:
+        h = RunHandle.start(cfg, tmp_path / name, **kw)
         handles.append(h)
         return h
 
@@ -82,7 +82,7 @@ def cf2() -> Path:
     import os
     import shutil
 
-    from swarm.world.sitl_fw import CF2_ENV, find_cf2
+    from swarm.world.fw_process import CF2_ENV, find_cf2
 
     why = ""
     if os.environ.get(CF2_ENV):

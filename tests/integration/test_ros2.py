@@ -166,7 +166,7 @@ def _ros2_session(h, user: str) -> zenoh.Session:
 
 
 def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run, ros2_client):
-    from swarm.ros2.topics import Kind, run_topics
+    from swarm.net.ros2.topics import Kind, run_topics
 
     cfg = scenario("ros2_swap_2.yaml", duration_s=120.0, stop_when_all_reached=False, time={"mode": "lockstep"})
     h = start_run(cfg, "ros2_acl")
@@ -262,7 +262,7 @@ EMPTY = "uint8 structure_needs_at_least_one_member"
 
 
 def test_crazyswarm2s_services_take_off_fly_a_square_swap_and_land_the_swarm(start_run, ros2_client):
-    from swarm.ros2.services import SERVICE_HASHES
+    from swarm.net.ros2.services import SERVICE_HASHES
 
     cfg = scenario(
         "script_lab.yaml",

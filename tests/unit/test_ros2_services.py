@@ -1,4 +1,5 @@
-"""Crazyswarm2's services on the ROS 2 bridge without processes (swarm.ros2.services): the
+"""Crazyswarm2's services on the ROS 2 bridge without processes (swarm.net.ros2.services,
+swarm.ros2.services): the
 shipped type hashes against zenoh-ros2-sdk's computation (itself checked against rmw_zenoh's
 own example and a published std_srvs hash), the keys and tokens against rmw_zenoh's design
 examples and the sdk's builders, the requests' CDR and what each asks of the drones, the goal
@@ -14,21 +15,21 @@ import pytest
 from swarm.config import load
 from swarm.errors import DecodeError
 from swarm.net import access
-from swarm.ros2 import graph
-from swarm.ros2.goals import GOAL, GOAL_RELATIVE, LAND, TAKEOFF, goal_of, move_speed
-from swarm.ros2.services import (
+from swarm.net.ros2 import graph
+from swarm.net.ros2.services import (
     REQUESTS,
     SERVICE_HASHES,
     SERVICE_QOS,
     Srv,
-    ask_of,
     decode_request,
     empty_response,
     encode_request,
     register,
     run_services,
 )
-from swarm.ros2.topics import ros2_keys
+from swarm.net.ros2.topics import ros2_keys
+from swarm.ros2.goals import GOAL, GOAL_RELATIVE, LAND, TAKEOFF, goal_of, move_speed
+from swarm.ros2.services import ask_of
 from tests.integration.conftest import CONFIGS
 from tests.unit.test_ros2 import MSGS
 

@@ -1,4 +1,4 @@
-"""A script's orders (swarm.script.orders, pure): which a run takes, the goal and cruise speed
+"""A script's orders (swarm.agents.orders, pure): which a run takes, the goal and cruise speed
 a drone flies for each, and the config that enables them."""
 
 import math
@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
+from swarm.agents.orders import Action, Order, check_point, cruise_speed, steerable, taken
 from swarm.config import load
 from swarm.errors import ConfigError, RefusedError
-from swarm.script.orders import Action, Order, check_point, cruise_speed, steerable, taken
 from tests.integration.conftest import CONFIGS
 
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from swarm.ros2 import interfaces as ri
-from swarm.ros2.graph import fqn, qos_key, topic_key
+from swarm.net.ros2 import interfaces as ri
+from swarm.net.ros2.graph import fqn, qos_key, topic_key
 
 
 class Kind(StrEnum):
@@ -83,7 +83,7 @@ class Ros2Keys:
     (``swarm.net.access.acl``): ``bridge`` the keys the bridge publishes, ``inbound`` the
     keys a ROS 2 participant may publish, ``data`` and ``graph`` everything of the domain
     (subscribing) and its liveliness tokens, ``services`` the keys of the bridge's services
-    (``swarm.ros2.services``), which a ROS 2 participant may call."""
+    (``swarm.net.ros2.services``), which a ROS 2 participant may call."""
 
     bridge: tuple[str, ...]
     inbound: tuple[str, ...]
@@ -93,7 +93,7 @@ class Ros2Keys:
 
 
 def ros2_keys(domain_id: int, namespace: str, agent_ids: list[str]) -> Ros2Keys:
-    from swarm.ros2.services import run_services
+    from swarm.net.ros2.services import run_services
 
     ts = run_topics(namespace, agent_ids)
     return Ros2Keys(

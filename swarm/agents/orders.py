@@ -1,20 +1,32 @@
-"""A script's orders to a drone (pure): what each asks, whether a run takes it, and the goal
-and cruise speed a drone flies for it.
+"""A script's orders to a drone: what each asks, whether a run takes it, the goal and cruise
+speed a drone flies for it (pure), and the agent's side of them (:class:`OrderInbox`).
 
-Both ends check an order: the client before it sends one (a :class:`swarm.errors.RefusedError`
-naming what is wrong), the agent again when it takes one (a refusal in its report). What
-the agent then flies still passes its safety filter: an order only moves the reference.
+Both ends check an order: the client (``swarm.script``) before it sends one (a
+:class:`swarm.errors.RefusedError` naming what is wrong), the agent again when it takes one (a
+refusal in its report). What the agent then flies still passes its safety filter: an order only
+moves the reference.
+
+Orders arrive on ``swarm/<run>/script/order/<id>``, which the run's router accepts from the
+``script`` user alone, and only for the drones ``script.drones`` names. Each tick the agent
+takes the newest (a malformed one, or one not from a script, is dropped and counted), checks
+it again (:func:`taken`), retargets its step at its measured position and reports on
+``swarm/<run>/agent/<id>/report``: ``taken`` with the goal it flies to, or ``refused`` with why;
+then ``arrived`` once it is within ``goal_tolerance_m`` of that goal. The reports are recorded,
+so ``metrics.json`` lists every order's arrival.
 """
 
 from __future__ import annotations
 
 import math
 from enum import StrEnum
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from swarm.errors import RefusedError
+from swarm.net import access
+from swarm.net import transport as tp
+from swarm.net.messages import encode
 from swarm.rotation import FloatArray
 
 if TYPE_CHECKING:
@@ -117,3 +129,70 @@ def taken(cfg: ScenarioConfig, drone: str, order: Order, x_w: FloatArray) -> Tak
     if order.action is Action.LAND:
         return Taken(landing_goal(me, here), speed)
     return Taken(here.copy(), 0.0)
+
+
+class OrderInbox:
+    """One agent's orders and reports. :meth:`apply` before its step, :meth:`after` with the
+    step's result."""
+
+    def __init__(self, session: Any, cfg: ScenarioConfig, agent_id: str, run: str, counter: tp.Counter) -> None:
+        keys = tp.Keys(run)
+        self.cfg, self.id, self.run, self.counter = cfg, agent_id, run, counter
+        self.sub = tp.open_channel(session, keys.order(agent_id), 64)
+        self.pub = session.declare_publisher(keys.report(agent_id))
+        self.seq = 0  # (its own sequence: the commands' is the ledger's)
+        self.current: tuple[int, str, FloatArray] | None = None  # the order flown: number, action, goal
+        self.reported_arrival = True
+
+    def newest(self) -> Order | None:
+        newest = None
+        for s in tp.drain(self.sub):
+            m = tp.decode_sample(s, self.run, self.counter, ("order",))
+            if m is None:
+                continue
+            if m.src != access.SCRIPT or m["action"] not in tuple(Action):
+                self.counter.drop("order: not from a script, or no such action")
+                continue
+            if newest is None or m["order"] > newest.order:
+                newest = Order(int(m["order"]), Action(m["action"]), m["x"], float(m["yaw"]), float(m["speed"]))
+        return newest
+
+    def report(self, t_s: float, k: int, order: int, action: str, x_w: Any, state: str, why: str = "") -> None:
+        self.seq += 1
+        body = encode(
+            "report", self.run, self.id, self.seq, t_s, k, order=order, action=action, x=x_w, state=state, why=why
+        )
+        self.pub.put(body)
+
+    def apply(self, agent: Any, t_s: float, k: int, x_w: FloatArray) -> Order | None:
+        """Retarget ``agent`` (at ``x_w`` [m, world], sim time ``t_s`` [s], tick ``k``) by the
+        newest order, and report it taken or refused; the order, or None."""
+        order = self.newest()
+        if order is None:
+            return None
+        try:
+            t = taken(self.cfg, self.id, order, x_w)
+        except RefusedError as exc:
+            self.report(t_s, k, order.order, order.action.value, order.x_w, "refused", str(exc))
+            return order
+        if order.action is Action.LAND:
+            agent.land(x_w)
+        else:
+            agent.retarget(x_w, t.goal_w, t.speed_mps or None)
+        self.current = (order.order, order.action.value, t.goal_w)
+        self.reported_arrival = False
+        self.report(t_s, k, order.order, order.action.value, t.goal_w, "taken")
+        return order
+
+    def after(self, t_s: float, k: int, arrived: bool, x_w: FloatArray) -> None:
+        """Report the order flown arrived once the step says so (``arrived``) or, for a
+        landing, once the drone is within the goal tolerance of the ground it lands to."""
+        if self.current is None or self.reported_arrival:
+            return
+        order, action, goal = self.current
+        there = arrived
+        if action == Action.LAND.value:
+            there = arrived or bool(np.linalg.norm(np.asarray(x_w) - goal) <= self.cfg.goal_tolerance_m)
+        if there:
+            self.reported_arrival = True
+            self.report(t_s, k, order, action, goal, "arrived")

@@ -21,7 +21,7 @@ import zenoh
 
 from swarm.net import transport as tp
 from swarm.net.messages import encode
-from swarm.ros2 import graph
+from swarm.net.ros2 import graph
 from swarm.ros2.participant import ENV_FILE, read_env
 from swarm.runs.runfiles import read_records
 

@@ -227,6 +227,8 @@ def run(
     """Run a scenario: world, one process per agent, recorder."""
     cfg = _load_or_exit(config, _overrides(mode))
     out = out or Path("runs") / f"{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if cfg.script.enabled:  # the drones wait for a script (swarm.script, docs/scripting.md)
+        click.echo(f"waiting for a script: Swarm.connect({str(out)!r}) in Python (docs/scripting.md)")
     code, metrics = run_scenario(
         cfg,
         out,

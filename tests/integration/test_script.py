@@ -7,6 +7,7 @@ messages, with a deadline."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 
@@ -41,7 +42,19 @@ def test_a_script_takes_off_flies_a_square_swaps_and_lands_the_swarm(tmp_path):
         snap = swarm.states()
         assert np.linalg.norm(snap.drones["cf1"].pos_w - b) <= cfg.goal_tolerance_m + 0.05
         assert np.linalg.norm(snap.drones["cf2"].pos_w - a) <= cfg.goal_tolerance_m + 0.05
-        swarm.land().wait(timeout_s=20.0)
+        ticks = [snap.k for snap in swarm.stream(duration_s=0.25)]  # the blocking stream: ticks in order
+        assert len(ticks) >= 2 and ticks == sorted(set(ticks))
+
+        async def land() -> list[int]:  # the async forms: a stream, a sleep in run time, and an await
+            seen = [snap.k async for snap in swarm.astream(duration_s=0.1)]
+            t0 = swarm.now_s
+            await swarm.asleep(0.2)
+            assert swarm.now_s >= t0 + 0.2
+            reports = await swarm.land()
+            assert set(reports) == {"cf1", "cf2", "cf3"} and {r.state for r in reports.values()} == {"arrived"}
+            return seen
+
+        assert asyncio.run(land())
         ended_at = swarm.now_s
         swarm.end("the experiment is done")
     m = json.loads((tmp_path / "s" / "metrics.json").read_text())

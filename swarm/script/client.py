@@ -472,9 +472,12 @@ class Swarm:
 
     # --- leaving ----------------------------------------------------------------------
     def close(self) -> None:
-        """Leave the run (and end a run this client started, writing its metrics)."""
+        """Leave the run. A run this client started (:meth:`launch`) is ended first (if the
+        script has not ended it) and its metrics written."""
         handle, self._handle = self._handle, None
         try:
+            if handle is not None and not self.over:
+                self.end("the script that started the run left")
             self._token.undeclare()
         finally:
             self.session.close()

@@ -54,3 +54,24 @@ def test_the_scripted_experiment_joins_a_running_swarm_and_flies_it(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     assert m["stop_reason"] == "completed" and m["collisions"] == 0
     assert len(m["orders"]) == 3 + 4 + 2 + 3 and all(o["arrived_s"] is not None for o in m["orders"])
+
+
+def test_the_ros2_services_example_flies_the_same_experiment(tmp_path):
+    import pytest
+
+    pytest.importorskip("zenoh_ros2_sdk")
+    out = tmp_path / "r1"
+    p = subprocess.run(
+        [sys.executable, str(EXAMPLES / "ros2_services.py"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert p.returncode == 0, p.stderr[-3000:]
+    lines = p.stdout.splitlines()
+    assert lines[0] == "all at 1 m" and "cf1 and cf2 swapped" in lines and lines[-1] == "landed", p.stdout
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0
+    log = (out / "logs" / "ros2.log").read_text()
+    assert log.count("/cf1/go_to goal") == 5 and "/all/land land" in log, log[-2000:]

@@ -410,6 +410,12 @@ def open_channel(session: zenoh.Session, key: str, capacity: int = 4096) -> Any:
     return session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
 
 
+def open_ring(session: zenoh.Session, key: str, capacity: int = 256) -> Any:
+    """A subscriber whose samples queue in a ring channel: the newest ``capacity`` are kept,
+    older ones dropped, so a reader that falls behind never holds its sender back."""
+    return session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+
+
 def open_queryable(session: zenoh.Session, key: str, capacity: int = 64) -> Any:
     """A complete queryable (it answers for the whole of ``key``, as rmw_zenoh declares a
     service's, so a query that targets complete queryables reaches it) whose queries queue in

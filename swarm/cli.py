@@ -56,6 +56,8 @@ def _status_info(st: dict[str, Any]) -> str:
     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
     if st.get("stalls"):
         info += f"  [yellow]stalls {st['stalls']}[/]"
+    if st.get("fallback_ids"):
+        info += f"  [yellow]plugin fallbacks {int(sum(st['fallback_ticks']))}[/]"
     if st.get("acting"):
         info += f"  [yellow]monitor: {st['acting']} acting[/]"
     if st.get("dead"):
@@ -415,7 +417,11 @@ def report(run_dir: Path) -> None:
 
 @cli.command()
 @click.argument("config")
-@click.option("--filters", default="c3bf,hocbf", help="comma-separated: c3bf, hocbf, none (unfiltered)")
+@click.option(
+    "--filters",
+    default="c3bf,hocbf",
+    help="comma-separated: c3bf, hocbf, an installed plugin's name (docs/plugins.md), none (unfiltered)",
+)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
 @click.option(
     "--realism",
@@ -427,14 +433,17 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, ou
     from rich.console import Console
     from rich.table import Table
 
+    from swarm.plugins import UNFILTERED
+    from swarm.plugins import names as filter_names
     from swarm.realism.settings import PRESETS
-    from swarm.runs.compare import _fmt, columns, in_world
+    from swarm.runs.compare import _fmt, columns, in_world, with_filter
     from swarm.runs.compare import compare as run_compare
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
-    bad = [f for f in names if f not in ("c3bf", "hocbf", "none")]
-    if bad:
-        click.echo(f"--filters: unknown filter(s) {bad}; choose from c3bf, hocbf, none", err=True)
+    known = [*filter_names(), UNFILTERED]
+    bad = [f for f in names if f not in known]
+    if bad or not names:
+        click.echo(f"--filters: unknown filter(s) {bad}; choose from {', '.join(known)}", err=True)
         sys.exit(2)
     worlds = None if realism is None else [w.strip() for w in realism.split(",") if w.strip()]
     if worlds is not None and (not worlds or any(w not in PRESETS for w in worlds)):
@@ -444,6 +453,12 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, ou
     for w in worlds or ():
         try:
             in_world(cfg, w)
+        except ConfigError as exc:
+            click.echo(f"config error: {exc}", err=True)
+            sys.exit(2)
+    for name in names:  # a plugin that cannot be imported, refuses its options or the agents' level
+        try:
+            with_filter(cfg, name)
         except ConfigError as exc:
             click.echo(f"config error: {exc}", err=True)
             sys.exit(2)
@@ -516,7 +531,8 @@ class _SweepProgress:
     "axes",
     multiple=True,
     metavar="NAME=v1,v2,...",
-    help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
+    help="a knob and its values (repeatable): filter (c3bf, hocbf, an installed plugin's name, none, orca), "
+    "gamma, gamma_ho, rho, "
     "sensing_radius_m, horizon_s, buffer_mps, contact_s, tiebreak, seed, obstacle_speed, approach_angle_deg; "
     "for generated scenarios also agents, radius, perturb_m, density",
 )

@@ -49,7 +49,14 @@ def _finite(v: Any) -> Any:
 
 
 class FilterSettings(_Strict):
-    kind: BarrierKind = BarrierKind.C3BF
+    # the safety filter: a name registered in the entry-point group c3swarm.filters (swarm.plugins):
+    # the built-in c3bf and hocbf, or an installed plugin's (docs/plugins.md)
+    kind: str = BarrierKind.C3BF.value
+    # a plugin's own options, validated by its Options model (the built-ins' settings are the fields below)
+    options: dict[str, Any] = {}
+    # ms of wall time a plugin's call may take before its command is replaced by the built-in C3BF's
+    # (swarm.safety.external); null: one control period
+    budget_ms: float | None = Field(None, gt=0, allow_inf_nan=False)
     gamma: float = Field(1.0, gt=0)  # 1/s, class-K gain
     gamma_ho: float = Field(1.0, gt=0)  # m/s, HO-CBF gain
     rho: float = Field(1.0, gt=0, le=1)  # responsibility share of neighbour rows
@@ -77,10 +84,39 @@ class FilterSettings(_Strict):
     # margin_m; swarm.safety.barriers, "Keep-out ellipsoid"); false: the sphere of the bodies' radii
     ellipsoid: bool = True
 
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import PluginError, filter_class
+
+        try:
+            filter_class(v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> FilterSettings:
+        from swarm.plugins import PluginError, filter_class, filter_options
+
+        try:
+            filter_options(filter_class(self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+    @property
+    def barrier(self) -> BarrierKind:
+        """The built-in barrier the agent's own QP runs: the filter's, or for a plugin C3BF (its fallback)."""
+        from swarm.plugins import filter_class
+        from swarm.safety.external import barrier_of
+
+        return barrier_of(filter_class(self.kind)) or BarrierKind.C3BF
+
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
             level=level,
-            kind=self.kind,
+            kind=self.barrier,
             gamma=self.gamma,
             gamma_ho=self.gamma_ho,
             rho=self.rho,
@@ -274,6 +310,19 @@ class AgentConfig(_Strict):
             for name, pt in [("start", self.start), *(("path", w) for w in self.path()[1:])]:
                 if np.any(np.asarray(pt) < lo) or np.any(np.asarray(pt) > hi):
                     raise ValueError(f"{name} {pt} is outside the geofence {list(lo)} .. {list(hi)}")
+        return self
+
+    @model_validator(mode="after")
+    def _filter_level(self) -> AgentConfig:
+        from swarm.plugins import filter_class
+        from swarm.safety.external import levels_of
+
+        levels = levels_of(filter_class(self.filter.kind))
+        if self.filter.enabled and self.command_level not in levels:
+            raise ValueError(
+                f"filter.kind: {self.filter.kind} filters the {', '.join(lv.value for lv in levels)} level, "
+                f"not this agent's command_level {self.command_level.value}"
+            )
         return self
 
     def quad_params(self) -> QuadParams:

@@ -32,11 +32,12 @@ from swarm.control import (
     right_hand_bias,
     setpoint_vector,
 )
-from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
+from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
 from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
+from swarm.safety.external import ContainedFilter, FilterInput, Rows
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -105,6 +106,8 @@ class StepResult:
     sd: tuple[float, float] = (0.0, 0.0)  # the published state's position [m] and velocity [m/s] deviations
     verdict: Verdict = CLEAR  # the safety monitor's at this step
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
+    fallback: str = ""  # a plugin filter's command replaced at this step, why (swarm.safety.external.Fallback); ""
+    fallbacks: int = 0  # steps so far whose plugin filter's command was replaced by the built-in safe command
 
     @property
     def intervention(self) -> float:
@@ -146,6 +149,7 @@ class AgentStep:
         monitor: MonitorParams | None = None,
         fixed_sd: tuple[float, float] = (0.0, 0.0),
         offset_sd_m: float = 0.0,
+        plugin: ContainedFilter | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -164,8 +168,11 @@ class AgentStep:
         (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries.
         ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
         markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
-        estimator sees: added in quadrature to the estimate's position deviation."""
+        estimator sees: added in quadrature to the estimate's position deviation.
+        ``plugin``: a safety filter plugin (``swarm.safety.external``) flown in place of the
+        C3BF-QP of ``config``, which is its fallback."""
         self.model, self.config, self.level = model, config, config.level
+        self.plugin = plugin
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
         self.goal_w = np.asarray(tracker.goal_w if goal_w is None else goal_w, dtype=float)
@@ -229,9 +236,10 @@ class AgentStep:
             mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
+        config = filter_config_for(agent, still, level, route, realism)
         return cls(
             QuadModel(agent.quad_params()),
-            filter_config_for(agent, still, level, route, realism),
+            config,
             PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,
@@ -246,6 +254,7 @@ class AgentStep:
             monitor=mon,
             fixed_sd=fixed_sd,
             offset_sd_m=offset_sd,
+            plugin=contained_plugin(agent, config, control_hz),
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -334,10 +343,22 @@ class AgentStep:
         u_ref = self.att.from_thrust_vector(state, F_ref, self.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         res: FilterResult | None = None
         row_ids: list[str] = []
+        if self.plugin is not None:
+            self.plugin.last = ""
         if self.filtered:
             rows = ObstacleArrays.concat([obs, nb]) if len(obs) else nb
             filt = self.filt_land if landing and self.filt_land is not None else self.filt
-            res = filt.filter(state, u_ref, rows)
+            if self.plugin is None:
+                res = filt.filter(state, u_ref, rows)
+            else:
+                res = self.plugin.run(
+                    FilterInput(
+                        t_s, state.copy(), x_b.copy(), v_b.copy(), sensed.sd_m, u_ref.copy(),
+                        Rows.of(obs, obstacles), Rows.of(nb, neighbours), self.goal_w.copy(),
+                    ),
+                    lambda: filt.filter(state, u_ref, rows),
+                    lambda: self._brake(state),
+                )  # fmt: skip
             names = obstacles.ids + neighbours.ids
             row_ids = [names[i] for i in res.row_index.tolist()]
             u, status = res.u, res.status
@@ -375,6 +396,8 @@ class AgentStep:
             sd=sensed.sd_now,
             verdict=verdict,
             live_margin_m=live_m,
+            fallback="" if self.plugin is None or res is None else self.plugin.last,
+            fallbacks=0 if self.plugin is None else self.plugin.fallbacks,
         )
 
     def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:
@@ -547,6 +570,15 @@ class AgentStep:
         """Forget the running tallies (after a warm-up call)."""
         self.min_h, self.infeasible, self.arrived = math.inf, 0, False
         self.solo = not self.filtered
+        if self.plugin is not None:
+            self.plugin.reset()
+
+    def _brake(self, state: QuadState) -> FloatArray:
+        """A command of the level that brakes to a hover where the drone is (a plugin's last resort)."""
+        F = self.tracker.thrust_vector(self.model, state.x_w, state.v_w, np.zeros(3))
+        u = self.att.from_thrust_vector(state, F, self.yaw_rad) if self.level is CommandLevel.ROTORS else F
+        ins = self.filt.input_set
+        return np.clip(u, ins.lb, ins.ub)
 
     def warm_up(self, start_w: FloatArray) -> None:
         """Load every compiled path of the step now: one step at rest at ``start_w`` [m, world],
@@ -580,3 +612,24 @@ class AgentStep:
                 for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
                     filt.filter(state, u, obstacles)
         self.reset_tallies()
+
+
+def contained_plugin(agent: AgentConfig, config: FilterConfig, control_hz: float | None) -> ContainedFilter | None:
+    """The agent's safety filter plugin (``filter.kind``, ``swarm.plugins``) built and contained,
+    or None when its filter is a built-in barrier (its own QP) or it flies unfiltered. ``config``:
+    its tuned C3BF-QP settings (the fallback's), whose level, margin and sensing radius the plugin is
+    given; ``control_hz`` (None: 100 Hz) sets its tick and, without ``filter.budget_ms``, its budget."""
+    from swarm.plugins import filter_class, filter_options
+    from swarm.safety.external import FilterSpec, barrier_of, budget_s
+
+    cls = filter_class(agent.filter.kind)
+    if barrier_of(cls) is not None or not agent.filter.enabled:
+        return None
+    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
+    params = agent.quad_params()
+    limits = rotor_input_set(params) if config.level is CommandLevel.ROTORS else thrust_vector_input_set(params)
+    spec = FilterSpec(
+        agent.id, params, config.level, limits, config.margin_m,
+        config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),
+    )  # fmt: skip
+    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s))

@@ -70,6 +70,8 @@ def command_body(result: StepResult) -> CommandBody:
         int(result.verdict.action),
         int(result.verdict.breaches),
         result.live_margin_m,
+        result.fallback,
+        result.fallbacks,
     )
 
 

@@ -25,7 +25,7 @@ from swarm.model import all_finite
 from swarm.net import statewire
 from swarm.realism.sensing import MocapFrame
 
-VERSION = 10  # 2: the clock carries the measurements and obstacles; the command the filter report
+VERSION = 11  # 2: the clock carries the measurements and obstacles; the command the filter report
 # 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
 # 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
 # 6: the tick message (one agent's measurement, obstacles and near neighbours)
@@ -33,6 +33,7 @@ VERSION = 10  # 2: the clock carries the measurements and obstacles; the command
 # 8: the tick names the agents the world has seen go ("gone")
 # 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
 # 10: the state carries its estimate's deviations; the command the monitor's verdict and the live margin
+# 11: the command carries a plugin filter's fallback and its count; the status the agents' counts
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -66,6 +67,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "monitor": "i",
         "breaches": "i",
         "live_margin": "f",
+        # a safety filter plugin (swarm.safety.external): why its command was replaced by the built-in
+        # safe command at this tick ("" none: raised, non_finite, out_of_limits, overrun, failed), and
+        # the ticks so far it was
+        "fallback": "s",
+        "fallbacks": "i",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
@@ -98,6 +104,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "stalls": "i",
         "dead": "ls",
         "acting": "i",
+        # the agents whose safety filter plugin has had its command replaced, and how many ticks each
+        "fallback_ids": "ls",
+        "fallback_ticks": "vf",
     },
     # a contact that began at this tick; dead: one of the two is a dead agent's drone (landing,
     # or left to the firmware), counted apart from collisions among live agents
@@ -179,6 +188,8 @@ class CommandBody:
     monitor: int = 0  # the safety monitor's action (swarm.safety.monitor.Action)
     breaches: int = 0  # the checks that breached (swarm.safety.monitor.Breach bits)
     live_margin: float = 0.0  # m: the largest live noise margin of a row
+    fallback: str = ""  # a plugin filter's command replaced at this tick, why (swarm.safety.external.Fallback)
+    fallbacks: int = 0  # ticks so far its command was replaced
 
     @staticmethod
     def zero(level: str = "attitude") -> CommandBody:
@@ -201,6 +212,8 @@ class CommandBody:
             "monitor": self.monitor,
             "breaches": self.breaches,
             "live_margin": self.live_margin,
+            "fallback": self.fallback,
+            "fallbacks": self.fallbacks,
         }
 
 
@@ -538,6 +551,11 @@ FIELD_DOCS: dict[str, str] = {
     "256 tick_overrun",
     "live_margin": "the largest extra radius a filter row kept for the estimates' noise this tick [m]",
     "sd": "the standard deviations of the state's position [m] and velocity [m/s] (its estimate's, largest axis)",
+    "fallback": "why the safety filter plugin's command was replaced by the built-in safe command this tick: "
+    "raised, non_finite, out_of_limits, overrun, failed (empty: not replaced; swarm.safety.external)",
+    "fallbacks": "ticks so far the safety filter plugin's command was replaced by the built-in safe command",
+    "fallback_ids": "agents whose safety filter plugin's command has been replaced by the built-in safe command",
+    "fallback_ticks": "per agent of fallback_ids, the ticks so far its plugin's command was replaced",
 }
 _ITEM_SCHEMA = {
     "type": "object",

@@ -26,6 +26,9 @@ Safety figures, all from the measured (ground-truth) states:
   smallest scaled distance ``|S (x_j - x_i)| / r_xy`` of any pair (below 1 inside;
   :func:`swarm.safety.barriers.scaled_distance`), whatever the filter keeps;
 * ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
+* per agent ``plugin_fallbacks``: the ticks a safety filter plugin's command was replaced by the
+  built-in safe command, by reason (``swarm.safety.external.Fallback``) and in all (``total``);
+  run-level ``plugin_fallbacks``: the agents' totals summed, and ``fallback_agents``: those with any;
 * ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
   stalled short of it; the same definition for every method.
 
@@ -63,6 +66,7 @@ from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
 from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
+from swarm.safety.external import FALLBACK_NAMES
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import ObstacleArrays
 from swarm.tuning import obstacle_horizon_s
@@ -389,6 +393,7 @@ def compute(
     solve_us: dict[str, array] = defaultdict(lambda: array("d"))
     estimates: dict[str, array] = defaultdict(lambda: array("d"))  # per agent: k, x (3) [m] (world.realism.sensing)
     monitors: dict[str, MonitorFigures] = defaultdict(MonitorFigures)  # per agent: its safety monitor's figures
+    fallbacks: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(FALLBACK_NAMES, 0))  # per agent, reason
     final: dict[str, Any] = {}  # the last status
     live_ever: set[str] = set()
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
@@ -421,6 +426,10 @@ def compute(
             min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
             monitors[r["src"]].see(r)
+            why = r.get("fallback")
+            if why:
+                fb = fallbacks[r["src"]]
+                fb[why] = fb.get(why, 0) + 1
             if len(r.get("est", ())) in (6, 9):  # x, v (and since v10 the deviations and age)
                 estimates[r["src"]].extend((int(r["k"]), *(float(e) for e in r["est"][:3])))
         elif kind == "status":
@@ -460,6 +469,10 @@ def compute(
             **bar.agent(index[a.id]),
             "min_row_h": _finite_or_none(min_row_h[a.id]),
             "infeasible_ticks": int(st.get("infeasible", 0)),
+            "plugin_fallbacks": {
+                **fallbacks.get(a.id, dict.fromkeys(FALLBACK_NAMES, 0)),
+                "total": max(int(st.get("fallbacks", 0)), sum(fallbacks.get(a.id, {}).values())),
+            },
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(ks[-1]) if len(ks) else None,
             "deadlock_at_s": stuck,
@@ -515,6 +528,8 @@ def compute(
             (v["estimate_error_max_m"] for v in agents.values() if v["estimate_error_max_m"] is not None), default=None
         ),
         "monitor": _monitor_totals(agents),
+        "plugin_fallbacks": sum(v["plugin_fallbacks"]["total"] for v in agents.values()),
+        "fallback_agents": sorted(k for k, v in agents.items() if v["plugin_fallbacks"]["total"]),
         "agents": agents,
     }
 

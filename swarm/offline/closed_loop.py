@@ -7,8 +7,9 @@ Used by tests, the liveness benchmark and quick studies."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -26,10 +27,11 @@ from swarm.realism.sensing import MocapFrame, MocapSensor
 from swarm.realism.settings import RealismSettings
 from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, path_for
+from swarm.safety.external import ContainedFilter
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.step import AgentStep
+from swarm.step import AgentStep, contained_plugin
 from swarm.tuning import NOISE_SIGMAS, command_lead_s, filter_config_for, monitor_params, neighbour_table
 
 
@@ -208,6 +210,8 @@ class SwarmAgent:
     filtered: bool = True  # False: flies its reference unfiltered (and so takes no share of any pair)
     route: Route | None = None  # replans path_w when the agent stalls (swarm.planning), or None
     id: str = ""  # its name (the seeded imperfections of world.realism depend on it); "" : agent-<index>
+    # its safety filter plugin (swarm.safety.external), built per run from the control rate [Hz]; None: config's QP
+    plugin: Callable[[float], ContainedFilter | None] | None = None
 
     @property
     def goal_w(self) -> FloatArray:
@@ -237,6 +241,7 @@ class SwarmLog:
     own_sd_m: FloatArray | None = None  # (T, N) m: each estimate's largest axis position deviation
     live_margin_m: FloatArray | None = None  # (T, N) m: the largest live noise margin of a row
     unguarded_ticks: int = 0  # agent ticks an estimate's error exceeded its live bound with the monitor not acting
+    fallbacks: list[int] = field(default_factory=list)  # per agent: ticks its plugin's command was replaced
 
     def action_ticks(self, action: Action) -> int:
         """Agent ticks the monitor took ``action`` (0 without a log)."""
@@ -330,6 +335,7 @@ def simulate_swarm(
             lead_s=lead,
             monitor=mon,
             offset_sd_m=r.sensing.centroid_offset_std_m if r is not None and sensing else 0.0,
+            plugin=None if a.plugin is None else a.plugin(control_hz),
         )
         for a in agents
     ]
@@ -424,27 +430,30 @@ def simulate_swarm(
         np.array(log_sd) if sensing else None,
         np.array(log_live),
         unguarded,
+        [0 if s.plugin is None else s.plugin.fallbacks for s in steps],
     )
 
 
 def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArrays]:
     """A validated scenario's agents and obstacles (at t = 0) as :func:`simulate_swarm`
-    takes them, every filter at the attitude level."""
+    takes them, every filter at the attitude level (a safety filter plugin with its own)."""
     still = StaticObstacles.of(list(cfg.obstacles))
     agents = []
     for a in cfg.agents:
         path_w, route = path_for(a, still)  # around the static obstacles, as the agents fly it
+        config = filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism)
         agents.append(
             SwarmAgent(
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
                 a.speed_mps,
-                filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism),
+                config,
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,
                 a.filter.enabled,
                 route,
                 a.id,
+                partial(contained_plugin, a, config),
             )
         )
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

@@ -1,0 +1,55 @@
+"""Safety filters that misbehave from ``after_s`` on: raise, return NaN, overrun their budget,
+or ask for more thrust than the airframe has. Before then each passes the reference through."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from swarm.safety.external import FilterInput, FilterOutput, FilterSpec
+
+
+class Options(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    after_s: float = Field(0.5, ge=0)  # s: sim time from which it misbehaves
+    sleep_ms: float = Field(20.0, ge=0)  # ms: how long the slow one takes a call
+
+
+class _Faulty:
+    Options = Options
+
+    def __init__(self, spec: FilterSpec) -> None:
+        self.spec = spec
+        self.opt = spec.options if isinstance(spec.options, Options) else Options()
+
+    def filter(self, inp: FilterInput) -> FilterOutput:
+        if inp.t_s < self.opt.after_s:
+            return FilterOutput(inp.u_ref)
+        return self.fault(inp)
+
+    def fault(self, inp: FilterInput) -> FilterOutput:
+        raise NotImplementedError
+
+
+class Raises(_Faulty):
+    def fault(self, inp: FilterInput) -> FilterOutput:
+        raise RuntimeError("this filter raises on purpose")
+
+
+class ReturnsNaN(_Faulty):
+    def fault(self, inp: FilterInput) -> FilterOutput:
+        return FilterOutput(np.full_like(inp.u_ref, np.nan))
+
+
+class Slow(_Faulty):
+    def fault(self, inp: FilterInput) -> FilterOutput:
+        time.sleep(self.opt.sleep_ms * 1e-3)
+        return FilterOutput(inp.u_ref)
+
+
+class OutOfLimits(_Faulty):
+    def fault(self, inp: FilterInput) -> FilterOutput:
+        return FilterOutput(inp.u_ref * 100.0)

@@ -738,6 +738,35 @@ def cf_reboot(uri: str) -> None:
     click.echo(f"{uri}: rebooted")
 
 
+@cli.command()
+def filters() -> None:
+    """List the safety filters filter.kind can name (entry-point group c3swarm.filters), each
+    checked as a config would check it: imported, its levels and its options (docs/plugins.md)."""
+    from swarm.plugins import FILTERS, PluginError, filter_class, registered
+    from swarm.safety.external import levels_of, options_of
+
+    try:
+        eps = registered(FILTERS)
+    except PluginError as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+    bad = 0
+    for name in sorted(eps):
+        ep = eps[name]
+        dist = getattr(ep.dist, "name", None) or "c3swarm"
+        try:
+            cls = filter_class(name)
+        except PluginError as exc:
+            click.echo(f"{name}  ({dist}: {ep.value})\n  error: {exc}")
+            bad += 1
+            continue
+        opts = options_of(cls)
+        fields = ", ".join(f"{k}={f.default!r}" for k, f in opts.model_fields.items()) if opts else "none"
+        levels = ", ".join(lv.value for lv in levels_of(cls))
+        click.echo(f"{name}  ({dist}: {ep.value})\n  levels: {levels}\n  options: {fields}")
+    sys.exit(1 if bad else 0)
+
+
 def main() -> None:
     cli()
 

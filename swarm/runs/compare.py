@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm.config import ScenarioConfig, resolve
+from swarm.plugins import BUILTIN, FILTERS, UNFILTERED
 from swarm.runs.launch import RunHandle
 from swarm.runs.point import summarise
 from swarm.strict import merge
@@ -91,8 +92,14 @@ def _fmt(v: Any) -> str:
 
 
 def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
-    """The table's columns: the world's only where a row names one."""
-    return tuple(c for c in COLUMNS if c[0] != "world" or any(r.get("world") for r in rows))
+    """The table's columns: the world's only where a row names one, the plugin fallbacks' only
+    where a row flies a plugin (not c3swarm's own filters) or counts one."""
+    own = {*BUILTIN[FILTERS], UNFILTERED, "orca"}
+    show = {
+        "world": any(r.get("world") for r in rows),
+        "plugin_fallbacks": any(r.get("filter") not in own or r.get("plugin_fallbacks") for r in rows),
+    }
+    return tuple(c for c in COLUMNS if show.get(c[0], True))
 
 
 def markdown(name: str, rows: list[dict[str, Any]]) -> str:

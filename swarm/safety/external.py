@@ -288,6 +288,29 @@ class ContainedFilter:
         return u, status, None
 
 
+def into_limits(u: FloatArray, limits: LinearInputSet) -> FloatArray:
+    """``u`` moved into the input set ``limits`` (a plugin's helper): at the rotor level each
+    thrust clipped to its bounds; at the attitude level (``F`` (3,) [N, world], ``C F <= d`` the
+    tilt rows) its vertical part clipped to its bounds, then its horizontal part shrunk, its
+    direction kept, until the tilt rows and the bounds hold."""
+    u = np.asarray(u, dtype=float)
+    if u.shape != (3,) or limits.C.shape[1] != 3:
+        return np.clip(u, limits.lb, limits.ub)
+    out = u.copy()
+    out[2] = min(max(out[2], limits.lb[2]), limits.ub[2])
+    scale = 1.0
+    for ci, di in zip(limits.C, limits.d, strict=True):
+        lhs = ci[0] * out[0] + ci[1] * out[1]
+        room = di - ci[2] * out[2]
+        if lhs > room:
+            scale = min(scale, max(room, 0.0) / lhs)
+    for j in (0, 1):
+        if abs(out[j]) * scale > limits.ub[j]:
+            scale = min(scale, limits.ub[j] / abs(out[j]))
+    out[:2] *= scale * (1.0 - 1e-9)
+    return out
+
+
 def budget_s(budget_ms: float | None, control_period_s: float) -> float:
     """A plugin call's budget [s]: ``budget_ms`` if given, else one control period."""
     return control_period_s if budget_ms is None else budget_ms * 1e-3

@@ -141,3 +141,12 @@ def test_compare_refuses_an_unknown_filter_before_anything_flies(plugins, tmp_pa
     assert p.returncode == 2 and "mypkg.nope" in p.stderr and VO in p.stderr, p.stderr
     assert not (tmp_path / "cmp").exists()
     assert with_filter(resolve(_swap(kind=VO, options={"horizon_s": 2.0})), "c3bf").agents[0].filter.options == {}
+
+
+def test_swarm_filters_lists_every_registered_filter_and_says_which_cannot_be_used(plugins, tmp_path):
+    p = _swarm("filters", cwd=tmp_path)
+    assert p.returncode == 1, p.stderr  # faulty.missing cannot be imported
+    out = p.stdout
+    assert "c3bf  (c3swarm: swarm.safety.external:C3BF)" in out and "hocbf  (c3swarm" in out
+    assert f"{VO}  (c3swarm-vo: c3swarm_vo:VelocityObstacle)\n  levels: attitude\n  options: horizon_s=1.5" in out
+    assert "faulty.missing" in out and "cannot be imported: ModuleNotFoundError" in out

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from swarm.config import ConfigError, resolve
-from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, thrust_vector_input_set
+from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
 from swarm.plugins import FILTERS, filter_class, names, registered
 from swarm.safety.external import (
@@ -25,6 +25,7 @@ from swarm.safety.external import (
     FilterSpec,
     Rows,
     barrier_of,
+    into_limits,
 )
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -163,3 +164,15 @@ def test_the_step_flies_the_fallback_and_reports_it():
         assert (got.fallback, got.fallbacks, want.fallbacks) == ("raised", k + 1, 0)
     step.reset_tallies()
     assert step.plugin.fallbacks == 0
+
+
+def test_into_limits_puts_any_command_inside_the_input_set():
+    rotors = rotor_input_set(PARAMS)
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        F = rng.normal(0.0, 2.0, 3) * rng.choice([0.01, 1.0, 100.0])
+        assert LIMITS.violation(into_limits(F, LIMITS)) <= 1e-12
+        f = rng.normal(0.0, 1.0, 4)
+        assert rotors.violation(into_limits(f, rotors)) == 0.0
+    inside = HOVER + np.array([0.01, -0.02, 0.0])
+    assert np.allclose(into_limits(inside, LIMITS), inside)  # a command inside stays (to 1e-9)

@@ -7,7 +7,7 @@ velocity that leaves the obstacle (van den Berg et al., "Reciprocal n-body colli
 ISRR 2011: RVO2-3D's ``Agent::computeNewVelocity``) gives the half-space
 ``(v - (v_now + share u)) . n >= 0``; a neighbour takes ``share`` of the change, an obstacle all of it.
 The velocity is projected onto the half-spaces in turn (``passes`` sweeps), turned back into a
-thrust vector and clipped into the airframe's limits. No QP: this is a plain projection filter,
+thrust vector and moved into the airframe's limits (``into_limits``). No QP: this is a plain projection filter,
 shown beside the C3BF-QP in ``swarm compare``.
 """
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm.safety.external import FilterInput, FilterOutput, FilterSpec
+from swarm.safety.external import FilterInput, FilterOutput, FilterSpec, into_limits
 from swarm.safety.filter import FilterStatus
 
 E3 = np.array([0.0, 0.0, 1.0])
@@ -62,24 +62,6 @@ def velocity_change(
     return (r / step_s - wl) * n, n
 
 
-def clip_thrust(F: np.ndarray, lb: np.ndarray, ub: np.ndarray, C: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``F`` (3,) [N, world] in the attitude level's input set: its vertical part clipped to its
-    bounds, then its horizontal part shrunk until the tilt rows ``C F <= d`` and the bounds hold."""
-    out = F.copy()
-    out[2] = min(max(out[2], lb[2]), ub[2])
-    scale = 1.0
-    for ci, di in zip(C, d, strict=True):
-        lhs = ci[0] * out[0] + ci[1] * out[1]
-        room = di - ci[2] * out[2]
-        if lhs > room:
-            scale = min(scale, max(room, 0.0) / lhs)
-    for j in (0, 1):
-        if abs(out[j]) * scale > ub[j]:
-            scale = min(scale, ub[j] / abs(out[j]))
-    out[:2] *= scale * (1.0 - 1e-9)
-    return out
-
-
 class VelocityObstacle:
     """The filter (see the module docstring); the attitude level only: ``u`` is the thrust
     vector F (3,) [N, world]."""
@@ -115,5 +97,4 @@ class VelocityObstacle:
                 if gap < 0.0:
                     vn = vn - gap * n
         F = m * ((vn - v) / o.react_s + g * E3)
-        lim = self.spec.limits
-        return FilterOutput(clip_thrust(F, lim.lb, lim.ub, lim.C, lim.d), FilterStatus.OK)
+        return FilterOutput(into_limits(F, self.spec.limits), FilterStatus.OK)

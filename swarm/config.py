@@ -83,6 +83,10 @@ class FilterSettings(_Strict):
     # rows of other drones keep the airframes' keep-out ellipsoid (downwash: airframe.keep_out_*_m, plus
     # margin_m; swarm.safety.barriers, "Keep-out ellipsoid"); false: the sphere of the bodies' radii
     ellipsoid: bool = True
+    # m: delay-aware rows (docs/design.md, "Delay"): a neighbour's row grows by at most this much over the
+    # loop's expected delay, for which every agent of the swarm keeps its acceleration within the agreed bound
+    # that gives it (swarm.tuning.agreed_accel_mps2); null: the airframe's whole acceleration (the row grows by it)
+    delay_growth_m: float | None = Field(0.15, gt=0, le=10, allow_inf_nan=False)
 
     @field_validator("kind")
     @classmethod

@@ -372,10 +372,15 @@ def rotor_input_set(params: QuadParams) -> LinearInputSet:
     return LinearInputSet(np.zeros(4), np.full(4, params.f_max_N), np.zeros((0, 4)), np.zeros(0))
 
 
-def thrust_vector_input_set(params: QuadParams, facets: int = 8) -> LinearInputSet:
+def thrust_vector_input_set(
+    params: QuadParams, facets: int = 8, accel_limit_mps2: float | None = None
+) -> LinearInputSet:
     """Polyhedral inner approximation of the attitude level's input set for ``F`` [N,
     world]: ``T_min <= F_z <= T_max cos(tilt)`` and ``|F_xy| <= tan(tilt) F_z`` as
-    ``facets`` half-planes inscribed in the tilt cone. Inside it, ``|F| <= T_max``."""
+    ``facets`` half-planes inscribed in the tilt cone. Inside it, ``|F| <= T_max``. With
+    ``accel_limit_mps2`` ``a`` also ``|F_z - m g| <= m a / sqrt 2`` and ``|F_xy| <= m a /
+    sqrt 2`` (``facets`` more half-planes, inscribed), so the acceleration beyond gravity,
+    ``F / m - g e3``, is at most ``a`` long."""
     t_max = 4.0 * params.f_max_N
     tan_t = math.tan(params.max_tilt_rad)
     fz_hi = t_max * math.cos(params.max_tilt_rad)
@@ -383,8 +388,19 @@ def thrust_vector_input_set(params: QuadParams, facets: int = 8) -> LinearInputS
     k = np.arange(facets) * 2.0 * math.pi / facets
     inscribed = tan_t * math.cos(math.pi / facets)
     C = np.column_stack([np.cos(k), np.sin(k), np.full(facets, -inscribed)])
+    d = np.zeros(facets)
     lim = tan_t * fz_hi
-    return LinearInputSet(np.array([-lim, -lim, fz_lo]), np.array([lim, lim, fz_hi]), C, np.zeros(facets))
+    if accel_limit_mps2 is not None:
+        if not (math.isfinite(accel_limit_mps2) and accel_limit_mps2 > 0.0):
+            raise InputError(
+                f"thrust_vector_input_set: accel_limit_mps2 must be finite and > 0, got {accel_limit_mps2!r}"
+            )
+        f_a = params.mass_kg * accel_limit_mps2 / math.sqrt(2.0)  # N: each of |F_xy| and |F_z - m g|
+        fz_lo, fz_hi = max(fz_lo, params.weight_N - f_a), min(fz_hi, params.weight_N + f_a)
+        C = np.vstack([C, np.column_stack([np.cos(k), np.sin(k), np.zeros(facets)])])
+        d = np.append(d, np.full(facets, f_a * math.cos(math.pi / facets)))
+        lim = min(lim, f_a)
+    return LinearInputSet(np.array([-lim, -lim, fz_lo]), np.array([lim, lim, fz_hi]), C, d)
 
 
 def thrust_vector_accel(params: QuadParams, F_w: FloatArray) -> FloatArray:

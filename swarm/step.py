@@ -108,6 +108,9 @@ class StepResult:
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
     fallback: str = ""  # a plugin filter's command replaced at this step, why (swarm.safety.external.Fallback); ""
     fallbacks: int = 0  # steps so far whose plugin filter's command was replaced by the built-in safe command
+    # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
+    # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
+    ahead_s: float = 0.0
 
     @property
     def intervention(self) -> float:
@@ -149,6 +152,7 @@ class AgentStep:
         monitor: MonitorParams | None = None,
         fixed_sd: tuple[float, float] = (0.0, 0.0),
         offset_sd_m: float = 0.0,
+        publish_ahead: bool = False,
         plugin: ContainedFilter | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
@@ -169,6 +173,9 @@ class AgentStep:
         ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
         markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
         estimator sees: added in quadrature to the estimate's position deviation.
+        ``publish_ahead``: with a lead, the state it publishes is the one it filters, predicted for
+        when its command acts (it knows the commands in flight; its neighbours do not), so their rows
+        of it are a lead younger (docs/design.md, "Delay").
         ``plugin``: a safety filter plugin (``swarm.safety.external``) flown in place of the
         C3BF-QP of ``config``, which is its fallback."""
         self.model, self.config, self.level = model, config, config.level
@@ -185,6 +192,7 @@ class AgentStep:
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
         self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
         self.offset_sd_m = float(offset_sd_m)
+        self.publish_ahead = publish_ahead and lead_s > 0.0
         self.live = estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
@@ -233,13 +241,13 @@ class AgentStep:
         if monitor is not None:
             from swarm.config import FailureSettings as _Failure
 
-            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure())
+            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure(), control_hz)
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
-        config = filter_config_for(agent, still, level, route, realism)
+        fc = filter_config_for(agent, still, level, route, realism, control_hz)
         return cls(
             QuadModel(agent.quad_params()),
-            config,
+            fc,
             PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,
@@ -254,7 +262,8 @@ class AgentStep:
             monitor=mon,
             fixed_sd=fixed_sd,
             offset_sd_m=offset_sd,
-            plugin=contained_plugin(agent, config, control_hz),
+            publish_ahead=fc.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
+            plugin=contained_plugin(agent, fc, control_hz),
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -370,9 +379,13 @@ class AgentStep:
             u, status = u_ref, FilterStatus.OK
         if not self.arrived:
             self.arrived = math.dist(now.x_w.tolist(), self.goal_w.tolist()) <= self.goal_tolerance_m
-        pub_x, pub_v = (
-            (x_b, v_b) if now is state else body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
-        )
+        sd_pub = sensed.sd_now
+        if self.publish_ahead:
+            pub_x, pub_v, sd_pub = x_b, v_b, (sensed.sd_m, sensed.sd_now[1])
+        elif now is state:
+            pub_x, pub_v = x_b, v_b
+        else:
+            pub_x, pub_v = body_centre(now.x_w, now.v_w, now.q, now.Omega_b, model.params.l_m)[:2]
         if d_w is not None:
             u = u - model.params.mass_kg * d_w  # the thrust vector that gives the filtered acceleration
         command = setpoint_vector(u, yaw, self.yaw_rad, YAW_GAIN_PER_S) if level is CommandLevel.ATTITUDE else u
@@ -393,9 +406,10 @@ class AgentStep:
             min_h=self.min_h,
             infeasible_ticks=self.infeasible,
             est=sensed.est,
-            sd=sensed.sd_now,
+            sd=sd_pub,
             verdict=verdict,
             live_margin_m=live_m,
+            ahead_s=self.lead_s if self.publish_ahead else 0.0,
             fallback="" if self.plugin is None or res is None else self.plugin.last,
             fallbacks=0 if self.plugin is None else self.plugin.fallbacks,
         )
@@ -627,7 +641,11 @@ def contained_plugin(agent: AgentConfig, config: FilterConfig, control_hz: float
         return None
     period_s = 1.0 / (100.0 if control_hz is None else control_hz)
     params = agent.quad_params()
-    limits = rotor_input_set(params) if config.level is CommandLevel.ROTORS else thrust_vector_input_set(params)
+    limits = (
+        rotor_input_set(params)
+        if config.level is CommandLevel.ROTORS
+        else thrust_vector_input_set(params, accel_limit_mps2=config.accel_limit_mps2)
+    )
     spec = FilterSpec(
         agent.id, params, config.level, limits, config.margin_m,
         config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),

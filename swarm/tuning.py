@@ -5,11 +5,13 @@ horizon stretched at a low gain on a path planned round walls, and a lane's cont
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from swarm.model import CommandLevel
 from swarm.net.neighbours import NeighbourTable
 from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
@@ -18,7 +20,7 @@ from swarm.safety.monitor import Action, Breach, MonitorParams
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig, FailureSettings, MonitorSettings
-    from swarm.model import CommandLevel, QuadParams
+    from swarm.model import QuadParams
     from swarm.realism.settings import RealismSettings
     from swarm.safety.filter import FilterConfig
 
@@ -88,27 +90,113 @@ def prediction_bounds(params: QuadParams, realism: RealismSettings | None) -> tu
     return max_accel_mps2(params), vel
 
 
-def neighbour_table(failure: FailureSettings, params: QuadParams, realism: RealismSettings | None) -> NeighbourTable:
-    """The neighbour table of an agent flying an airframe like ``params``: its ``failure``
-    settings, the prediction bounds of ``realism`` (:func:`prediction_bounds`), and with
+MIN_AGREED_ACCEL_MPS2 = 1.0
+"""The smallest agreed acceleration [m/s^2] (:func:`agreed_accel_mps2`): what a drone at its
+cruise speed of about 1 m/s needs to brake within half a metre."""
+
+
+def agreed_accel_mps2(
+    params: QuadParams, realism: RealismSettings | None, control_hz: float | None, growth_m: float | None
+) -> float | None:
+    """The acceleration [m/s^2] every agent of a swarm keeps its command within, so that a
+    neighbour's state extrapolated at constant velocity over the loop's expected age ``A``
+    (:func:`expected_ages`) is off by at most ``growth_m`` [m]: ``2 growth_m / A^2``, at least
+    :data:`MIN_AGREED_ACCEL_MPS2`; None (the airframe's whole acceleration,
+    :func:`max_accel_mps2`) where that is no tighter, in the ideal world, or with ``growth_m``
+    None. A neighbour's row grows by ``a A^2 / 2`` over its age (``NeighbourTable``); with the
+    airframe's ``a`` (about 15 m/s^2 for a Crazyflie) and the 0.3-0.5 s a loop of 100-150 ms
+    links reaches, that is 0.7-1.9 m, and every row of a converging swarm holds its agent."""
+    if growth_m is None or realism is None or realism.ideal:
+        return None
+    age = expected_ages(realism, control_hz).neighbour_s
+    a_max = max_accel_mps2(params)
+    if age <= 0.0:
+        return None
+    a = max(MIN_AGREED_ACCEL_MPS2, 2.0 * growth_m / (age * age))
+    return a if a < a_max else None
+
+
+def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float | None:
+    """The agreed acceleration (:func:`agreed_accel_mps2`) of ``agent``'s airframe and filter settings."""
+    return agreed_accel_mps2(agent.quad_params(), realism, control_hz, agent.filter.delay_growth_m)
+
+
+def swarm_accel_mps2(
+    agents: Sequence[AgentConfig], realism: RealismSettings | None, control_hz: float | None
+) -> float | None:
+    """The acceleration [m/s^2] an agent's neighbour rows may assume of every other agent of
+    ``agents``: the largest of their agreed bounds (:func:`agent_accel_mps2`), or None (the
+    airframe's) where any one of them keeps none (it flies the rotor level, or has
+    ``filter.delay_growth_m`` null)."""
+    bounds = [
+        agent_accel_mps2(a, realism, control_hz) if a.command_level is CommandLevel.ATTITUDE else None for a in agents
+    ]
+    return None if not bounds or any(b is None for b in bounds) else max(b for b in bounds if b is not None)
+
+
+def neighbour_table(
+    failure: FailureSettings,
+    params: QuadParams,
+    realism: RealismSettings | None,
+    control_hz: float | None = None,
+    accel_mps2: float | None = None,
+) -> NeighbourTable:
+    """The neighbour table of an agent flying an airframe like ``params`` at ``control_hz``
+    [Hz]: its ``failure`` settings, with the timeout counted beyond the rows' expected age
+    (:func:`expected_ages`: a known delay is predicted through, not a loss); the prediction
+    bounds of ``realism`` (:func:`prediction_bounds`), the acceleration the swarm agreed
+    (``accel_mps2``, :func:`agreed_accel_mps2`) in place of the airframe's where given; and with
     ``realism.sensing`` each row's velocity error :data:`NOISE_SIGMAS` times the deviation its
     state carries where that exceeds the bound (the one builder of every shell)."""
     accel, vel_err = prediction_bounds(params, realism)
+    if accel_mps2 is not None:
+        accel = min(accel, accel_mps2)
     sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
     f = failure
-    return NeighbourTable(
-        f.neighbour_timeout_s, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas
-    )
+    timeout = f.neighbour_timeout_s + expected_ages(realism, control_hz).neighbour_s
+    return NeighbourTable(timeout, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas)
+
+
+class ExpectedAges(NamedTuple):
+    """The ages [s] a loop's own delays give its readings, with nothing lost or late beyond
+    them (:func:`expected_ages`)."""
+
+    own_s: float  # the own estimate's age where the filter reads it (at the tick plus the lead)
+    neighbour_s: float  # a neighbour's row's age there (one tick, and its state's and bundle's links)
+
+
+def expected_ages(realism: RealismSettings | None, control_hz: float | None) -> ExpectedAges:
+    """The ages the configured delays of ``realism`` give an agent ticking at ``control_hz``
+    [Hz] (None: no lead) whose filter reads its state at the tick plus the command's lead
+    (:func:`command_lead_s`): its own estimate is ``latency_s + lead`` old (the motion
+    capture's stamps, which the estimator reads, carry the rest); a neighbour's row is one tick
+    (the state of the tick before), the state link and the relay's bundle link (each at its
+    delay plus its jitter) and the lead old. (0, 0) in the ideal world. The safety monitor
+    bounds what is late or missing BEYOND these (:func:`monitor_params`): a known delay is
+    predicted through (the estimator, the neighbour table's growth), not a breach."""
+    if realism is None or realism.ideal:
+        return ExpectedAges(0.0, 0.0)
+    lead = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
+    own = (realism.sensing.latency_s if realism.sensing.enabled else 0.0) + lead
+    comms = realism.comms.params()
+    links = sum(link.delay_s + link.jitter_s for link in (comms.state, comms.bundle))
+    tick = 0.0 if control_hz is None else 1.0 / control_hz
+    return ExpectedAges(own, tick + links + lead)
 
 
 def monitor_params(
-    settings: MonitorSettings, realism: RealismSettings | None, failure: FailureSettings
+    settings: MonitorSettings,
+    realism: RealismSettings | None,
+    failure: FailureSettings,
+    control_hz: float | None = None,
 ) -> MonitorParams:
     """The safety monitor's parameters (``swarm.safety.monitor.MonitorParams``) from the
     scenario's ``monitor`` settings: the deviation envelope, ``std_envelope_factor`` times the
     steady-state deviation the noise margin was designed for (:func:`design_std`, with sensing;
     none without) unless set, the neighbours' age bound
-    ``failure.neighbour_timeout_s`` unless set."""
+    ``failure.neighbour_timeout_s`` unless set. The age bounds are beyond the ages the
+    configured delays give (:func:`expected_ages`, with ``control_hz`` the agent's rate)."""
+    ages = expected_ages(realism, control_hz)
     envelope = settings.std_envelope_m
     if envelope is None:
         sd = design_std(realism)[0]
@@ -119,9 +207,9 @@ def monitor_params(
     return MonitorParams(
         enabled=settings.enabled,
         std_envelope_m=envelope,
-        estimate_age_s=settings.estimate_age_s,
-        estimate_lost_s=settings.estimate_lost_s,
-        neighbour_age_s=settings.neighbour_age_s or failure.neighbour_timeout_s,
+        estimate_age_s=settings.estimate_age_s + ages.own_s,
+        estimate_lost_s=settings.estimate_lost_s + ages.own_s,
+        neighbour_age_s=(settings.neighbour_age_s or failure.neighbour_timeout_s) + ages.neighbour_s,
         infeasible_s=settings.infeasible_s,
         disturbance_s=settings.disturbance_s,
         world_late_s=settings.world_late_s,
@@ -184,7 +272,8 @@ def filter_config_for(
     obstacles: StaticObstacles,
     level: CommandLevel,
     route: Route | None = None,
-    realism: RealismSettings | None = None,  # (unused: the noise margin is live)
+    realism: RealismSettings | None = None,
+    control_hz: float | None = None,
 ) -> FilterConfig:
     """The agent's filter settings at command ``level`` among the static ``obstacles``: its
     configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
@@ -193,8 +282,12 @@ def filter_config_for(
     and from the other flow's lane, on purpose, and the buffer asks every row for about 0.1 m/s
     of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths").
     The estimates' noise is not in the margin: each row grows by it live (:func:`live_margin_m`,
-    ``swarm.step``)."""
+    ``swarm.step``). At the attitude level in a world with delays (``realism``, an agent ticking
+    at ``control_hz``) its command keeps within the swarm's agreed acceleration
+    (:func:`agreed_accel_mps2`, ``filter.delay_growth_m``)."""
     cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
+    if level is CommandLevel.ATTITUDE:
+        cfg = replace(cfg, accel_limit_mps2=agent_accel_mps2(agent, realism, control_hz))
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
     return cfg

@@ -6,7 +6,9 @@ with ONE imperfection of ``world.realism`` raised from zero and everything else 
 C3BF and HO-CBF, and prints one JSON line. The imperfections and their levels:
 
 * ``latency`` [s]: motion-capture frames this late (each agent's estimator knows it and predicts
-  forward), and every state, bundle and command this late too (0-100 ms);
+  forward), and every state, bundle and command this late too (0-200 ms); on this axis C3BF also
+  flies without its delay contract (method ``c3bf_fixed``: ``filter.delay_growth_m`` null, the
+  airframe's whole acceleration in its neighbours' rows, docs/design.md "Delay");
 * ``noise`` [m]: motion-capture position noise, one standard deviation per coordinate (0-10 mm;
   frames at 100 Hz, on time);
 * ``gusts`` [m/s]: Dryden gusts' standard deviation (MIL-F-8785C lengths at 1 m; 0-3 m/s), with
@@ -87,7 +89,7 @@ from swarm.safety.monitor import Action
 from swarm.strict import merge
 
 AXES: dict[str, tuple[str, tuple[float, ...]]] = {
-    "latency": ("s", (0.0, 0.01, 0.025, 0.05, 0.075, 0.1)),
+    "latency": ("s", (0.0, 0.01, 0.025, 0.05, 0.075, 0.1, 0.15, 0.2)),
     "noise": ("m", (0.0, 0.001, 0.0025, 0.005, 0.0075, 0.01)),
     "gusts": ("m/s", (0.0, 0.5, 1.0, 2.0, 3.0)),
     "mass": ("fraction", (0.0, 0.1, 0.2, 0.3)),
@@ -100,6 +102,7 @@ AXES: dict[str, tuple[str, tuple[float, ...]]] = {
     "turbulence": ("m/s", (0.0, 0.25, 0.5, 1.0, 2.0)),
 }
 METHODS = ("c3bf", "hocbf")
+FIXED = "c3bf_fixed"  # C3BF without the delay contract (filter.delay_growth_m null): the latency axis only
 ORCA = "orca"  # flies each axis's first level only, in the ideal world (the module docstring)
 SCENES = ("circle_8", "sphere_8", "circle_8p")
 
@@ -166,7 +169,10 @@ def scene(name: str, method: str, axis: str, level: float, duration_s: float | N
     """The raw config of ``name`` flown by ``method`` with one imperfection."""
     raw = _base(name, duration_s)
     raw["world"] = {"realism": realism(axis, level)}
-    raw["defaults"].setdefault("filter", {})["kind"] = method
+    f = raw["defaults"].setdefault("filter", {})
+    f["kind"] = "c3bf" if method == FIXED else method
+    if method == FIXED:
+        f["delay_growth_m"] = None
     return raw
 
 
@@ -183,7 +189,7 @@ def points(axes: list[str], orca: bool = True) -> Iterator[Point]:
     for axis in axes:
         levels = AXES[axis][1]
         for level in levels:
-            for method in METHODS:
+            for method in (*METHODS, FIXED) if axis == "latency" else METHODS:
                 for name in SCENES:
                     yield Point(axis, level, method, name)
             if orca and level == levels[0]:
@@ -298,13 +304,13 @@ def plot(lines: list[dict[str, Any]], out: Path) -> None:
     for spare in panels[len(axes_seen) :]:
         spare.set_visible(False)
     contact_m = 2 * QuadModel().params.body_radius_m
-    colours = {"c3bf": "tab:blue", "hocbf": "tab:orange", ORCA: "tab:green"}
+    colours = {"c3bf": "tab:blue", "hocbf": "tab:orange", ORCA: "tab:green", FIXED: "tab:purple"}
     styles = {"circle_8": "-", "sphere_8": "--", "circle_8p": ":"}
     scale = {"s": 1000.0, "m": 1000.0, "m/s": 1.0, "fraction": 100.0, "drones": 1.0, "fraction/min": 100.0}
     label = {"s": "ms", "m": "mm", "m/s": "m/s", "fraction": "%", "drones": "drones", "fraction/min": "%/min"}
     for ax, axis in zip(panels, axes_seen, strict=False):
         unit = AXES[axis][0]
-        for method in (*METHODS, ORCA):
+        for method in (*METHODS, FIXED, ORCA):
             for name in SCENES:
                 rows = sorted((r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, name)),
                               key=lambda r: r["level"])  # fmt: skip

@@ -461,7 +461,7 @@ class AgentProcess:
         if source.publishes_state:
             self.seq += 1
             body = StateBody(result.x_b_w, result.v_b_w, self.radius_m, result.solo, result.sd)
-            state = encode_state(run, self.id, self.seq, msg.t, msg.k, body)
+            state = encode_state(run, self.id, self.seq, msg.t + result.ahead_s, msg.k, body)
             if isinstance(source, CellSource):
                 cell = source.cell_of(result.x_b_w)
                 pub = self.cell_pubs.get(cell)

@@ -39,7 +39,7 @@ from swarm.net.neighbours import (
 from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import neighbour_table
+from swarm.tuning import neighbour_table, swarm_accel_mps2
 
 
 def _keep_newest(by_tick: dict, n: int) -> None:
@@ -398,7 +398,9 @@ def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSou
     if cfg.neighbours.source == "world":
         return RosterSource(others)
     realism = cfg.world.realism
-    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism)
+    hz = cfg.time.control_hz
+    accel = swarm_accel_mps2(cfg.agents, realism, hz)
+    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism, hz, accel)
     table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say (a run's own agent gone wrong)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)

@@ -316,7 +316,9 @@ def simulate_swarm(
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
     lead = command_lead_s(r, control_hz)
-    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE)
+    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE, control_hz)
+    limits = [a.config.accel_limit_mps2 for a in agents]  # the swarm's agreed acceleration (swarm.tuning)
+    accel = None if r is None or any(x is None for x in limits) else max(x for x in limits if x is not None)
     steps = [
         AgentStep(
             model,
@@ -335,14 +337,13 @@ def simulate_swarm(
             lead_s=lead,
             monitor=mon,
             offset_sd_m=r.sensing.centroid_offset_std_m if r is not None and sensing else 0.0,
+            publish_ahead=a.config.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
             plugin=None if a.plugin is None else a.plugin(control_hz),
         )
         for a in agents
     ]
-    heard = [
-        NearNeighbours(set(names) - {names[i]}, neighbour_table(_FAILURE, model.params, r), math.inf, names[i], comms)
-        for i in range(n)
-    ]
+    table = neighbour_table(_FAILURE, model.params, r, control_hz, accel)
+    heard = [NearNeighbours(set(names) - {names[i]}, table.blank(), math.inf, names[i], comms) for i in range(n)]
     near_m = np.array([a.config.sensing_radius_m + _NEAR_MARGIN_M for a in agents])
     states = [QuadState.hover(a.start_w) for a in agents]
     for s, a in zip(states, agents, strict=True):
@@ -381,7 +382,7 @@ def simulate_swarm(
             for j in range(n):
                 if j != i:
                     heard[j].take(
-                        names[i], t, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, bundled=True, sd=res.sd
+                        names[i], t + res.ahead_s, k, res.x_b_w, res.v_b_w, p.body_radius_m, res.solo, True, sd=res.sd
                     )
         for i, res in enumerate(results):
             plant.send(i, res.command, k)
@@ -441,7 +442,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
     agents = []
     for a in cfg.agents:
         path_w, route = path_for(a, still)  # around the static obstacles, as the agents fly it
-        config = filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism)
+        config = filter_config_for(a, still, CommandLevel.ATTITUDE, route, cfg.world.realism, cfg.time.control_hz)
         agents.append(
             SwarmAgent(
                 np.asarray(a.start, dtype=float),

@@ -62,7 +62,9 @@ class FilterSpec:
     agent_id: str
     params: QuadParams  # the airframe: mass_kg, g_mps2, body_radius_m, f_max_N, max_tilt_rad, keep_out_*_m ...
     level: CommandLevel  # the command it filters: "attitude" F (3,) [N, world]; "rotors" f (4,) [N]
-    limits: LinearInputSet  # the level's input set: lb <= u <= ub and C u <= d [N]
+    # the level's input set: lb <= u <= ub and C u <= d [N]; at the attitude level with the swarm's agreed
+    # acceleration where its delay contract binds (FilterConfig.accel_limit_mps2), as the C3BF-QP keeps it
+    limits: LinearInputSet
     margin_m: float  # m: extra radius every row keeps (filter.margin_m)
     sensing_radius_m: float  # m: neighbours farther away are not given (filter.sensing_radius_m)
     control_period_s: float  # s: one control tick

@@ -321,6 +321,11 @@ class FilterConfig:
     planner's (``swarm.tuning.filter_config_for``; where its gain covers it): the path
     takes it round the walls, and the cones of pillars far along it no longer hold its
     velocity to a slit. Neighbours not doing their share get obstacle rows, and this too."""
+    accel_limit_mps2: float | None = None
+    """Attitude level: the largest acceleration [m/s^2] beyond gravity the filtered command may
+    ask (``|a_xy|`` and ``|a_z|`` each at most this over sqrt 2, so ``|a|`` at most this): the
+    bound a swarm's agents agree on, over which each extrapolates the others' states across the
+    loop's delay (``swarm.tuning.agreed_accel_mps2``); None: the airframe's input set alone."""
     ellipsoid: bool = True
     """Rows of other drones keep the keep-out ellipsoid of the airframe
     (``QuadParams.keep_out_xy_m``, ``keep_out_z_m``: Crazyswarm's 0.12 m across and 0.30 m up and
@@ -400,7 +405,7 @@ class SafetyFilter:
         if cfg.level is CommandLevel.ROTORS:
             self.input_set: LinearInputSet = rotor_input_set(model.params)
         else:
-            self.input_set = thrust_vector_input_set(model.params)
+            self.input_set = thrust_vector_input_set(model.params, accel_limit_mps2=cfg.accel_limit_mps2)
         self.m = self.input_set.lb.shape[0]
         self.r_own_m = model.params.body_radius_m + cfg.margin_m
         ins = self.input_set

@@ -75,6 +75,7 @@ def test_a_built_in_barrier_runs_in_the_step_s_own_qp():
 
 PARAMS = QuadParams()
 LIMITS = thrust_vector_input_set(PARAMS)
+AGREED = thrust_vector_input_set(PARAMS, accel_limit_mps2=3.0)  # a swarm's agreed acceleration (delay contract)
 SPEC = FilterSpec("a", PARAMS, CommandLevel.ATTITUDE, LIMITS, 0.02, 3.0, 1 / 120, None)
 HOVER = np.array([0.0, 0.0, PARAMS.weight_N])
 
@@ -172,6 +173,7 @@ def test_into_limits_puts_any_command_inside_the_input_set():
     for _ in range(500):
         F = rng.normal(0.0, 2.0, 3) * rng.choice([0.01, 1.0, 100.0])
         assert LIMITS.violation(into_limits(F, LIMITS)) <= 1e-12
+        assert AGREED.violation(into_limits(F, AGREED)) <= 1e-12
         f = rng.normal(0.0, 1.0, 4)
         assert rotors.violation(into_limits(f, rotors)) == 0.0
     inside = HOVER + np.array([0.01, -0.02, 0.0])

@@ -55,7 +55,7 @@ class FilterSettings(_Strict):
     # a plugin's own options, validated by its Options model (the built-ins' settings are the fields below)
     options: dict[str, Any] = {}
     # ms of wall time a plugin's call may take before its command is replaced by the built-in C3BF's
-    # (swarm.safety.external); null: one control period
+    # (swarm.safety.external); null: one control period in a realtime run or on a real drone, none in lockstep
     budget_ms: float | None = Field(None, gt=0, allow_inf_nan=False)
     gamma: float = Field(1.0, gt=0)  # 1/s, class-K gain
     gamma_ho: float = Field(1.0, gt=0)  # m/s, HO-CBF gain

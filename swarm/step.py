@@ -214,6 +214,7 @@ class AgentStep:
         control_hz: float | None = None,
         monitor: MonitorSettings | None = None,
         failure: FailureSettings | None = None,
+        realtime: bool = False,
     ) -> AgentStep:
         """The step of a configured agent among the static obstacles ``still``: its path
         planned round the walls (``swarm.route.path_for``), its filter tuned for that path
@@ -222,7 +223,8 @@ class AgentStep:
         drone acts on the states the world relays from the real motion capture, whose deviations
         are taken as the design's, ``swarm.tuning.design_std``); with
         ``control_hz`` its command's lead in that world; with ``monitor`` (and the scenario's
-        ``failure`` settings) its safety monitor."""
+        ``failure`` settings) its safety monitor; a safety filter plugin contained
+        (:func:`contained_plugin`; ``realtime``: the run is on the wall clock)."""
         level = agent.command_level if level is None else level
         lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
         path_w, route = path_for(agent, still)
@@ -263,7 +265,7 @@ class AgentStep:
             fixed_sd=fixed_sd,
             offset_sd_m=offset_sd,
             publish_ahead=fc.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
-            plugin=contained_plugin(agent, fc, control_hz),
+            plugin=contained_plugin(agent, fc, control_hz, realtime),
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -628,11 +630,15 @@ class AgentStep:
         self.reset_tallies()
 
 
-def contained_plugin(agent: AgentConfig, config: FilterConfig, control_hz: float | None) -> ContainedFilter | None:
+def contained_plugin(
+    agent: AgentConfig, config: FilterConfig, control_hz: float | None, realtime: bool = False
+) -> ContainedFilter | None:
     """The agent's safety filter plugin (``filter.kind``, ``swarm.plugins``) built and contained,
     or None when its filter is a built-in barrier (its own QP) or it flies unfiltered. ``config``:
-    its tuned C3BF-QP settings (the fallback's), whose level, margin and sensing radius the plugin is
-    given; ``control_hz`` (None: 100 Hz) sets its tick and, without ``filter.budget_ms``, its budget."""
+    its tuned C3BF-QP settings (the fallback's), whose level, margin, sensing radius and input set
+    the plugin is given; ``control_hz`` (None: 100 Hz) sets its tick. Its budget is
+    ``filter.budget_ms``, or without it one tick where the run is on the wall clock (``realtime``, or
+    a real drone) and none otherwise (``swarm.safety.external.budget_s``)."""
     from swarm.plugins import filter_class, filter_options
     from swarm.safety.external import FilterSpec, barrier_of, budget_s
 
@@ -650,4 +656,5 @@ def contained_plugin(agent: AgentConfig, config: FilterConfig, control_hz: float
         agent.id, params, config.level, limits, config.margin_m,
         config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),
     )  # fmt: skip
-    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s))
+    wall = realtime or agent.backend == "crazyflie"
+    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s, wall))

@@ -147,6 +147,7 @@ def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> Agen
     return AgentStep.of_agent(
         cfg.agent(agent_id), still, cfg.goal_tolerance_m,
         realism=cfg.world.realism, control_hz=cfg.time.control_hz, monitor=cfg.monitor, failure=cfg.failure,
+        realtime=cfg.time.mode is TimeMode.REALTIME,
     )  # fmt: skip
 
 

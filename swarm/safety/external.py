@@ -22,6 +22,7 @@ is also every plugin's fallback.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -313,6 +314,11 @@ def into_limits(u: FloatArray, limits: LinearInputSet) -> FloatArray:
     return out
 
 
-def budget_s(budget_ms: float | None, control_period_s: float) -> float:
-    """A plugin call's budget [s]: ``budget_ms`` if given, else one control period."""
-    return control_period_s if budget_ms is None else budget_ms * 1e-3
+def budget_s(budget_ms: float | None, control_period_s: float, wall_clock: bool) -> float:
+    """A plugin call's budget [s]: ``budget_ms`` if given; else one control period where the run
+    is on the wall clock, and none (inf) where it is not (lockstep, offline): there the world waits
+    for every agent, so a slow call costs time, not safety, and a budget of wall time would make a
+    lockstep run's figures depend on the machine's load."""
+    if budget_ms is not None:
+        return budget_ms * 1e-3
+    return control_period_s if wall_clock else math.inf

@@ -150,3 +150,14 @@ def test_swarm_filters_lists_every_registered_filter_and_says_which_cannot_be_us
     assert "c3bf  (c3swarm: swarm.safety.external:C3BF)" in out and "hocbf  (c3swarm" in out
     assert f"{VO}  (c3swarm-vo: c3swarm_vo:VelocityObstacle)\n  levels: attitude\n  options: horizon_s=1.5" in out
     assert "faulty.missing" in out and "cannot be imported: ModuleNotFoundError" in out
+
+
+def test_a_plugin_s_default_budget_is_one_tick_on_the_wall_clock_and_none_in_lockstep(plugins):
+    from swarm.step import contained_plugin
+
+    agent = resolve(_swap(kind=VO)).agents[0]
+    fc = agent.filter.filter_config(agent.command_level)
+    assert contained_plugin(agent, fc, 120.0, realtime=True).budget_s == 1 / 120.0
+    assert contained_plugin(agent, fc, 120.0, realtime=False).budget_s == float("inf")
+    timed = resolve(_swap(kind=VO, budget_ms=5.0)).agents[0]
+    assert contained_plugin(timed, fc, 120.0, realtime=False).budget_s == 0.005

@@ -739,31 +739,34 @@ def cf_reboot(uri: str) -> None:
 
 
 @cli.command()
-def filters() -> None:
-    """List the safety filters filter.kind can name (entry-point group c3swarm.filters), each
-    checked as a config would check it: imported, its levels and its options (docs/plugins.md)."""
-    from swarm.plugins import FILTERS, PluginError, filter_class, registered
+def plugins() -> None:
+    """List the safety filters (filter.kind) and reference controllers (controller.kind) a config
+    can name (entry-point groups c3swarm.filters, c3swarm.controllers), each checked as a config
+    would check it: imported, its levels and its options (docs/plugins.md)."""
+    from swarm.plugins import CONTROLLERS, FILTERS, PluginError, plugin_class, registered
     from swarm.safety.external import levels_of, options_of
 
-    try:
-        eps = registered(FILTERS)
-    except PluginError as exc:
-        click.echo(f"error: {exc}", err=True)
-        sys.exit(2)
     bad = 0
-    for name in sorted(eps):
-        ep = eps[name]
-        dist = getattr(ep.dist, "name", None) or "c3swarm"
+    for group, title in ((FILTERS, "safety filters"), (CONTROLLERS, "reference controllers")):
         try:
-            cls = filter_class(name)
+            eps = registered(group)
         except PluginError as exc:
-            click.echo(f"{name}  ({dist}: {ep.value})\n  error: {exc}")
-            bad += 1
-            continue
-        opts = options_of(cls)
-        fields = ", ".join(f"{k}={f.default!r}" for k, f in opts.model_fields.items()) if opts else "none"
-        levels = ", ".join(lv.value for lv in levels_of(cls))
-        click.echo(f"{name}  ({dist}: {ep.value})\n  levels: {levels}\n  options: {fields}")
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        click.echo(f"{title} ({group}):")
+        for name in sorted(eps):
+            ep = eps[name]
+            dist = getattr(ep.dist, "name", None) or "c3swarm"
+            try:
+                cls = plugin_class(group, name)
+            except PluginError as exc:
+                click.echo(f"  {name}  ({dist}: {ep.value})\n    error: {exc}")
+                bad += 1
+                continue
+            opts = options_of(cls)
+            fields = ", ".join(f"{k}={f.default!r}" for k, f in opts.model_fields.items()) if opts else "none"
+            levels = f"\n    levels: {', '.join(lv.value for lv in levels_of(cls))}" if group == FILTERS else ""
+            click.echo(f"  {name}  ({dist}: {ep.value}){levels}\n    options: {fields}")
     sys.exit(1 if bad else 0)
 
 

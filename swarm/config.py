@@ -138,6 +138,38 @@ class FilterSettings(_Strict):
         )
 
 
+class ControllerSettings(_Strict):
+    """The reference controller: a name registered in the entry-point group c3swarm.controllers
+    (``swarm.plugins``): the built-in path_tracker or an installed plugin's (docs/plugins.md)."""
+
+    kind: str = "path_tracker"
+    options: dict[str, Any] = {}  # a plugin's own options, validated by its Options model
+    # ms of wall time a plugin's call may take before the built-in's reference replaces it
+    # (swarm.reference); null: one control period in a realtime run or on a real drone, none in lockstep
+    budget_ms: float | None = Field(None, gt=0, allow_inf_nan=False)
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import CONTROLLERS, PluginError, plugin_class
+
+        try:
+            plugin_class(CONTROLLERS, v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> ControllerSettings:
+        from swarm.plugins import CONTROLLERS, PluginError, plugin_class, plugin_options
+
+        try:
+            plugin_options(plugin_class(CONTROLLERS, self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+
 class AirframeSettings(_Strict):
     """Overrides of :class:`swarm.model.QuadParams` (Crazyflie 2.1 defaults)."""
 
@@ -292,6 +324,7 @@ class AgentConfig(_Strict):
     yaw_rad: float = 0.0
     command_level: CommandLevel = CommandLevel.ATTITUDE
     filter: FilterSettings = FilterSettings()
+    controller: ControllerSettings = ControllerSettings()  # the reference controller (swarm.reference)
     tiebreak: TiebreakSettings = TiebreakSettings()
     planner: PlannerConfig = PlannerConfig()
     airframe: AirframeSettings = AirframeSettings()

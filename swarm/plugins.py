@@ -1,16 +1,19 @@
-"""Plugins by entry point: the safety filters a run can fly (docs/plugins.md).
+"""Plugins by entry point: the safety filters and reference controllers a run can fly
+(docs/plugins.md).
 
 A safety filter is found by its name in the entry-point group :data:`FILTERS`
-(``c3swarm.filters``) of the installed distributions (``importlib.metadata.entry_points``), the
-built-ins as any other: c3swarm's own ``pyproject.toml`` registers ``c3bf`` and ``hocbf``, and
-:data:`BUILTIN` holds the same entries for an install whose metadata predates them (an editable
-install of an older checkout). A config names one with ``filter.kind`` and gives its options with
-``filter.options``; :func:`filter_class` and :func:`filter_options` check both when the config is
-loaded, so an unknown name, a plugin that cannot be imported or options its own schema refuses
-stop the run before anything flies (``ConfigError`` naming the field: the CLI exits 2).
+(``c3swarm.filters``), a reference controller in :data:`CONTROLLERS` (``c3swarm.controllers``),
+among the installed distributions' entries (``importlib.metadata.entry_points``), the built-ins
+as any other: c3swarm's own ``pyproject.toml`` registers ``c3bf``, ``hocbf`` and
+``path_tracker``, and :data:`BUILTIN` holds the same entries for an install whose metadata
+predates them (an editable install of an older checkout). A config names one with ``filter.kind``
+(``controller.kind``) and gives its options with ``filter.options`` (``controller.options``);
+:func:`plugin_class` and :func:`plugin_options` check both when the config is loaded, so an
+unknown name, a plugin that cannot be imported or options its own schema refuses stop the run
+before anything flies (``ConfigError`` naming the field: the CLI exits 2).
 
-The protocol a filter implements, and its containment in flight, are in
-:mod:`swarm.safety.external`.
+The protocols, and their containment in flight, are in :mod:`swarm.safety.external` (filters)
+and :mod:`swarm.reference` (controllers).
 """
 
 from __future__ import annotations
@@ -25,9 +28,16 @@ from pydantic import BaseModel, ValidationError
 FILTERS = "c3swarm.filters"
 """The entry-point group of safety filters: ``name = "module:Class"``."""
 
+CONTROLLERS = "c3swarm.controllers"
+"""The entry-point group of reference controllers: ``name = "module:Class"``."""
+
 BUILTIN: dict[str, dict[str, str]] = {
     FILTERS: {"c3bf": "swarm.safety.external:C3BF", "hocbf": "swarm.safety.external:HOCBF"},
+    CONTROLLERS: {"path_tracker": "swarm.reference:PathTracking"},
 }
+
+_WHAT = {FILTERS: ("filter", "filter"), CONTROLLERS: ("controller", "reference")}
+"""Per group: what its plugins are called, and the method each must have."""
 """c3swarm's own entries (the same as its ``pyproject.toml``'s), per group."""
 
 UNFILTERED = "none"
@@ -64,29 +74,35 @@ def names(group: str = FILTERS) -> list[str]:
     return sorted(registered(group))
 
 
-def filter_class(name: str) -> type:
-    """The safety filter class registered as ``name``. Raises :class:`PluginError` (unknown
-    name, an import that fails, an object that is not a class with a ``filter`` method)."""
-    if name == UNFILTERED:
+def plugin_class(group: str, name: str) -> type:
+    """The class registered in ``group`` as ``name``. Raises :class:`PluginError` (unknown name,
+    an import that fails, an object that is not a class with the group's method)."""
+    what, method = _WHAT[group]
+    if group == FILTERS and name == UNFILTERED:
         raise PluginError(f"{name!r} is not a filter: fly unfiltered with filter.enabled: false")
-    eps = registered(FILTERS)
+    eps = registered(group)
     ep = eps.get(name)
     if ep is None:
         raise PluginError(
-            f"unknown filter {name!r}; registered in {FILTERS}: {', '.join(sorted(eps))} "
+            f"unknown {what} {name!r}; registered in {group}: {', '.join(sorted(eps))} "
             "(a plugin's package must be installed in this environment: docs/plugins.md)"
         )
     try:
         obj = ep.load()
     except Exception as exc:  # an import error of any kind: the plugin is not usable
-        raise PluginError(f"filter {name!r} ({ep.value}) cannot be imported: {type(exc).__name__}: {exc}") from None
-    if not isinstance(obj, type) or not callable(getattr(obj, "filter", None)):
-        raise PluginError(f"filter {name!r} ({ep.value}) is not a class with a filter(inp) method")
+        raise PluginError(f"{what} {name!r} ({ep.value}) cannot be imported: {type(exc).__name__}: {exc}") from None
+    if not isinstance(obj, type) or not callable(getattr(obj, method, None)):
+        raise PluginError(f"{what} {name!r} ({ep.value}) is not a class with a {method}(inp) method")
     return obj
 
 
+def filter_class(name: str) -> type:
+    """The safety filter class registered as ``name`` (:func:`plugin_class` of :data:`FILTERS`)."""
+    return plugin_class(FILTERS, name)
+
+
 def filter_options(cls: type, options: dict[str, Any]) -> BaseModel | None:
-    """``options`` validated by the filter class's ``Options`` model (None: it takes none).
+    """``options`` validated by a plugin class's ``Options`` model (None: it takes none).
     Raises :class:`PluginError` whose message starts with the option's path (``options.x: ...``)."""
     from swarm.safety.external import options_of
 
@@ -102,3 +118,6 @@ def filter_options(cls: type, options: dict[str, Any]) -> BaseModel | None:
         where = ".".join(str(p) for p in first["loc"])
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
         raise PluginError(f"options{'.' + where if where else ''}: {first['msg']}{more}") from None
+
+
+plugin_options = filter_options

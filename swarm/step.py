@@ -35,6 +35,7 @@ from swarm.control import (
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
 from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
+from swarm.reference import ContainedController, ControllerInput
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, corner_cut_m, follows, path_for
 from swarm.safety.external import ContainedFilter, FilterInput, Rows
@@ -49,6 +50,13 @@ if TYPE_CHECKING:
 
 
 _NO_ESTIMATE = np.zeros(0)
+
+
+def _frozen(a: FloatArray) -> FloatArray:
+    """A read-only copy of ``a`` (what a plugin is handed)."""
+    out = np.array(a, dtype=float)
+    out.flags.writeable = False
+    return out
 
 
 def real_drone_estimator() -> EstimatorParams:
@@ -108,6 +116,8 @@ class StepResult:
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
     fallback: str = ""  # a plugin filter's command replaced at this step, why (swarm.safety.external.Fallback); ""
     fallbacks: int = 0  # steps so far whose plugin filter's command was replaced by the built-in safe command
+    controller_fallback: str = ""  # a reference controller plugin's replaced at this step, why; ""
+    controller_fallbacks: int = 0  # steps so far whose controller plugin's reference was replaced by the tracker's
     # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
     # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
     ahead_s: float = 0.0
@@ -154,6 +164,7 @@ class AgentStep:
         offset_sd_m: float = 0.0,
         publish_ahead: bool = False,
         plugin: ContainedFilter | None = None,
+        controller: ContainedController | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -177,9 +188,11 @@ class AgentStep:
         when its command acts (it knows the commands in flight; its neighbours do not), so their rows
         of it are a lead younger (docs/design.md, "Delay").
         ``plugin``: a safety filter plugin (``swarm.safety.external``) flown in place of the
-        C3BF-QP of ``config``, which is its fallback."""
+        C3BF-QP of ``config``, which is its fallback; ``controller``: a reference controller plugin
+        (``swarm.reference``) whose reference replaces the path tracker's on a mission's ticks."""
         self.model, self.config, self.level = model, config, config.level
         self.plugin = plugin
+        self.controller = controller
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
         self.goal_w = np.asarray(tracker.goal_w if goal_w is None else goal_w, dtype=float)
@@ -266,6 +279,7 @@ class AgentStep:
             offset_sd_m=offset_sd,
             publish_ahead=fc.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
             plugin=contained_plugin(agent, fc, control_hz, realtime),
+            controller=contained_controller(agent, control_hz, realtime),
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -351,6 +365,13 @@ class AgentStep:
         else:
             others_v = nb.c_dot_w if self._follows else None  # a lane's queue is followed
             F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, nb.c_w, self.tiebreak, others_v)
+            if self.controller is not None and tracker is self.tracker and airborne and not landing:
+                F_ref = self.controller.run(
+                    ControllerInput(
+                        t_s, state.copy(), x_b.copy(), v_b.copy(), _frozen(tracker.W), self.goal_w.copy(),
+                        Rows.of(obs, obstacles), Rows.of(nb, neighbours), F_ref,
+                    )
+                )  # fmt: skip
         u_ref = self.att.from_thrust_vector(state, F_ref, self.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         res: FilterResult | None = None
         row_ids: list[str] = []
@@ -414,6 +435,8 @@ class AgentStep:
             ahead_s=self.lead_s if self.publish_ahead else 0.0,
             fallback="" if self.plugin is None or res is None else self.plugin.last,
             fallbacks=0 if self.plugin is None else self.plugin.fallbacks,
+            controller_fallback="" if self.controller is None else self.controller.last,
+            controller_fallbacks=0 if self.controller is None else self.controller.fallbacks,
         )
 
     def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:
@@ -588,6 +611,8 @@ class AgentStep:
         self.solo = not self.filtered
         if self.plugin is not None:
             self.plugin.reset()
+        if self.controller is not None:
+            self.controller.reset()
 
     def _brake(self, state: QuadState) -> FloatArray:
         """A command of the level that brakes to a hover where the drone is (a plugin's last resort)."""
@@ -658,3 +683,26 @@ def contained_plugin(
     )  # fmt: skip
     wall = realtime or agent.backend == "crazyflie"
     return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s, wall))
+
+
+def contained_controller(
+    agent: AgentConfig, control_hz: float | None, realtime: bool = False
+) -> ContainedController | None:
+    """The agent's reference controller plugin (``controller.kind``, ``swarm.plugins``) built and
+    contained, or None for the built-in path tracker. ``control_hz`` (None: 100 Hz) sets its tick;
+    its budget is ``controller.budget_ms``, or as a filter plugin's (:func:`contained_plugin`)."""
+    from swarm.plugins import CONTROLLERS, plugin_class, plugin_options
+    from swarm.reference import ControllerSpec, is_builtin
+    from swarm.safety.external import budget_s
+
+    cls = plugin_class(CONTROLLERS, agent.controller.kind)
+    if is_builtin(cls):
+        return None
+    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
+    params = agent.quad_params()
+    spec = ControllerSpec(
+        agent.id, params, thrust_vector_input_set(params), agent.speed_mps, period_s,
+        plugin_options(cls, dict(agent.controller.options)),
+    )  # fmt: skip
+    wall = realtime or agent.backend == "crazyflie"
+    return ContainedController(cls(spec), spec, budget_s(agent.controller.budget_ms, period_s, wall))

@@ -72,6 +72,8 @@ def command_body(result: StepResult) -> CommandBody:
         result.live_margin_m,
         result.fallback,
         result.fallbacks,
+        result.controller_fallback,
+        result.controller_fallbacks,
     )
 
 

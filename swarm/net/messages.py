@@ -33,7 +33,7 @@ VERSION = 11  # 2: the clock carries the measurements and obstacles; the command
 # 8: the tick names the agents the world has seen go ("gone")
 # 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
 # 10: the state carries its estimate's deviations; the command the monitor's verdict and the live margin
-# 11: the command carries a plugin filter's fallback and its count; the status the agents' counts
+# 11: the command carries a plugin filter's and controller's fallbacks and their counts; the status the agents' counts
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)
@@ -72,6 +72,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         # the ticks so far it was
         "fallback": "s",
         "fallbacks": "i",
+        # the same of a reference controller plugin (swarm.reference), replaced by the path tracker's reference
+        "ctrl_fallback": "s",
+        "ctrl_fallbacks": "i",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
@@ -190,6 +193,8 @@ class CommandBody:
     live_margin: float = 0.0  # m: the largest live noise margin of a row
     fallback: str = ""  # a plugin filter's command replaced at this tick, why (swarm.safety.external.Fallback)
     fallbacks: int = 0  # ticks so far its command was replaced
+    ctrl_fallback: str = ""  # a reference controller plugin's reference replaced at this tick, why
+    ctrl_fallbacks: int = 0  # ticks so far its reference was replaced
 
     @staticmethod
     def zero(level: str = "attitude") -> CommandBody:
@@ -214,6 +219,8 @@ class CommandBody:
             "live_margin": self.live_margin,
             "fallback": self.fallback,
             "fallbacks": self.fallbacks,
+            "ctrl_fallback": self.ctrl_fallback,
+            "ctrl_fallbacks": self.ctrl_fallbacks,
         }
 
 
@@ -554,8 +561,11 @@ FIELD_DOCS: dict[str, str] = {
     "fallback": "why the safety filter plugin's command was replaced by the built-in safe command this tick: "
     "raised, non_finite, out_of_limits, overrun, failed (empty: not replaced; swarm.safety.external)",
     "fallbacks": "ticks so far the safety filter plugin's command was replaced by the built-in safe command",
-    "fallback_ids": "agents whose safety filter plugin's command has been replaced by the built-in safe command",
-    "fallback_ticks": "per agent of fallback_ids, the ticks so far its plugin's command was replaced",
+    "ctrl_fallback": "why the reference controller plugin's reference was replaced by the path tracker's this "
+    "tick: raised, non_finite, out_of_limits, overrun (empty: not replaced; swarm.reference)",
+    "ctrl_fallbacks": "ticks so far the reference controller plugin's reference was replaced by the path tracker's",
+    "fallback_ids": "agents whose safety filter or reference controller plugin has been replaced by the built-in",
+    "fallback_ticks": "per agent of fallback_ids, the ticks so far its plugins' commands were replaced (both counted)",
 }
 _ITEM_SCHEMA = {
     "type": "object",

@@ -25,13 +25,14 @@ from swarm.realism.comms import CommsModel, DelayLine, MessageKind
 from swarm.realism.plant import Plant
 from swarm.realism.sensing import MocapFrame, MocapSensor
 from swarm.realism.settings import RealismSettings
+from swarm.reference import ContainedController
 from swarm.rotation import E3, FloatArray, quat_to_R
 from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.external import ContainedFilter
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.step import AgentStep, contained_plugin
+from swarm.step import AgentStep, contained_controller, contained_plugin
 from swarm.tuning import NOISE_SIGMAS, command_lead_s, filter_config_for, monitor_params, neighbour_table
 
 
@@ -212,6 +213,8 @@ class SwarmAgent:
     id: str = ""  # its name (the seeded imperfections of world.realism depend on it); "" : agent-<index>
     # its safety filter plugin (swarm.safety.external), built per run from the control rate [Hz]; None: config's QP
     plugin: Callable[[float], ContainedFilter | None] | None = None
+    # its reference controller plugin (swarm.reference), built per run from the control rate; None: the tracker
+    controller: Callable[[float], ContainedController | None] | None = None
 
     @property
     def goal_w(self) -> FloatArray:
@@ -242,6 +245,7 @@ class SwarmLog:
     live_margin_m: FloatArray | None = None  # (T, N) m: the largest live noise margin of a row
     unguarded_ticks: int = 0  # agent ticks an estimate's error exceeded its live bound with the monitor not acting
     fallbacks: list[int] = field(default_factory=list)  # per agent: ticks its plugin's command was replaced
+    controller_fallbacks: list[int] = field(default_factory=list)  # per agent: its controller plugin's, replaced
 
     def action_ticks(self, action: Action) -> int:
         """Agent ticks the monitor took ``action`` (0 without a log)."""
@@ -339,6 +343,7 @@ def simulate_swarm(
             offset_sd_m=r.sensing.centroid_offset_std_m if r is not None and sensing else 0.0,
             publish_ahead=a.config.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
             plugin=None if a.plugin is None else a.plugin(control_hz),
+            controller=None if a.controller is None else a.controller(control_hz),
         )
         for a in agents
     ]
@@ -432,6 +437,7 @@ def simulate_swarm(
         np.array(log_live),
         unguarded,
         [0 if s.plugin is None else s.plugin.fallbacks for s in steps],
+        [0 if s.controller is None else s.controller.fallbacks for s in steps],
     )
 
 
@@ -455,6 +461,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 route,
                 a.id,
                 partial(contained_plugin, a, config),
+                partial(contained_controller, a),
             )
         )
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

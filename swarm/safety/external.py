@@ -155,7 +155,7 @@ def levels_of(cls: type) -> tuple[CommandLevel, ...]:
 
 
 def options_of(cls: type) -> type[BaseModel] | None:
-    """A filter class's options model (``Options``), or None."""
+    """A plugin class's options model (``Options``), or None."""
     opt = getattr(cls, "Options", None)
     return opt if isinstance(opt, type) and issubclass(opt, BaseModel) else None
 

@@ -71,6 +71,8 @@ def main() -> int:
         live_margin=0.0,
         fallback="",
         fallbacks=0,
+        ctrl_fallback="",
+        ctrl_fallbacks=0,
     )
     # its commands numbered as an agent numbers them (2, 4, ...: a state before each), its
     # states apart: what the recording holds of it stays whole however it floods

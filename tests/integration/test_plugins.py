@@ -116,6 +116,43 @@ def test_a_raising_a_nan_a_wild_and_a_slow_plugin_are_each_contained_counted_and
     assert said == {a: float(m["agents"][a]["plugin_fallbacks"]["total"]) for a in why}
 
 
+def test_a_raising_controller_is_contained_and_a_sound_one_flies(plugins, tmp_path):
+    raw = _swap(kind="c3bf")
+    raw["agents"][0]["controller"] = {"kind": "faulty.raises", "options": {"after_s": 0.5}}
+    raw["agents"][1]["controller"] = {"kind": "faulty.gentle"}
+    h = RunHandle.start(resolve(raw), tmp_path / "run")
+    assert h.wait() == "completed"
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["margin_violations"] == 0 and m["all_reached_goal"], m["agents"]
+    cf1, cf2 = m["agents"]["cf1"]["controller_fallbacks"], m["agents"]["cf2"]["controller_fallbacks"]
+    assert cf1["raised"] > 0 and cf1["total"] == cf1["raised"] and cf2["total"] == 0, (cf1, cf2)
+    assert m["fallback_agents"] == ["cf1"] and m["plugin_fallbacks"] == cf1["total"]
+    assert m["agents"]["cf1"]["plugin_fallbacks"]["total"] == 0  # (its filter, the built-in C3BF, never replaced)
+    status = [r for r in read_records(tmp_path / "run" / "run.mcap") if r["kind"] == "status"][-1]
+    assert dict(zip(status["fallback_ids"], status["fallback_ticks"], strict=True)) == {"cf1": float(cf1["total"])}
+    agents, obs = scenario_swarm(resolve(raw))  # offline: the same plugins, the same containment
+    log = simulate_swarm(QuadModel(resolve(raw).agents[0].quad_params()), agents, obs, 8.0, control_hz=120)
+    assert log.controller_fallbacks[0] > 0 and log.controller_fallbacks[1] == 0 and log.all_reached
+
+
+@pytest.mark.parametrize(
+    ("section", "value", "field", "says"),
+    [
+        ("controller", {"kind": "mypkg.mpc"}, "agents.0.controller.kind", "unknown controller 'mypkg.mpc'"),
+        ("controller", {"kind": "faulty.gentle", "options": {"k": 1}}, "agents.0.controller.options", "no options"),
+        ("controller", {"kind": "faulty.raises", "options": {"after_s": -1}}, "agents.0.controller.options.after_s",
+         "greater than or equal to 0"),
+    ],
+)  # fmt: skip
+def test_a_bad_controller_config_exits_2_naming_the_field(plugins, tmp_path, section, value, field, says):
+    raw = _swap(kind="c3bf")
+    raw["defaults"][section] = value
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(raw))
+    p = _swarm("run", "bad.yaml", "--out", "run", cwd=tmp_path)
+    assert p.returncode == 2 and f"bad.yaml: {field}: " in p.stderr and says in p.stderr, p.stderr
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize(
     ("filt", "level", "field", "says"),
     [
@@ -143,13 +180,17 @@ def test_compare_refuses_an_unknown_filter_before_anything_flies(plugins, tmp_pa
     assert with_filter(resolve(_swap(kind=VO, options={"horizon_s": 2.0})), "c3bf").agents[0].filter.options == {}
 
 
-def test_swarm_filters_lists_every_registered_filter_and_says_which_cannot_be_used(plugins, tmp_path):
-    p = _swarm("filters", cwd=tmp_path)
+def test_swarm_plugins_lists_every_registered_plugin_and_says_which_cannot_be_used(plugins, tmp_path):
+    p = _swarm("plugins", cwd=tmp_path)
     assert p.returncode == 1, p.stderr  # faulty.missing cannot be imported
     out = p.stdout
-    assert "c3bf  (c3swarm: swarm.safety.external:C3BF)" in out and "hocbf  (c3swarm" in out
-    assert f"{VO}  (c3swarm-vo: c3swarm_vo:VelocityObstacle)\n  levels: attitude\n  options: horizon_s=1.5" in out
+    assert out.startswith("safety filters (c3swarm.filters):\n  c3bf  (c3swarm: swarm.safety.external:C3BF)"), out
+    assert f"  {VO}  (c3swarm-vo: c3swarm_vo:VelocityObstacle)\n    levels: attitude\n    options: horizon_s=1.5" in out
     assert "faulty.missing" in out and "cannot be imported: ModuleNotFoundError" in out
+    ctrl = out[out.index("reference controllers (c3swarm.controllers):") :]
+    assert (
+        "  path_tracker  (c3swarm: swarm.reference:PathTracking)" in ctrl and "  faulty.gentle  (c3swarm-faulty" in ctrl
+    )
 
 
 def test_a_plugin_s_default_budget_is_one_tick_on_the_wall_clock_and_none_in_lockstep(plugins):

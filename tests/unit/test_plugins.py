@@ -14,7 +14,8 @@ import pytest
 from swarm.config import ConfigError, resolve
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
-from swarm.plugins import FILTERS, filter_class, names, registered
+from swarm.plugins import CONTROLLERS, FILTERS, filter_class, names, plugin_class, registered
+from swarm.reference import ContainedController, ControllerInput, ControllerOutput, ControllerSpec, is_builtin
 from swarm.safety.external import (
     C3BF,
     HOCBF,
@@ -178,3 +179,54 @@ def test_into_limits_puts_any_command_inside_the_input_set():
         assert rotors.violation(into_limits(f, rotors)) == 0.0
     inside = HOVER + np.array([0.01, -0.02, 0.0])
     assert np.allclose(into_limits(inside, LIMITS), inside)  # a command inside stays (to 1e-9)
+
+
+# -- reference controllers --
+
+
+class _Reference:
+    def __init__(self, F: object) -> None:
+        self.F = F
+
+    def reference(self, inp: ControllerInput) -> ControllerOutput:
+        if isinstance(self.F, Exception):
+            raise self.F
+        return ControllerOutput(self.F)  # type: ignore[arg-type]
+
+
+def _ctrl_input(F_track: np.ndarray) -> ControllerInput:
+    state = QuadState.hover([0.0, 0.0, 1.0])
+    none = NamedObstacles.none()
+    rows = Rows.of(none.arrays, none)
+    return ControllerInput(0.0, state, state.x_w, state.v_w, np.zeros((2, 3)), state.x_w, rows, rows, F_track)
+
+
+CTRL_SPEC = ControllerSpec("a", PARAMS, LIMITS, 1.0, 1 / 120, None)
+
+
+@pytest.mark.parametrize(
+    ("F", "budget_s", "reason"),
+    [
+        (RuntimeError("boom"), 1.0, Fallback.RAISED),
+        (np.array([np.inf, 0.0, 0.3]), 1.0, Fallback.NON_FINITE),
+        (np.zeros(4), 1.0, Fallback.NON_FINITE),
+        (HOVER * 10.0, 1.0, Fallback.OUT_OF_LIMITS),
+        (HOVER, 0.0, Fallback.OVERRUN),
+    ],
+)
+def test_a_faulty_controller_s_reference_is_replaced_by_the_tracker_s_and_counted(F, budget_s, reason):
+    track = HOVER + np.array([0.1, 0.0, 0.0])
+    box = ContainedController(_Reference(F), CTRL_SPEC, budget_s)
+    assert np.array_equal(box.run(_ctrl_input(track)), track)
+    assert box.last == reason.value and box.fallbacks == 1
+
+
+def test_a_sound_controller_s_reference_is_flown_and_the_built_in_is_registered():
+    mine = HOVER + np.array([0.0, 0.05, 0.0])
+    box = ContainedController(_Reference(mine), CTRL_SPEC, 1.0)
+    assert np.array_equal(box.run(_ctrl_input(HOVER)), mine) and box.fallbacks == 0
+    assert is_builtin(plugin_class(CONTROLLERS, "path_tracker")) and "path_tracker" in names(CONTROLLERS)
+    with pytest.raises(ConfigError, match=r"t.yaml: agents.0.controller.kind: unknown controller 'mypkg.mpc'"):
+        resolve({**_raw(), "defaults": {"controller": {"kind": "mypkg.mpc"}}}, "t.yaml")
+    with pytest.raises(ConfigError, match=r"agents.0.controller.options: PathTracking takes no options"):
+        resolve({**_raw(), "defaults": {"controller": {"options": {"k": 1}}}}, "t.yaml")

@@ -1,5 +1,7 @@
 """Safety filters that misbehave from ``after_s`` on: raise, return NaN, overrun their budget,
-or ask for more thrust than the airframe has. Before then each passes the reference through."""
+or ask for more thrust than the airframe has. Before then each passes the reference through.
+Reference controllers: one that raises from ``after_s`` on, and a sound one that asks for a
+gentler horizontal thrust than the path tracker's."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from swarm.reference import ControllerInput, ControllerOutput, ControllerSpec
 from swarm.safety.external import FilterInput, FilterOutput, FilterSpec
 
 
@@ -53,3 +56,25 @@ class Slow(_Faulty):
 class OutOfLimits(_Faulty):
     def fault(self, inp: FilterInput) -> FilterOutput:
         return FilterOutput(inp.u_ref * 100.0)
+
+
+class RaisingController:
+    Options = Options
+
+    def __init__(self, spec: ControllerSpec) -> None:
+        self.opt = spec.options if isinstance(spec.options, Options) else Options()
+
+    def reference(self, inp: ControllerInput) -> ControllerOutput:
+        if inp.t_s < self.opt.after_s:
+            return ControllerOutput(inp.F_track_w)
+        raise RuntimeError("this controller raises on purpose")
+
+
+class GentleController:
+    def __init__(self, spec: ControllerSpec) -> None:
+        self.spec = spec
+
+    def reference(self, inp: ControllerInput) -> ControllerOutput:
+        F = np.array(inp.F_track_w)
+        F[:2] *= 0.8  # N, world: four fifths of the tracker's horizontal thrust
+        return ControllerOutput(F)

@@ -27,6 +27,7 @@ from swarm.runs.sweep import parse_axes, sweep
 pytestmark = pytest.mark.integration
 
 VO = "c3swarm_vo.vo"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "vo_filter"
 
 
 def _swap(**filt: Any) -> dict[str, Any]:
@@ -53,9 +54,9 @@ def _swarm(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 
 
 def test_the_example_is_compared_beside_c3bf_and_hocbf_in_the_ideal_and_the_lab_world(plugins, tmp_path):
-    (tmp_path / "vo.yaml").write_text(yaml.safe_dump(_swap(kind=VO, options={"horizon_s": 1.5})))
+    example = EXAMPLE / "swap_2_vo.yaml"  # the example's own config, as its README flies it
     p = _swarm(
-        "compare", "vo.yaml", "--filters", f"c3bf,hocbf,{VO}", "--realism", "ideal,crazyflie_lab", "--out", "cmp",
+        "compare", str(example), "--filters", f"c3bf,hocbf,{VO}", "--realism", "ideal,crazyflie_lab", "--out", "cmp",
         cwd=tmp_path,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
@@ -68,7 +69,9 @@ def test_the_example_is_compared_beside_c3bf_and_hocbf_in_the_ideal_and_the_lab_
     table = (tmp_path / "cmp" / "compare.md").read_text()
     assert f"| crazyflie_lab | {VO} | 0 |" in table and "| plugin fallbacks |" in table, table
     flown = load(tmp_path / "cmp" / "ideal" / VO / "config.yaml")  # the run's own config: the plugin's options kept
-    assert flown.agents[0].filter.kind == VO and flown.agents[0].filter.options == {"horizon_s": 1.5}
+    assert (
+        flown.agents[0].filter.kind == VO and flown.agents[0].filter.options == load(example).agents[0].filter.options
+    )
 
 
 def test_the_example_flies_in_a_local_sweep_and_offline(plugins, tmp_path):

@@ -50,9 +50,27 @@ _SECRETS = click.option(
 )
 
 
+def _console(stderr: bool = False) -> Any:
+    """A rich console that never cuts a line: off a terminal (a log, CI, a pipe) as wide as
+    a line needs (rich would take 80 columns, or ``COLUMNS``)."""
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    if stream.isatty():
+        return Console(stderr=stderr)
+    return Console(stderr=stderr, width=100_000, soft_wrap=True)
+
+
+def _world_landed(out: Path) -> bool:
+    """Whether the world of the run in ``out`` took a land request (its summary line)."""
+    from swarm.runs.ledger import summaries
+
+    return summaries(out / "logs").get("world", {}).get("landing_from_s") is not None
+
+
 def _status_info(st: dict[str, Any]) -> str:
-    """The progress bar's line for the world's status message."""
-    sep = f"{st['min_sep']:.3f} m" if st["min_sep"] < 1e8 else "-"
+    """The progress bar's line for the world's status message (min sep in mm)."""
+    sep = f"{1e3 * st['min_sep']:.0f} mm" if st["min_sep"] < 1e8 else "-"
     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
     if st.get("stalls"):
         info += f"  [yellow]stalls {st['stalls']}[/]"
@@ -76,37 +94,58 @@ def run_scenario(
     secrets: Path | None = None,
     live_port: int | None = None,
 ) -> tuple[int, dict[str, Any]]:
-    """Run a whole scenario as separate processes with a progress bar; (exit code, metrics)."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    """Run a whole scenario as separate processes with a progress bar; (exit code, metrics).
 
+    The first stop signal (Ctrl-C, SIGTERM, SIGHUP) lands every drone and ends the run when
+    they are down (``swarm.landing``; exit code 1, ``stop_reason`` "landed on request"); a
+    second one, or one before the world has ticked, stops every process at once: the
+    emergency stop (real drones' motors off where they fly; ``stop_reason`` "interrupted")."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Column
+
+    from swarm.landing import LANDED, LANDING_BANNER, LANDING_NOW, Stop, stop_for
     from swarm.runs.launch import RunHandle
 
+    click.echo(LANDING_BANNER, err=True)
     with StopSignals() as interrupted:
         handle = RunHandle.start(
             cfg, out, gui=gui, run_id=run_id, cancelled=lambda: interrupted.now, secrets=secrets, live_port=live_port
         )
+        wrap = Column(no_wrap=False, overflow="fold")  # (a narrow terminal wraps the line, never cuts it)
         bar = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:.1f}/{task.total:.1f} s sim"),
-            TextColumn("{task.fields[info]}"),
+            TextColumn("[bold]{task.description}", table_column=Column(no_wrap=False, overflow="fold")),
+            BarColumn(bar_width=20),
+            TextColumn("{task.completed:.1f}/{task.total:.1f} s sim", table_column=Column(no_wrap=True)),
+            TextColumn("{task.fields[info]}", table_column=wrap),
             TimeElapsedColumn(),
             disable=not progress,
+            console=_console(stderr=True),
         )
         limit = time.monotonic() + handle.wall_limit_s
         reason: str | None = None
         info = ""
+        asked_s: float | None = None  # wall time of the last land request
         try:
             with bar:
                 task = bar.add_task(cfg.name, total=cfg.duration_s, info="starting")
                 while reason is None:
                     reason = handle.poll(stop_on_agent_death, wait_s=0.05)
                     if handle.progress.status:
-                        info = _status_info(handle.progress.status)
+                        info = _status_info(handle.progress.status) + ("  [yellow]landing[/]" if asked_s else "")
                         bar.update(task, completed=min(handle.progress.t_s, cfg.duration_s), info=info)
-                    if interrupted.now:
+                    what = stop_for(interrupted.count, bool(handle.progress.status))
+                    now = time.monotonic()
+                    if reason == "completed" and asked_s is not None and _world_landed(out):
+                        reason = LANDED
+                    elif reason is None and what is Stop.NOW:
                         reason = "interrupted"
-                    elif reason is None and time.monotonic() > limit:
+                    elif reason is None and what is Stop.LAND and (asked_s is None or now - asked_s > 1.0):
+                        if asked_s is None:
+                            bar.console.print(LANDING_NOW, markup=False, highlight=False)
+                            limit = now + 20.0 * cfg.time.land_timeout_s + 60.0
+                        handle.land("Ctrl-C")  # (repeated each second: each process takes the first)
+                        asked_s = now
+                    if reason is None and time.monotonic() > limit:
                         reason = "wall-clock limit"
                 t_end = handle.progress.t_s
                 if reason == "completed" and 0 < t_end < cfg.duration_s:  # ended early: every goal reached
@@ -114,6 +153,22 @@ def run_scenario(
         finally:
             handle.finish(reason or "interrupted")
     return (0 if handle.reason == "completed" else 1), handle.result
+
+
+def print_summary(metrics: dict[str, Any]) -> None:
+    """``swarm run``'s summary of a run's ``metrics.json``: the run's figures and one row per
+    agent, each table with its metrics' meanings under it (``swarm.runs.readable``)."""
+    from swarm.offline.metrics import SUMMARY_KEYS
+    from swarm.runs.readable import fig, notes, print_table
+
+    print_table("run", ["metric", "value"], [[k, fig(metrics.get(k), k)] for k in SUMMARY_KEYS], notes(SUMMARY_KEYS))
+    cols = ("reached_goal", "time_to_goal_s", "path_length_m", "min_h", "min_row_h", "infeasible_ticks")
+    rows = []
+    for aid, a in metrics["agents"].items():
+        acted = {n: c for n, c in (a.get("monitor") or {}).get("action_ticks", {}).items() if c}
+        monitor = ", ".join(f"{n} {c}" for n, c in acted.items()) or "-"
+        rows.append([aid, *(fig(a.get(k), k) for k in cols), monitor])
+    print_table("agents", ["agent", *cols, "monitor"], rows, notes([*cols, "monitor"]))
 
 
 def _pin_cpu() -> None:
@@ -182,19 +237,8 @@ def run(
         secrets=secrets,
         live_port=live_port,
     )
-    from swarm.offline.metrics import SUMMARY_KEYS
-
     if metrics.get("agents"):
-        for k in SUMMARY_KEYS:
-            click.echo(f"{k:>26}: {metrics.get(k)}")
-        for aid, a in metrics["agents"].items():
-            acted = {n: c for n, c in (a.get("monitor") or {}).get("action_ticks", {}).items() if c}
-            click.echo(
-                f"{aid:>26}: reached={a['reached_goal']} t_goal={a['time_to_goal_s']} "
-                f"path={a['path_length_m']:.2f} m min_h={a['min_h']} min_row_h={a['min_row_h']} "
-                f"infeasible={a['infeasible_ticks']}"
-                + (f" monitor={','.join(f'{n}:{c}' for n, c in acted.items())}" if acted else "")
-            )
+        print_summary(metrics)
     click.echo(f"run folder: {out}")
     sys.exit(code)
 
@@ -427,17 +471,22 @@ def report(run_dir: Path) -> None:
     "--realism",
     help="comma-separated world.realism presets to fly side by side (e.g. ideal,crazyflie_lab; default: the config's)",
 )
+@click.option(
+    "--seeds",
+    type=click.IntRange(min=1, max=100),
+    default=1,
+    show_default=True,
+    help="fly each filter with this many seeds (config seed, +1, ...): each cell the mean [min, max]",
+)
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
-def compare(config: str, filters: str, mode: str | None, realism: str | None, out: Path | None) -> None:
+def compare(config: str, filters: str, mode: str | None, realism: str | None, seeds: int, out: Path | None) -> None:
     """Run one scenario under each filter (in each world) and print the comparison table."""
-    from rich.console import Console
-    from rich.table import Table
-
     from swarm.plugins import UNFILTERED
     from swarm.plugins import names as filter_names
     from swarm.realism.settings import PRESETS
-    from swarm.runs.compare import _fmt, columns, in_world, with_filter
+    from swarm.runs.compare import cells, in_world, with_filter
     from swarm.runs.compare import compare as run_compare
+    from swarm.runs.readable import print_table
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
     known = [*filter_names(), UNFILTERED]
@@ -463,14 +512,9 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, ou
             click.echo(f"config error: {exc}", err=True)
             sys.exit(2)
     out = out or Path("runs") / f"compare-{cfg.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    rows = run_compare(cfg, names, out, worlds)
-    table = Table(title=f"{cfg.name}: filters compared")
-    cols = columns(rows)
-    for _, title in cols:
-        table.add_column(title)
-    for r in rows:
-        table.add_row(*(_fmt(r.get(key)) for key, _ in cols))
-    Console().print(table)
+    rows = run_compare(cfg, names, out, worlds, seeds)
+    header, body, legend = cells(rows)
+    print_table(f"{cfg.name}: filters compared", header, body, legend)
     click.echo(f"saved: {out / 'compare.md'}")
 
 
@@ -487,6 +531,7 @@ class _SweepProgress:
             MofNCompleteColumn(),
             TextColumn("{task.fields[failed]} failed, {task.fields[running]} running"),
             TimeElapsedColumn(),
+            console=_console(stderr=True),
         )
         self.task = self.bar.add_task("sweep", total=total, completed=done, failed=0, running=0)
         self.total, self.finished, self.failed, self.running = total, done, 0, 0
@@ -505,6 +550,8 @@ class _SweepProgress:
             self.bar.update(self.task, running=self.running)
 
     def done(self, row: dict[str, Any]) -> None:
+        from swarm.runs.readable import fig
+
         with self.lock:
             self.finished += 1
             self.failed += bool(row.get("error"))
@@ -517,7 +564,7 @@ class _SweepProgress:
             self.bar.console.print(
                 f"{head}: success={row['success']} collisions={row['collisions']} "
                 f"margin_violations={row['margin_violations']} deadlock={row['deadlock']} "
-                f"time_to_goal_s={row['time_to_goal_s']}",
+                f"mean_time_to_goal_s={fig(row['mean_time_to_goal_s'], 'mean_time_to_goal_s')}",
                 markup=False,
                 highlight=False,
                 soft_wrap=True,
@@ -616,8 +663,16 @@ def sweep(
     show_default=True,
     help="neighbours.source: the agents' own states, or the world's roster of every drone (ground truth: ideal only)",
 )
+@click.option(
+    "--room",
+    default="8,8,3",
+    show_default=True,
+    metavar="X,Y,Z",
+    help="the lab's flight volume [m], centred on the origin, floor at z = 0: starts and goals stay 0.3 m inside "
+    "(a sphere too tall is squeezed into it)",
+)
 @click.option("--out", "-o", type=click.Path(path_type=Path), help="file to write (default: print)")
-def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None:
+def scenario(kind: str, n: int | None, out: Path | None, room: str, **options: Any) -> None:
     """Write a generated scenario: a swap (antipodal points of a circle or a sphere, or
     random sets) or a scene among walls (N abreast through a doorway, two flows through a
     corridor, a drone in a U-shaped trap, a crossing of a forest of pillars)."""
@@ -626,7 +681,7 @@ def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None
     import yaml
 
     from swarm.config import resolve
-    from swarm.offline.scenario import SwapSettings, generate
+    from swarm.offline.scenario import Room, SwapSettings, fit_room, generate
 
     o = options
     settings = SwapSettings(
@@ -639,14 +694,21 @@ def scenario(kind: str, n: int | None, out: Path | None, **options: Any) -> None
             click.echo(f"error: swarm scenario {kind}: give --agents", err=True)
             sys.exit(2)
     try:
+        size = tuple(float(v) for v in room.split(","))
+        if len(size) != 3 or not all(math.isfinite(v) and v > 0 for v in size):
+            raise ValueError(f"--room {room}: give three positive sizes in metres, X,Y,Z (e.g. 8,8,3)")
         raw = generate(kind, n or 1, settings, radius_m=o["radius"], density=o["density"], gap_m=o["gap"])
+        raw = fit_room(raw, Room(size_m=(size[0], size[1], size[2])))
         raw["defaults"]["filter"]["rho"] = o["rho"]
         raw["defaults"]["tiebreak"] = {"kind": o["tiebreak"]}
         resolve(raw, f"generated {kind} scenario")  # validated before it is written
     except (ConfigError, ValueError) as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2)
-    header = f"# Generated by: swarm scenario {kind} --agents {n or 1} (units: m, m/s, s, Hz)\n"
+    header = (
+        f"# Generated by: swarm scenario {kind} --agents {n or 1} --room {room} (units: m, m/s, s, Hz)\n"
+        f"# Inside a {room.replace(',', ' x ')} m room centred on the origin, floor at z = 0\n"
+    )
     text = header + yaml.safe_dump(raw, sort_keys=False, default_flow_style=None, width=120)
     if out:
         out.write_text(text)

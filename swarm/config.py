@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from swarm.config_where import Loc, explain, key_lines
 from swarm.crazyflie_fw import CMD_FULL, ThrustMap, pwm_per_newton, thrust_map
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, Layout, QuadParams
@@ -743,19 +744,13 @@ class ScenarioConfig(_Strict):
             for o in self.obstacles:
                 keep = radius[i] + a.filter.margin_m
                 if _surface_distance(o, a.start) < keep:
-                    raise ValueError(
-                        f"agents.{i}.start: {a.start} is within {keep:.3f} m of obstacle {o.id!r} "
-                        "(inside it or its safety radius)"
-                    )
+                    raise ValueError(f"agents.{i}.start: {a.start} {_too_near(o, a.start, keep)}")
                 if any(o.velocity):
                     continue
                 for j, pt in enumerate(a.path()[1:]):
                     if _surface_distance(o, pt) < keep:
                         field_ = "goal" if a.goal is not None else f"waypoints.{j}"
-                        raise ValueError(
-                            f"agents.{i}.{field_}: {pt} is within {keep:.3f} m of obstacle {o.id!r} "
-                            "(inside it or its safety radius)"
-                        )
+                        raise ValueError(f"agents.{i}.{field_}: {pt} {_too_near(o, pt, keep)}")
         for i, a in enumerate(self.agents):
             for j in range(i):
                 b = self.agents[j]
@@ -969,6 +964,21 @@ class ScenarioConfig(_Strict):
         raise ConfigError(f"no agent with id {agent_id!r} (have {[a.id for a in self.agents]})")
 
 
+def _too_near(o: ObstacleConfig, pt: list[float], keep_m: float) -> str:
+    """Why point ``pt`` [m, world] cannot be where a drone starts or ends near obstacle ``o``,
+    which it must stay ``keep_m`` from (body radius plus margin)."""
+    d = _surface_distance(o, pt)
+    if d < 0:
+        return (
+            f"is inside obstacle {o.id!r} ({-d:.3f} m below its surface): move it at least {keep_m:.3f} m "
+            "outside (body radius + filter margin)"
+        )
+    return (
+        f"is {d:.3f} m from obstacle {o.id!r}'s surface, inside its safety radius: move it at least "
+        f"{keep_m:.3f} m off (body radius + filter margin)"
+    )
+
+
 def _surface_distance(o: ObstacleConfig, pt: list[float]) -> float:
     """Distance [m] from ``pt`` (world) to the surface of obstacle ``o`` at t = 0
     (negative inside); a cylinder is its infinite axis, as the barrier treats it."""
@@ -980,10 +990,13 @@ def _surface_distance(o: ObstacleConfig, pt: list[float]) -> float:
     return float(np.linalg.norm(d)) - o.radius_m
 
 
-def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
-    """Layer defaults and agent types into each agent and validate everything."""
+def resolve(raw: dict[str, Any], source: str = "<config>", lines: dict[Loc, int] | None = None) -> ScenarioConfig:
+    """Layer defaults and agent types into each agent and validate everything. An error
+    names the key as written (``defaults.filter.gama``, not the agents' merged copies) and,
+    with the file's ``lines`` (``swarm.config_where.key_lines``), its line."""
     if not isinstance(raw, dict):
         raise ConfigError(f"{source}: the top level must be a mapping")
+    original = raw
     raw = dict(raw)
     defaults = raw.pop("defaults", {}) or {}
     types = raw.pop("agent_types", {}) or {}
@@ -1014,16 +1027,7 @@ def resolve(raw: dict[str, Any], source: str = "<config>") -> ScenarioConfig:
     try:
         return ScenarioConfig.model_validate(raw)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        path = ".".join(str(p) for p in first["loc"])
-        msg = first["msg"].removeprefix("Value error, ")
-        if first["type"] == "value_error" and ": " in msg and msg.split(": ", 1)[0].replace(".", "").isidentifier():
-            # our validators name the field below the model they check: "agents.3.start: ..."
-            inner, msg = msg.split(": ", 1)
-            path = f"{path}.{inner}" if path else inner
-        path = path or "(top level)"
-        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-        raise ConfigError(f"{source}: {path}: {msg}{more}") from None
+        raise ConfigError(explain(exc.errors(), original, source, lines or {}, ScenarioConfig)) from None
     except ValueError as exc:  # raised by our own models (e.g. QuadParams)
         raise ConfigError(f"{source}: {exc}") from None
 
@@ -1055,7 +1059,7 @@ def load(path: str | Path, overrides: dict[str, Any] | None = None) -> ScenarioC
         raise ConfigError(f"{p}: not valid YAML ({exc})") from None
     if overrides:
         raw = _merge(raw if isinstance(raw, dict) else {}, overrides)
-    cfg = resolve(raw, str(p))
+    cfg = resolve(raw, str(p), key_lines(text))
     for a in cfg.agents:  # build the physical parameters now, so their errors surface here
         try:
             a.airframe.params()

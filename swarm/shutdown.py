@@ -28,17 +28,20 @@ class StopFlag:
 
 class StopSignals:
     """While entered, Ctrl-C, ``kill`` and a closed terminal (SIGINT, SIGTERM, SIGHUP) set
-    :attr:`now` instead of killing the launcher: the children run in their own process
-    groups, so a launcher that just died would leave them flying."""
+    :attr:`now` and count in :attr:`count` instead of killing the launcher: the children run
+    in their own process groups, so a launcher that just died would leave them flying
+    (``swarm run`` lands them on the first, ``swarm.landing``)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
     def __init__(self) -> None:
         self.now = False
+        self.count = 0  # stop signals received while entered
         self._old: dict[int, Any] = {}
 
     def _set(self, signum: int, frame: Any) -> None:
         self.now = True
+        self.count += 1
 
     def __enter__(self) -> StopSignals:
         self._old = {sig: signal.signal(sig, self._set) for sig in self.SIGNALS}

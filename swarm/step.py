@@ -42,7 +42,14 @@ from swarm.safety.external import ContainedFilter, FilterInput, Rows
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import command_lead_s, design_std, filter_config_for, live_margin_m, monitor_params
+from swarm.tuning import (
+    command_lead_s,
+    delay_speed_mps,
+    design_std,
+    filter_config_for,
+    live_margin_m,
+    monitor_params,
+)
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig, FailureSettings, MonitorSettings
@@ -253,17 +260,19 @@ class AgentStep:
                 v0_w=np.asarray(agent.start_velocity, float),
             )
         mon = None
-        if monitor is not None:
-            from swarm.config import FailureSettings as _Failure
-
-            mon = monitor_params(monitor, realism, failure if failure is not None else _Failure(), control_hz)
         fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
         offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
         fc = filter_config_for(agent, still, level, route, realism, control_hz)
+        ahead = lead_s if fc.accel_limit_mps2 is not None else 0.0  # (the swarm's delay contract binds)
+        if monitor is not None:
+            from swarm.config import FailureSettings as _Failure
+
+            fail = failure if failure is not None else _Failure()
+            mon = monitor_params(monitor, realism, fail, control_hz, neighbours_ahead_s=ahead)
         return cls(
             QuadModel(agent.quad_params()),
             fc,
-            PathTracker(path_w, agent.speed_mps, cut_m=corner_cut_m(route)),
+            PathTracker(path_w, delay_speed_mps(agent, realism, control_hz), cut_m=corner_cut_m(route)),
             goal_w=np.asarray(agent.final_goal, dtype=float),
             route=route,
             tiebreak=agent.tiebreak.pair,
@@ -277,7 +286,7 @@ class AgentStep:
             monitor=mon,
             fixed_sd=fixed_sd,
             offset_sd_m=offset_sd,
-            publish_ahead=fc.accel_limit_mps2 is not None,  # (the swarm's delay contract binds)
+            publish_ahead=ahead > 0.0,
             plugin=contained_plugin(agent, fc, control_hz, realtime),
             controller=contained_controller(agent, control_hz, realtime),
         )
@@ -503,7 +512,8 @@ class AgentStep:
         if len(nb):  # (the neighbours in range only where some reading could breach)
             top_sd = float(nb_sd_m.max()) if self.live else 0.0
             top_age = 0.0 if nb_age_s is None else float(nb_age_s.max())
-            if top_sd > p.std_envelope_m or top_age > p.neighbour_age_s:
+            nb_env = p.std_envelope_m if p.neighbour_std_envelope_m is None else p.neighbour_std_envelope_m
+            if top_sd > nb_env or top_age > p.neighbour_age_s:
                 d = nb.c_w - x_b_w
                 near = np.einsum("ij,ij->i", d, d) <= self.config.sensing_radius_m**2
                 if near.any():

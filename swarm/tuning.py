@@ -30,19 +30,20 @@ position error (own and neighbour's, independent: ``sqrt(2)`` times one) beyond 
 ``world.realism.sensing`` (:func:`noise_margin_m`)."""
 
 
-def design_std(realism: RealismSettings | None) -> tuple[float, float]:
+def design_std(realism: RealismSettings | None, ahead_s: float = 0.0) -> tuple[float, float]:
     """The estimator's steady-state standard deviations of position [m] and velocity [m/s] when
     it is read (``swarm.realism.sensing.steady_std``, the largest axis, and in quadrature the
     markers' constant offset ``centroid_offset_std_m``; (0, 0) without sensing): what an agent
     without an estimator of its own (a real drone on the world's frames) says its state's
     deviations are, and the envelope the safety monitor holds the live ones to
-    (``swarm.safety.monitor``)."""
+    (``swarm.safety.monitor``). ``ahead_s`` [s]: of the estimate predicted this much further
+    (a state published for when its command acts)."""
     if realism is None or not realism.sensing.enabled:
         return 0.0, 0.0
     from swarm.realism.sensing import steady_std
 
     s = realism.sensing
-    pos, vel = steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s)
+    pos, vel = steady_std(s.estimator_params(), s.rate_hz, s.drop_fraction, s.latency_s + ahead_s)
     if s.centroid_offset_std_m > 0.0:  # the markers' offset from the centre of mass, which no estimate sees
         pos = math.hypot(pos, s.centroid_offset_std_m)
     return pos, vel
@@ -121,6 +122,19 @@ def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, contro
     return agreed_accel_mps2(agent.quad_params(), realism, control_hz, agent.filter.delay_growth_m)
 
 
+def delay_speed_mps(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float:
+    """The speed [m/s] ``agent`` cruises at: its ``speed_mps``, and where the swarm's delay
+    contract binds (:func:`agent_accel_mps2`) at most ``a A``, the velocity a neighbour can gain
+    at the agreed acceleration ``a`` over its row's expected age ``A`` (:func:`expected_ages`):
+    no faster than what its neighbours may not yet know of, so a neighbour's velocity error is
+    no larger than the agent's own speed (``2 delay_growth_m / A``; docs/design.md, "Delay")."""
+    a = agent_accel_mps2(agent, realism, control_hz) if agent.command_level is CommandLevel.ATTITUDE else None
+    if a is None:
+        return agent.speed_mps
+    age = expected_ages(realism, control_hz).neighbour_s
+    return min(agent.speed_mps, a * age)
+
+
 def swarm_accel_mps2(
     agents: Sequence[AgentConfig], realism: RealismSettings | None, control_hz: float | None
 ) -> float | None:
@@ -189,27 +203,36 @@ def monitor_params(
     realism: RealismSettings | None,
     failure: FailureSettings,
     control_hz: float | None = None,
+    neighbours_ahead_s: float = 0.0,
 ) -> MonitorParams:
     """The safety monitor's parameters (``swarm.safety.monitor.MonitorParams``) from the
     scenario's ``monitor`` settings: the deviation envelope, ``std_envelope_factor`` times the
     steady-state deviation the noise margin was designed for (:func:`design_std`, with sensing;
     none without) unless set, the neighbours' age bound
     ``failure.neighbour_timeout_s`` unless set. The age bounds are beyond the ages the
-    configured delays give (:func:`expected_ages`, with ``control_hz`` the agent's rate)."""
+    configured delays give (:func:`expected_ages`, with ``control_hz`` the agent's rate).
+    Neighbours that publish their states predicted ``neighbours_ahead_s`` [s] ahead (the delay
+    contract: ``swarm.step.AgentStep``'s ``publish_ahead``) are held to the envelope of that
+    prediction's deviation, and their rows' expected age is that much shorter."""
     ages = expected_ages(realism, control_hz)
+    nb_age_s = max(0.0, ages.neighbour_s - neighbours_ahead_s)
     envelope = settings.std_envelope_m
+    nb_envelope = None
     if envelope is None:
         sd = design_std(realism)[0]
         envelope = settings.std_envelope_factor * sd if sd > 0.0 else math.inf
+        if neighbours_ahead_s > 0.0 and sd > 0.0:
+            nb_envelope = settings.std_envelope_factor * design_std(realism, neighbours_ahead_s)[0]
     grades = tuple(
         (Breach[name.upper()], Action[action.upper()]) for name, action in settings.grades.model_dump().items()
     )
     return MonitorParams(
         enabled=settings.enabled,
         std_envelope_m=envelope,
+        neighbour_std_envelope_m=nb_envelope,
         estimate_age_s=settings.estimate_age_s + ages.own_s,
         estimate_lost_s=settings.estimate_lost_s + ages.own_s,
-        neighbour_age_s=(settings.neighbour_age_s or failure.neighbour_timeout_s) + ages.neighbour_s,
+        neighbour_age_s=(settings.neighbour_age_s or failure.neighbour_timeout_s) + nb_age_s,
         infeasible_s=settings.infeasible_s,
         disturbance_s=settings.disturbance_s,
         world_late_s=settings.world_late_s,

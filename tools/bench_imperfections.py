@@ -36,18 +36,25 @@ dropped, its estimator, and the innovation gate at 5 sigmas) and everything else
 The first level of each of these is the lab's motion capture alone (``radio``: with the command
 link, ``turbulence``: with the drag), so each line's difference from it is the one failure.
 
+* ``jitter`` [s]: on top of 50 ms on the motion capture and every link, each state, bundle and
+  command up to this much later again (uniform: a late message is used at its true age, and may
+  arrive after a newer one), and losses in bursts on every link (a burst begins on 2 % of
+  messages, ends on 20 %, loses half; 0-100 ms).
+
 The scenes: ``circle_8`` (8 drones swapping across a 2 m circle, exact symmetry), ``sphere_8``
 (8 drones swapping across a sphere of radius 1.5 m: they pass above one another) and
-``circle_8p`` (the circle, starts and goals perturbed by up to 5 cm, seed 0).
+``circle_8p`` (the circle, starts and goals perturbed by up to 5 cm, seed 0); on the delay axes
+(``latency``, ``jitter``) also ``circle_16`` (16 drones across a 3 m circle, exact symmetry).
 
 ORCA (``swarm.offline.orca``, method ``orca``) flies each axis's first level only, in the ideal
-world (``ideal_world: true``): the reference row. Its agents are RVO2's holonomic discs that take
-velocities from perfect positions, so no axis applies to it as it does to the filters: no
-motion capture or estimator to occlude, swap or make noisy (``noise``, ``occlusion``, ``swap``,
-``latency``'s frames), no thrust, mass, battery or drag for a gust or a sag to act through
-(``mass``, ``battery``, ``gusts``, ``turbulence``); the one honest analogue, its velocities
-delayed or lost with the command link's fates (``latency``, ``radio``), needs a hook
-``run_orca`` does not have. ``--no-orca`` leaves it out.
+world (``ideal_world: true``): the reference row; on the delay axes every level, with the same
+delays on what it sees and on the velocities it chooses (``run_orca``'s ``seen_delay_ticks``:
+the state's and the bundle's links, ``command_delay_ticks``: the command link; no jitter or
+loss). Its agents are RVO2's holonomic discs that take velocities from perfect positions, so no
+other axis applies to it as it does to the filters: no motion capture or estimator to occlude,
+swap or make noisy (``noise``, ``occlusion``, ``swap``), no thrust, mass, battery or drag for a
+gust or a sag to act through (``mass``, ``battery``, ``gusts``, ``turbulence``). ``--no-orca``
+leaves it out.
 
     python -m tools.bench_imperfections                  # every axis (about an hour on 2 cores)
     python -m tools.bench_imperfections --axis latency --jobs 2
@@ -100,11 +107,17 @@ AXES: dict[str, tuple[str, tuple[float, ...]]] = {
     # per MINUTE of flight, and a run lasts 15-20 s: the batteries' 0-3 min at takeoff make it bite
     "battery": ("fraction/min", (0.0, 0.01, 0.02, 0.05, 0.1)),
     "turbulence": ("m/s", (0.0, 0.25, 0.5, 1.0, 2.0)),
+    # on top of 50 ms on every link and the motion capture, with losses in bursts (the module docstring)
+    "jitter": ("s", (0.0, 0.025, 0.05, 0.1)),
 }
+DELAY_AXES = ("latency", "jitter")  # C3BF without its contract, circle_16 and ORCA at every level on these
+JITTER_BASE_S = 0.05
+BURSTS = {"burst_enter_probability": 0.02, "burst_exit_probability": 0.2, "burst_loss_fraction": 0.5}
 METHODS = ("c3bf", "hocbf")
 FIXED = "c3bf_fixed"  # C3BF without the delay contract (filter.delay_growth_m null): the latency axis only
 ORCA = "orca"  # flies each axis's first level only, in the ideal world (the module docstring)
 SCENES = ("circle_8", "sphere_8", "circle_8p")
+DELAY_SCENES = (*SCENES, "circle_16")
 
 
 def realism(axis: str, level: float) -> dict[str, Any]:
@@ -113,6 +126,12 @@ def realism(axis: str, level: float) -> dict[str, Any]:
         link = {"delay_s": level}
         return {
             "sensing": {"enabled": True, "rate_hz": 100.0, "latency_s": level},
+            "comms": {"state": link, "bundle": link, "command": link},
+        }
+    if axis == "jitter":
+        link = {"delay_s": JITTER_BASE_S, "jitter_s": level, **BURSTS}
+        return {
+            "sensing": {"enabled": True, "rate_hz": 100.0, "latency_s": JITTER_BASE_S},
             "comms": {"state": link, "bundle": link, "command": link},
         }
     if axis == "noise":
@@ -162,6 +181,8 @@ def lab_sensing(over: dict[str, Any] | None = None) -> dict[str, Any]:
 def _base(name: str, duration_s: float | None = None) -> dict:
     """The raw config of scene ``name`` in the ideal world (``duration_s``: shorter, for tests)."""
     s = SwapSettings(realism="ideal", perturb_m=0.05 if name == "circle_8p" else 0.0, seed=0, duration_s=duration_s)
+    if name == "circle_16":
+        return circle_swap(16, 3.0, s)
     return sphere_swap(8, 1.5, s) if name == "sphere_8" else circle_swap(8, 2.0, s)
 
 
@@ -188,12 +209,14 @@ class Point:
 def points(axes: list[str], orca: bool = True) -> Iterator[Point]:
     for axis in axes:
         levels = AXES[axis][1]
+        delays = axis in DELAY_AXES
+        scenes = DELAY_SCENES if delays else SCENES
         for level in levels:
-            for method in (*METHODS, FIXED) if axis == "latency" else METHODS:
-                for name in SCENES:
+            for method in (*METHODS, FIXED) if delays else METHODS:
+                for name in scenes:
                     yield Point(axis, level, method, name)
-            if orca and level == levels[0]:
-                for name in SCENES:
+            if orca and (delays or level == levels[0]):
+                for name in scenes:
                     yield Point(axis, level, ORCA, name)
 
 
@@ -253,12 +276,19 @@ def _key(p: Point, n: int, ideal: bool) -> dict[str, Any]:
 
 
 def _fly_orca(p: Point) -> dict[str, Any]:
-    """ORCA on point ``p``'s scene in the ideal world (its level is its axis's first): the line."""
+    """ORCA on point ``p``'s scene: in the ideal world (a level that is its axis's first), or on a
+    delay axis with the point's delays on what it sees and on its velocities: the line."""
     from swarm.offline.orca import run_orca
 
     cfg = resolve(_base(p.scene, p.duration_s))
+    seen = command = 0
+    if p.axis in DELAY_AXES:
+        comms = RealismSettings.model_validate(realism(p.axis, p.level)).comms.params()
+        tick = 1.0 / cfg.time.control_hz
+        seen = round((comms.state.delay_s + comms.bundle.delay_s) / tick)
+        command = round(comms.command.delay_s / tick)
     with tempfile.TemporaryDirectory() as tmp:
-        m = run_orca(cfg, Path(tmp))
+        m = run_orca(cfg, Path(tmp), seen_delay_ticks=seen, command_delay_ticks=command)
     agents = list(m["agents"].values())
     ratios = [
         a["time_to_goal_s"] / (a["straight_line_m"] / cfg.agents[i].speed_mps)
@@ -267,7 +297,7 @@ def _fly_orca(p: Point) -> dict[str, Any]:
     ]
     sep = m["min_separation_m"]
     return {
-        **_key(p, len(agents), True),
+        **_key(p, len(agents), seen == command == 0),
         "success": bool(m["all_reached_goal"]) and m["collisions"] == 0,
         "collisions": m["collisions"],
         "margin_violations": m["margin_violations"],
@@ -305,13 +335,13 @@ def plot(lines: list[dict[str, Any]], out: Path) -> None:
         spare.set_visible(False)
     contact_m = 2 * QuadModel().params.body_radius_m
     colours = {"c3bf": "tab:blue", "hocbf": "tab:orange", ORCA: "tab:green", FIXED: "tab:purple"}
-    styles = {"circle_8": "-", "sphere_8": "--", "circle_8p": ":"}
+    styles = {"circle_8": "-", "sphere_8": "--", "circle_8p": ":", "circle_16": "-."}
     scale = {"s": 1000.0, "m": 1000.0, "m/s": 1.0, "fraction": 100.0, "drones": 1.0, "fraction/min": 100.0}
     label = {"s": "ms", "m": "mm", "m/s": "m/s", "fraction": "%", "drones": "drones", "fraction/min": "%/min"}
     for ax, axis in zip(panels, axes_seen, strict=False):
         unit = AXES[axis][0]
         for method in (*METHODS, FIXED, ORCA):
-            for name in SCENES:
+            for name in DELAY_SCENES:
                 rows = sorted((r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, name)),
                               key=lambda r: r["level"])  # fmt: skip
                 if not rows:
@@ -328,7 +358,10 @@ def plot(lines: list[dict[str, Any]], out: Path) -> None:
         ax.set_title(axis)
         ax.grid(alpha=0.3)
     panels[0].legend(fontsize=7)
-    fig.suptitle("One imperfection at a time (red x: contact; dashed: airframes touch; ORCA: the ideal world)")
+    fig.suptitle(
+        "One imperfection at a time (red x: contact; dashed: airframes touch;"
+        " ORCA: the ideal world but on latency and jitter)"
+    )
     fig.tight_layout()
     fig.savefig(out, dpi=110)
 

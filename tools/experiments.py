@@ -167,10 +167,11 @@ def liveness_lab(out: Path, jobs: int) -> None:
         stamp(name, command=["python", "-m", "tools.bench_liveness", *args], engine=ENGINE.name)
 
 
-LAB_AXES = ("latency", "noise", "gusts", "mass")
+LAB_AXES = ("noise", "gusts", "mass")
 BAD_DAY_AXES = ("occlusion", "swap", "radio", "battery", "turbulence")
-"""``tools.bench_imperfections``' axes: the lab's imperfections, and the bad day's failures (each
-part its own file, table and plot)."""
+DELAY_AXES = ("latency", "jitter")
+"""``tools.bench_imperfections``' axes: the lab's imperfections, the bad day's failures and the
+loop's delays (each part its own file, table and plot)."""
 
 
 def _imperfections(jobs: int, axes: tuple[str, ...], name: str) -> None:
@@ -191,6 +192,13 @@ def imperfections_bad_day(out: Path, jobs: int) -> None:
     """Each failure of the lab's bad day alone, raised until contact, and its plot."""
     del out
     _imperfections(jobs, BAD_DAY_AXES, "imperfections_bad_day")
+
+
+def imperfections_delay(out: Path, jobs: int) -> None:
+    """The loop's delay alone, fixed and jittered, raised until contact (C3BF with and without its
+    delay contract, HO-CBF, ORCA with the same delays), and its plot."""
+    del out
+    _imperfections(jobs, DELAY_AXES, "imperfections_delay")
 
 
 def faults(out: Path, jobs: int) -> None:
@@ -544,7 +552,7 @@ def _sweep_table(path: Path) -> str:
             "yes" if r["success"] == "1" else "no",
             f"{r['collisions']} / {r.get('margin_violations') or '-'}",
             num(r["min_clearance_m"], ".3f"),
-            num(r["time_to_goal_s"], ".2f"),
+            num(r.get("mean_time_to_goal_s", r.get("time_to_goal_s", "")), ".2f"),  # (older results: time_to_goal_s)
             num(r["max_path_deviation_m"], ".2f"),
             r["infeasible_ticks"],
         ]
@@ -632,8 +640,45 @@ def _imperfection_table(path: Path) -> str:
                 first = f"{hits[0] * k:g} {name}" if hits else "none" if len(got) == len(levels) else "-"
                 rows.append([method, scene, *seps, first])
         if rows:
-            note = "; orca: the ideal world at the first level only" if any(r[0] == "orca" for r in rows) else ""
+            note = ""
+            if any(r[0] == "orca" for r in rows):
+                late = axis in DELAY_AXES
+                note = "; orca: what it sees and flies as late" if late else "; orca: the ideal world, first level"
             out.append(f"**{axis}** (closest centres [m]; x: a contact{note})\n\n" + _table(head, rows))
+    return "\n\n".join(out)
+
+
+def _delay_table(path: Path) -> str:
+    """EXPERIMENTS.md's delay table: per delay axis, method and scene, at each level the closest
+    centres [m] (x: a contact) and the mean time to goal over the straight line at the cruise
+    speed configured, or "not home" where some drone did not arrive in the run."""
+    from tools.bench_imperfections import AXES
+
+    lines = _jsonl(path)
+    out = []
+    for axis in DELAY_AXES:
+        levels = AXES[axis][1]
+        head = ["method", "scene", *(f"{lv * 1000:g} ms" for lv in levels), "first contact"]
+        rows = []
+        for method in sorted({r["method"] for r in lines}):
+            for scene in sorted({r["scene"] for r in lines}):
+                got = {r["level"]: r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, scene)}
+                if not got:
+                    continue
+                cells = []
+                for lv in levels:
+                    r = got.get(lv)
+                    home = "-" if r is None else "not home" if not r["success"] and not r["collisions"] else None
+                    ratio = "" if r is None or r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
+                    cells.append(_sep(r) + (f" / {home}" if home and r is not None else f" / {ratio}" if ratio else ""))
+                hits = [lv for lv in levels if lv in got and got[lv]["collisions"]]
+                first = f"{hits[0] * 1000:g} ms" if hits else "none" if len(got) == len(levels) else "-"
+                rows.append([method, scene, *cells, first])
+        if rows:
+            out.append(
+                f"**{axis}** (closest centres [m] / time to goal over the straight line; x: a contact;"
+                " orca: what it sees and flies as late)\n\n" + _table(head, rows)
+            )
     return "\n\n".join(out)
 
 
@@ -761,6 +806,7 @@ GENERATED = {
     "paper_lab": (DOCS / "paper_lab.json", _paper_lab_table),
     "imperfections": (DOCS / "imperfections.jsonl", _imperfection_table),
     "imperfections_bad_day": (DOCS / "imperfections_bad_day.jsonl", _imperfection_table),
+    "imperfections_delay": (DOCS / "imperfections_delay.jsonl", _delay_table),
     "filter": (DOCS / "bench_filter.jsonl", _filter_table),
     "swarm": (DOCS / "bench_swarm.jsonl", _swarm_table),
     "access": (DOCS / "bench_access.jsonl", _access_table),
@@ -803,6 +849,7 @@ PARTS = {
     "paper_lab": paper_lab,
     "imperfections": imperfections,
     "imperfections_bad_day": imperfections_bad_day,
+    "imperfections_delay": imperfections_delay,
     "faults": faults,
     "filter": filter_bench,
     "swarm": swarm_bench,

@@ -27,6 +27,7 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays
 from swarm.model import QuadState, body_centre
 from swarm.net import transport as tp
+from swarm.net.access import LAUNCHER
 from swarm.net.messages import (
     CommandBody,
     Message,
@@ -211,6 +212,8 @@ class AgentProcess:
         self.last_tick_s = 0.0  # wall time [s] the last tick took
         self.tick_budget_s = 1.0 / cfg.time.control_hz
         self.action = Action.NONE  # the safety monitor's action at the last tick
+        self.land_asked = False  # the launcher asked every drone to land (swarm.landing) ...
+        self.landing = False  # ... and this agent has turned to land
         _warm_up(self.step, self.source, agent_id, np.asarray(me.start, float))
         self.plan = FlightPlan(me) if self.real else None  # a real drone's phases (after the warm-up)
 
@@ -225,6 +228,7 @@ class AgentProcess:
                 self.tick_key if self.ticked else keys.clock,
                 *self.source.subscriptions(),
                 *([self.meas_key] if self.real else []),
+                keys.land,
             ],
         )
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
@@ -247,7 +251,7 @@ class AgentProcess:
         """Fly from ``x_w`` to ``goal_w`` [m, world] from this tick on (a goal from ROS 2): the
         course the planner gives for that goal from here (``swarm.ros2.goals.course``); a real
         drone's mission becomes that path."""
-        c = course(self.me, self.still, self.step.level, x_w, goal_w)
+        c = course(self.me, self.still, self.step.level, x_w, goal_w, self.cfg.world.realism, self.cfg.time.control_hz)
         self.step.follow(c.goal_w, c.tracker, c.route, c.filter_config)
         if self.plan is not None:
             self.plan.mission = c.tracker
@@ -310,6 +314,8 @@ class AgentProcess:
             self.on_tick(m)
         elif m.kind == "clock" and key == self.keys.clock:
             self.on_clock(m)
+        elif m.kind == "land" and key == self.keys.land and m.src == LAUNCHER:
+            self.land_asked = True
         else:
             self.counter.drop(f"unexpected {m.kind} on {key}")
 
@@ -489,8 +495,12 @@ class AgentProcess:
             msg = self.next_message()
             if msg is None:
                 continue
-            if self.goals is not None:  # a goal, land or stop from ROS 2
+            if self.goals is not None and not self.landing:  # a goal, land or stop from ROS 2
                 self.goals.apply(self, msg["x"])
+            if self.land_asked and not self.landing:  # the launcher's land request (Ctrl-C), latched
+                self.landing = True
+                print(f"agent {self.id}: landing at t={msg.t:.2f} s (the launcher asked)", file=sys.stderr)
+                self.land(msg["x"])
             t0 = time.perf_counter()
             result = self.act(msg)
             if result is None:

@@ -96,7 +96,8 @@ def acl(
     the agents' states and liveliness tokens; in the process that ``flies_commands`` (the
     world, which accepts every agent's link) only agent ``X`` may publish under
     ``agent/X/`` (its commands); elsewhere (the recorder records them, agents ignore them)
-    any linked session may.
+    any linked session may. The launcher's land request (``land``: ``swarm.landing``) is
+    accepted from anyone linked, as the launcher's link may be one it accepted.
 
     ``router``: ``"router"`` for the run's router (``network.topology: router``) or a
     star's bundle relay, which accepts every link it has, so it knows every sender by its
@@ -177,7 +178,7 @@ def acl(
             )
             policies.append({"rules": ["ros2-graph"], "subjects": [ROS2]})  # (subject ROS2: below)
     else:
-        shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*")]
+        shared = [f"{root}/{k}" for k in ("world/**", "agent/*/state", "cell/**", "router/**", "alive/*", "land")]
         if not flies_commands:
             shared.append(f"{root}/agent/*/command")
         rules.append(

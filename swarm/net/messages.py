@@ -118,6 +118,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "stall": {"agents": "ls", "wait_s": "f"},
     # the ROS 2 bridge -> an agent (swarm.ros2.goals): fly to x ("goal"), land, or hold ("stop")
     "goal": {"action": "s", "x": 3},
+    # the launcher -> the world and every agent (key land): land every drone and end the run
+    # once they are down; why (e.g. "Ctrl-C")
+    "land": {"why": "s"},
 }
 # The clock of tick k (world -> all) is the one message a simulated agent needs per tick:
 #   live, done       the agents the world expects answers from; the run is over
@@ -546,6 +549,7 @@ FIELD_DOCS: dict[str, str] = {
     "b": "other side of the contact",
     "agents": "agents the tick waited for",
     "wait_s": "how long it waited [s]",
+    "why": "why the launcher asks every drone to land (e.g. Ctrl-C)",
     "action": "goal (fly to x), land or stop (hold where it is)",
     "frames": "motion-capture frames since the last tick (world.realism.sensing): per frame drone index, frame "
     "number, arrival time [s], position [m, world], attitude (x, y, z, w) (10 floats)",

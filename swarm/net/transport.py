@@ -118,6 +118,12 @@ class Keys:
         return f"{self.root}/ros2/all"
 
     @property
+    def land(self) -> str:
+        """The launcher -> the world and every agent: land every drone now and end the run
+        once they are down (``swarm run``'s first Ctrl-C; ``swarm.landing``)."""
+        return f"{self.root}/land"
+
+    @property
     def everything(self) -> str:
         return f"{self.root}/**"
 

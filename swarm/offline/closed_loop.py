@@ -33,7 +33,14 @@ from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
 from swarm.step import AgentStep, contained_controller, contained_plugin
-from swarm.tuning import NOISE_SIGMAS, command_lead_s, filter_config_for, monitor_params, neighbour_table
+from swarm.tuning import (
+    NOISE_SIGMAS,
+    command_lead_s,
+    delay_speed_mps,
+    filter_config_for,
+    monitor_params,
+    neighbour_table,
+)
 
 
 def obstacles_at(obs0: ObstacleArrays, t_s: float) -> ObstacleArrays:
@@ -320,9 +327,9 @@ def simulate_swarm(
     sensing = r is not None and r.sensing.enabled
     comms = None if r is None or r.comms.params().perfect else r.comms_model(seed, 1.0 / control_hz)
     lead = command_lead_s(r, control_hz)
-    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE, control_hz)
     limits = [a.config.accel_limit_mps2 for a in agents]  # the swarm's agreed acceleration (swarm.tuning)
     accel = None if r is None or any(x is None for x in limits) else max(x for x in limits if x is not None)
+    mon = monitor_params(monitor or MonitorSettings(), r, _FAILURE, control_hz, lead if accel is not None else 0.0)
     steps = [
         AgentStep(
             model,
@@ -453,7 +460,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
             SwarmAgent(
                 np.asarray(a.start, dtype=float),
                 path_w[1:] if len(path_w) > 1 else path_w,
-                a.speed_mps,
+                delay_speed_mps(a, cfg.world.realism, cfg.time.control_hz),
                 config,
                 np.asarray(a.start_velocity, dtype=float),
                 a.tiebreak.pair,

@@ -96,6 +96,12 @@ class _Planar:
             self.sim.set_agent_pref_velocity(i, (float(v[0]), float(v[1])))
         self.sim.do_step()
 
+    def set_state(self, P: FloatArray, V: FloatArray) -> None:
+        """Every agent at positions ``P`` [m] with velocities ``V`` [m/s] (n, 3), world; z dropped."""
+        for i in range(len(self.z)):
+            self.sim.set_agent_position(i, (float(P[i, 0]), float(P[i, 1])))
+            self.sim.set_agent_velocity(i, (float(V[i, 0]), float(V[i, 1])))
+
 
 class _Spatial:
     """RVO2-3D (``jt-pyrvo23d``'s ``rvo23d``): balls in space; no obstacles."""
@@ -133,6 +139,12 @@ class _Spatial:
             self.sim.setAgentPrefVelocity(i, (float(v[0]), float(v[1]), float(v[2])))
         self.sim.doStep()
 
+    def set_state(self, P: FloatArray, V: FloatArray) -> None:
+        """Every agent at positions ``P`` [m] with velocities ``V`` [m/s] (n, 3), world."""
+        for i in range(self.n):
+            self.sim.setAgentPosition(i, tuple(float(c) for c in P[i]))
+            self.sim.setAgentVelocity(i, tuple(float(c) for c in V[i]))
+
 
 def _radius(agent: AgentConfig) -> float:
     """An agent's ORCA radius [m]: airframe radius plus half the filter margin."""
@@ -167,13 +179,24 @@ def run_orca(
     max_neighbours: int = 16,
     kp_per_s: float = 1.5,
     paths: list[FloatArray] | None = None,
+    seen_delay_ticks: int = 0,
+    command_delay_ticks: int = 0,
 ) -> dict[str, Any]:
     """Simulate ``cfg`` with ORCA at its control rate (the planar backend if every agent
     keeps its altitude, else the spatial one); write ``config.yaml`` and ``metrics.json``
     into ``out``; return the metrics. A scenario neither backend can fly raises ValueError.
     Each agent's preferred velocity points at its goal, or with ``paths`` (one (k, 3)
     waypoint array [m, world] per agent, from its start) at its next waypoint, taken as
-    reached within ``WAYPOINT_REACHED_M``."""
+    reached within ``WAYPOINT_REACHED_M``.
+
+    Delays (the sweeps' analogue of the filters' late links, ``tools.bench_imperfections``):
+    with ``seen_delay_ticks`` every agent computes its velocity from every position and velocity
+    (its own included) as they were that many ticks ago, and with ``command_delay_ticks`` the
+    velocity it chose flies that many ticks later (each agent holds the last one it flew till
+    then). ORCA has no estimator or predictor: it takes what it sees as the present."""
+    delayed = seen_delay_ticks > 0 or command_delay_ticks > 0
+    if seen_delay_ticks < 0 or command_delay_ticks < 0:
+        raise ValueError("run_orca: delays are whole ticks, at least 0")
     dt = 1.0 / cfg.time.control_hz
     backend = (_Planar if planar(cfg) else _Spatial)(cfg, dt, time_horizon_s, neighbour_dist_m, max_neighbours)
     ids = [a.id for a in cfg.agents]
@@ -188,9 +211,13 @@ def run_orca(
     steps = round(cfg.duration_s * cfg.time.control_hz)
     nxt = [1] * n  # each agent's next waypoint (with paths)
     k = 0
+    P, V = backend.state()
+    seen: list[tuple[FloatArray, FloatArray]] = []  # (P, V) of the last ticks, oldest first
+    flying: list[FloatArray] = []  # the velocities chosen and not yet flown, oldest first
     for k in range(steps + 1):
         t = k * dt
-        P, V = backend.state()
+        if not delayed:
+            P, V = backend.state()
         for i, aid in enumerate(ids):
             records.append(
                 {
@@ -220,8 +247,16 @@ def run_orca(
         slow = np.linalg.norm(goals - P, axis=1)  # slowing within kp of the goal, not of a waypoint
         pref = to_aim * (np.minimum(speed, kp_per_s * slow) / np.maximum(dist, 1e-9))[:, None]
         t0 = time.perf_counter()
+        if delayed:
+            seen = [*seen[-seen_delay_ticks:], (P.copy(), V.copy())] if seen_delay_ticks else [(P.copy(), V.copy())]
+            backend.set_state(*seen[0])  # (what every agent sees: as it was seen_delay_ticks ago)
         backend.step(pref)
         per_agent_us = (time.perf_counter() - t0) * 1e6 / n
+        if delayed:  # the velocity chosen flies command_delay_ticks later; the true state moves by what flies now
+            flying.append(backend.state()[1])
+            if len(flying) > command_delay_ticks:
+                V = flying.pop(0)
+            P = P + V * dt
         for aid in ids:
             records.append(
                 {

@@ -426,3 +426,55 @@ def generate(
     if kind == "forest":
         return forest(n, 0.3 if density is None else density, s)
     raise ValueError(f"scenario kind {kind!r}: choose circle, sphere, random, doorway, corridor, trap or forest")
+
+
+@dataclass(frozen=True)
+class Room:
+    """The volume a generated scene must fit (``swarm scenario --room``): ``size_m`` its x, y
+    and z extents [m], centred on the origin in x and y, floor at z = 0; starts, goals and
+    waypoints kept ``wall_m`` inside its walls and ceiling and, when squeezed down, no lower
+    than ``low_m``. The default is a motion-capture lab's flight volume."""
+
+    size_m: tuple[float, float, float] = (8.0, 8.0, 3.0)
+    wall_m: float = 0.3
+    low_m: float = 0.5
+
+
+def fit_room(raw: dict, room: Room) -> dict:
+    """``raw`` with its agents' starts, goals and waypoints inside ``room``: heights above its
+    ceiling less ``wall_m`` squeezed (linearly, keeping their order) between ``low_m`` (or
+    the lowest, if lower) and it. Raises ValueError, saying how to fix it, when the scene
+    is wider than the room (horizontally nothing is moved)."""
+    agents = raw["agents"]
+    keys = [k for k in ("start", "goal") if any(k in a for a in agents)]
+    pts = np.array([p for a in agents for p in [*(a[k] for k in keys if k in a), *a.get("waypoints", [])]], dtype=float)
+    half = np.array(room.size_m[:2]) / 2 - room.wall_m
+    wide = np.abs(pts[:, :2]).max(axis=0)
+    if np.any(wide > half):
+        raise ValueError(
+            f"the scene spans x and y to +-{wide[0]:.2f}, +-{wide[1]:.2f} m, wider than the room "
+            f"({room.size_m[0]:g} x {room.size_m[1]:g} m less {room.wall_m:g} m from each wall): "
+            "give a larger --room or a smaller --radius (or a higher --density)"
+        )
+    top = room.size_m[2] - room.wall_m
+    z_lo, z_hi = float(pts[:, 2].min()), float(pts[:, 2].max())
+    if z_hi <= top:
+        return raw
+    low = min(z_lo, room.low_m)
+    if top <= low:
+        raise ValueError(f"the room is {room.size_m[2]:g} m high: too low to fly in (give a higher --room)")
+
+    def squeeze(p: list[float]) -> list[float]:
+        z = low + (p[2] - z_lo) * (top - low) / (z_hi - z_lo) if z_hi > z_lo else top
+        return [p[0], p[1], round(float(z), 6)]
+
+    out = dict(raw)
+    out["agents"] = [
+        {
+            **a,
+            **{k: squeeze(a[k]) for k in keys if k in a},
+            **({"waypoints": [squeeze(w) for w in a["waypoints"]]} if "waypoints" in a else {}),
+        }
+        for a in agents
+    ]
+    return out

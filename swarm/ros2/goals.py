@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from swarm.control import PathTracker
+from swarm.landing import landing_height_m
 from swarm.model import CommandLevel
 from swarm.net import transport as tp
 from swarm.net.access import ROS2_BRIDGE
@@ -22,10 +23,11 @@ from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
 from swarm.route import Route, corner_cut_m, path_for
 from swarm.safety.filter import FilterConfig
-from swarm.tuning import filter_config_for
+from swarm.tuning import delay_speed_mps, filter_config_for
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig
+    from swarm.realism.settings import RealismSettings
 
 GOAL, LAND, STOP = "goal", "land", "stop"
 
@@ -39,25 +41,30 @@ class Course(NamedTuple):
 
 
 def course(
-    me: AgentConfig, obstacles: StaticObstacles, level: CommandLevel, x_w: FloatArray, goal_w: FloatArray
+    me: AgentConfig,
+    obstacles: StaticObstacles,
+    level: CommandLevel,
+    x_w: FloatArray,
+    goal_w: FloatArray,
+    realism: RealismSettings | None = None,
+    control_hz: float | None = None,
 ) -> Course:
     """The course of agent ``me`` from ``x_w`` [m, world] to ``goal_w`` [m, world] among the
-    static ``obstacles``: its configuration with that start and goal, through the planner."""
+    static ``obstacles``: its configuration with that start and goal, through the planner, in the
+    world ``realism`` at ``control_hz`` [Hz] (its delay contract: ``swarm.tuning``)."""
     now = me.model_copy(
         update={"start": [float(v) for v in x_w], "goal": [float(v) for v in goal_w], "waypoints": None}
     )
     path_w, route = path_for(now, obstacles)
-    tracker = PathTracker(path_w, me.speed_mps, cut_m=corner_cut_m(route))
-    return Course(
-        np.asarray(goal_w, dtype=float), path_w, route, tracker, filter_config_for(now, obstacles, level, route)
-    )
+    tracker = PathTracker(path_w, delay_speed_mps(now, realism, control_hz), cut_m=corner_cut_m(route))
+    cfg = filter_config_for(now, obstacles, level, route, realism, control_hz)
+    return Course(np.asarray(goal_w, dtype=float), path_w, route, tracker, cfg)
 
 
 def landing_goal(me: AgentConfig, x_w: FloatArray) -> FloatArray:
     """Where a simulated drone at ``x_w`` lands to: straight below, at the lowest height its
     filter keeps (``filter.floor_z_m``; 0.05 m with the floor off)."""
-    floor = me.filter.floor_z_m if me.filter.enabled and me.filter.floor_z_m is not None else 0.05
-    return np.array([x_w[0], x_w[1], max(floor, 0.05)])
+    return np.array([x_w[0], x_w[1], landing_height_m(me)])
 
 
 class GoalInbox:

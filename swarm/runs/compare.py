@@ -21,6 +21,7 @@ from swarm.config import ScenarioConfig, resolve
 from swarm.plugins import BUILTIN, FILTERS, UNFILTERED
 from swarm.runs.launch import RunHandle
 from swarm.runs.point import summarise
+from swarm.runs.readable import fig, markdown_table, notes
 from swarm.strict import merge
 
 COLUMNS = (
@@ -30,9 +31,9 @@ COLUMNS = (
     ("margin_violations", "inside the safety radius"),
     ("min_clearance_m", "closest to an obstacle surface [m]"),
     ("min_separation_m", "closest between agents [m]"),
-    ("min_h", "min exact h [m^2/s]"),
+    ("min_h", "min exact C3BF h [m^2/s]"),
     ("negative_h_ticks", "ticks with h < 0"),
-    ("max_time_to_goal_s", "time to goal [s] (latest)"),
+    ("max_time_to_goal_s", "latest time to goal [s]"),
     ("max_path_deviation_m", "largest path deviation [m]"),
     ("infeasible_ticks", "infeasible ticks"),
     ("plugin_fallbacks", "plugin fallbacks"),
@@ -70,41 +71,84 @@ def row(name: str, metrics: dict[str, Any], world: str | None = None) -> dict[st
     return {"world": world, "filter": name, **summarise(metrics)}
 
 
+def spread(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One row of several seeds' rows of one filter (and world): each number as its
+    ``{"mean", "min", "max", "n"}`` over the seeds that have it, a yes/no as how many of the
+    seeds said yes (``{"yes", "n"}``), anything else the first seed's; ``seeds`` their count."""
+    out: dict[str, Any] = {"seeds": len(rows)}
+    for key in rows[0]:
+        vals = [r.get(key) for r in rows]
+        if all(isinstance(v, bool) for v in vals):
+            out[key] = {"yes": sum(vals), "n": len(vals)}
+        elif all(isinstance(v, int | float) and not isinstance(v, bool) for v in vals if v is not None) and any(
+            v is not None for v in vals
+        ):
+            nums = [v for v in vals if v is not None]
+            out[key] = {"mean": sum(nums) / len(nums), "min": min(nums), "max": max(nums), "n": len(nums)}
+        else:
+            out[key] = vals[0]
+    return out
+
+
 def compare(
-    cfg: ScenarioConfig, filters: list[str], out: Path, worlds: list[str] | None = None
+    cfg: ScenarioConfig, filters: list[str], out: Path, worlds: list[str] | None = None, seeds: int = 1
 ) -> list[dict[str, Any]]:
     """Run ``cfg`` under each filter, in each of ``worlds`` (None: the config's own world), each
-    run in ``out/<filter>`` (with worlds: ``out/<world>/<filter>``); the rows, also saved."""
+    run in ``out/<filter>`` (with worlds: ``out/<world>/<filter>``); the rows, also saved. With
+    ``seeds`` above 1 each is flown with seeds ``cfg.seed`` to ``cfg.seed + seeds - 1`` (in
+    ``.../seed<k>``) and its row holds the spread (:func:`spread`)."""
     runs = [(None, cfg)] if worlds is None else [(w, in_world(cfg, w)) for w in worlds]
     rows = []
     for world, c in runs:
         for name in filters:
-            h = RunHandle.start(with_filter(c, name), out / name if world is None else out / world / name)
-            h.wait()
-            rows.append(row(name, json.loads((h.out / "metrics.json").read_text()), world))
+            folder = out / name if world is None else out / world / name
+            per_seed = []
+            for k in range(seeds):
+                run_cfg = with_filter(c, name)
+                if seeds > 1:
+                    run_cfg = run_cfg.model_copy(update={"seed": c.seed + k})
+                h = RunHandle.start(run_cfg, folder if seeds == 1 else folder / f"seed{c.seed + k}")
+                h.wait()
+                per_seed.append(row(name, json.loads((h.out / "metrics.json").read_text()), world))
+            rows.append(per_seed[0] if seeds == 1 else spread(per_seed))
     (out / "compare.json").write_text(json.dumps(rows, indent=2))
     (out / "compare.md").write_text(markdown(cfg.name, rows))
     return rows
 
 
-def _fmt(v: Any) -> str:
-    return f"{v:.3f}" if isinstance(v, float) else ("-" if v is None else str(v))
+def _fmt(v: Any, key: str = "") -> str:
+    """A cell: ``swarm.runs.readable.fig``."""
+    return fig(v, key)
 
 
 def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
     """The table's columns: the world's only where a row names one, the plugin fallbacks' only
-    where a row flies a plugin (not c3swarm's own filters) or counts one."""
+    where a row flies a plugin (not c3swarm's own filters) or counts one, the seeds' where rows
+    hold several."""
     own = {*BUILTIN[FILTERS], UNFILTERED, "orca"}
     show = {
         "world": any(r.get("world") for r in rows),
         "plugin_fallbacks": any(r.get("filter") not in own or r.get("plugin_fallbacks") for r in rows),
     }
-    return tuple(c for c in COLUMNS if show.get(c[0], True))
+    cols = tuple(c for c in COLUMNS if show.get(c[0], True))
+    if any(r.get("seeds") for r in rows):
+        at = 2 if cols[0][0] == "world" else 1  # after the world and the filter
+        cols = (*cols[:at], ("seeds", "seeds"), *cols[at:])
+    return cols
+
+
+def cells(rows: list[dict[str, Any]]) -> tuple[list[str], list[list[str]], list[str]]:
+    """The table's header, its cells, and the meaning of each column (its legend)."""
+    cols = columns(rows)
+    body = [[_fmt(r.get(key), key) for key, _ in cols] for r in rows]
+    legend = notes([k for k, _ in cols], dict(cols))
+    if any(r.get("seeds") for r in rows):
+        legend.append("over several seeds: each number is mean [min, max] over the seeds; a yes/no, how many said yes")
+    return [t for _, t in cols], body, legend
 
 
 def markdown(name: str, rows: list[dict[str, Any]]) -> str:
-    cols = columns(rows)
-    head = "| " + " | ".join(title for _, title in cols) + " |"
-    rule = "|" + "---|" * len(cols)
-    body = ["| " + " | ".join(_fmt(r.get(key)) for key, _ in cols) + " |" for r in rows]
-    return "\n".join([f"# {name}: filters compared", "", head, rule, *body, ""])
+    header, body, legend = cells(rows)
+    return "\n".join(
+        [f"# {name}: filters compared", "", markdown_table(header, body), "", *(f"* {line}" for line in legend), ""]
+    )

@@ -25,9 +25,10 @@ from secrets import token_hex
 from typing import Any
 
 from swarm.config import ScenarioConfig, dump
+from swarm.landing import LANDED
 from swarm.net import access
 from swarm.net import transport as tp
-from swarm.net.messages import DecodeError, decode
+from swarm.net.messages import DecodeError, decode, encode
 from swarm.runs import forkserver
 from swarm.runs.foxglove_layout import run_layout_json
 from swarm.runs.reaper import GROUPS_FILE
@@ -163,6 +164,7 @@ class RunHandle:
         self.result: dict[str, Any] = {}  # metrics.json as finish() wrote it
         self._session: Any = None
         self._status: Any = None  # the run's status channel (tp.open_channel), once started
+        self._land_seq = 0  # land requests sent (:meth:`land`)
 
     @classmethod
     def start(
@@ -450,10 +452,17 @@ class RunHandle:
             time.sleep(0.05)
         return False
 
+    def land(self, why: str) -> None:
+        """Ask the world and every agent to land every drone and end the run once they are
+        down (``swarm.landing``); the run then ends as :data:`swarm.landing.LANDED`. Asking
+        again repeats the request (each process takes the first)."""
+        self._land_seq += 1
+        self._session.put(tp.Keys(self.run).land, encode("land", self.run, "launcher", self._land_seq, 0.0, 0, why=why))
+
     def finish(self, reason: str) -> str:
-        """Let a completed run's processes end by themselves, stop the rest, and write
-        ``metrics.json`` from the recording."""
-        if reason == "completed":
+        """Let a completed (or landed) run's processes end by themselves, stop the rest, and
+        write ``metrics.json`` from the recording."""
+        if reason in ("completed", LANDED):
             self._wait_procs(["recorder"], 15.0)
             self._wait_procs([n for n in self.procs if n.startswith("agent-")], 5.0)
             if "sitl" in self.procs:  # the stand-ins end once their guards have handed each drone back

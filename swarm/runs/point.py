@@ -34,7 +34,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         "min_separation_m": metrics.get("min_separation_m"),
         "min_h": min(hs) if hs else None,
         "negative_h_ticks": metrics.get("negative_h_ticks"),
-        "time_to_goal_s": None if (not times or None in times) else float(np.mean(times)),
+        "mean_time_to_goal_s": None if (not times or None in times) else float(np.mean(times)),
         "max_time_to_goal_s": None if (not times or None in times) else max(times),
         "path_length_ratio": float(np.mean(ratios)) if ratios else None,
         "max_path_deviation_m": max((a["max_path_deviation_m"] for a in agents), default=None),

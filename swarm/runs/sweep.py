@@ -328,7 +328,7 @@ def write_csv(rows: list[dict[str, Any]], path: Path) -> None:
 
 PLOTTED = {
     "success": "success rate",
-    "time_to_goal_s": "mean time to goal [s] (successful runs)",
+    "mean_time_to_goal_s": "mean time to goal [s] (successful runs)",
     "max_path_deviation_m": "largest path deviation [m]",
     "path_length_ratio": "path length / straight line",
     "min_clearance_m": "closest approach to an obstacle surface [m]",
@@ -375,7 +375,7 @@ def aggregate(rows: list[dict[str, Any]], axes: list[str]) -> tuple[str | None, 
         for x, rs in sorted(by_x.items()):
             agg: dict[str, Any] = {"n": len(rs)}
             for m in PLOTTED:
-                if m == "time_to_goal_s":
+                if m == "mean_time_to_goal_s":
                     vals = [r[m] for r in rs if r.get("success") and r.get(m) is not None]
                 else:
                     vals = [r[m] for r in rs if r.get(m) is not None]

@@ -75,6 +75,10 @@ class MonitorParams:
     """Position deviation [m] (the largest axis's standard deviation) an estimate may have: the
     deviation the filter's design margin was derived for (``swarm.tuning.design_std_m``); inf:
     no estimate to check."""
+    neighbour_std_envelope_m: float | None = None
+    """The position deviation [m] a neighbour's state may carry; None: ``std_envelope_m`` (a
+    neighbour that publishes its state predicted for when its command acts carries the deviation
+    of that prediction, ``swarm.tuning.monitor_params``)."""
     estimate_age_s: float = 0.15
     """Own estimate: seconds without a fused motion-capture frame before ``ESTIMATE_AGE``."""
     estimate_lost_s: float = 1.0
@@ -174,7 +178,7 @@ class SafetyMonitor:
             b |= Breach.ESTIMATE_LOST
         elif r.own_age_s > p.estimate_age_s:
             b |= Breach.ESTIMATE_AGE
-        if r.neighbour_std_m > p.std_envelope_m:
+        if r.neighbour_std_m > (p.std_envelope_m if p.neighbour_std_envelope_m is None else p.neighbour_std_envelope_m):
             b |= Breach.NEIGHBOUR_STD
         if r.neighbour_age_s > p.neighbour_age_s:
             b |= Breach.NEIGHBOUR_AGE

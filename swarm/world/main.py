@@ -37,6 +37,7 @@ from ddsketch import DDSketch
 
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
+from swarm.landing import down, landing_height_m
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
 from swarm.net.messages import encode, frames_wire, warm_up
@@ -164,6 +165,9 @@ class World:
         self.behind_at_end_s = 0.0  # ... less what the world was behind it then [s]
         self.wall0 = time.monotonic()
         self.stop = StopFlag()
+        self.landing = False  # the launcher asked every drone to land (swarm.landing) ...
+        self.land_from_s: float | None = None  # ... from this sim time [s]
+        self.land_z_m = np.array([landing_height_m(cfg.agent(a)) for a in self.flown])  # (flown,) m
 
     # --- wiring -------------------------------------------------------------------
     def open(self, conf: Any) -> None:
@@ -180,6 +184,7 @@ class World:
         self.pub_status = session.declare_publisher(keys.status)
         self.pub_coll = session.declare_publisher(keys.collision)
         self.pub_stall = session.declare_publisher(keys.stall)
+        self.land_sub = tp.open_channel(session, keys.land, 16)
         if self.real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
             m = cfg.mocap
             bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in self.real}
@@ -366,7 +371,28 @@ class World:
                 slots[a].reached_at_s = t
         return TickView(ds, items, live, x_b, roster, measured, meas, frames)
 
+    def poll_land(self, k: int) -> None:
+        """The launcher's request to land every drone (swarm.landing): from tick ``k`` the run
+        ends once every simulated drone is down, or ``time.land_timeout_s`` later (the real
+        drones land after the ticks, :meth:`land_real_drones`)."""
+        for s in tp.drain(self.land_sub):
+            m = tp.decode_sample(s, self.run_id, self.counter, ("land",))
+            if m is None:
+                continue
+            if m.src != "launcher":
+                self.counter.drop("land: not from the launcher")
+                continue
+            if not self.landing:
+                self.landing, self.land_from_s = True, k * self.dt_ctrl
+                self.K = k + round(self.cfg.time.land_timeout_s * self.cfg.time.control_hz)
+                print(f"world: landing every drone from t = {k * self.dt_ctrl:.2f} s ({m['why']})", file=sys.stderr)
+
     def is_done(self, k: int, view: TickView) -> bool:
+        if self.landing:
+            sim = [j for j, a in enumerate(self.flown) if not self.slots[a].dead]
+            rows = [self.index[self.flown[j]] for j in sim]
+            landed = down(view.ds.x_w[rows], view.ds.v_w[rows], self.land_z_m[sim])
+            return bool(k == self.K or landed or self.stop or not view.live)
         all_reached = all(s.reached_at_s is not None for s in self.slots.values() if not s.dead)
         return bool(k == self.K or (self.cfg.stop_when_all_reached and all_reached) or self.stop or not view.live)
 
@@ -559,6 +585,7 @@ class World:
             self.pace(k)
             self.poll_liveliness()
             view = self.measure(k, t)
+            self.poll_land(k)
             done = self.is_done(k, view)
             self.publish(k, t, view, done, status_every, skipped)
             if done:
@@ -591,6 +618,7 @@ class World:
         return {
             "ticks": k,
             "t_s": k * self.dt_ctrl,
+            "landing_from_s": self.land_from_s,  # sim time of the launcher's land request (None: none)
             "collisions": c.collisions,
             "dead_agent_contacts": c.dead_contacts,
             "stalls": c.stalls,

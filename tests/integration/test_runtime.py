@@ -12,11 +12,13 @@ import sys
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import msgpack
 import numpy as np
 import pytest
 
+from swarm.config import load
 from swarm.net import transport as tp
 from swarm.net.cells import cell_of
 from swarm.net.messages import VERSION, encode, measurement_agent
@@ -218,49 +220,141 @@ def _processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
-def test_a_stop_signal_stops_every_process_and_keeps_the_recording(tmp_path, sig):
+def _swarm_run(
+    tmp_path: Path, cfg_over: dict, *args: str, config: str = "circle_8.yaml"
+) -> tuple[subprocess.Popen, Any, Path, str, Any]:
+    """``swarm run`` of ``config`` (``cfg_over`` merged) as a child of its own session, a
+    channel of the run's status messages this test may hear (the run's credentials), the
+    run folder, the run id, and the session the channel lives in (keep it)."""
     from swarm.config import dump, load
     from swarm.net import transport as tp
     from swarm.runs.launch import ensure_secrets, free_port
 
-    out, run_id = tmp_path / "out", f"ctrlc-{time.monotonic_ns()}"
-    cfg = load(CONFIGS / "circle_8.yaml", {"network": {"port": free_port()}})
+    out, run_id = tmp_path / "out", f"stop-{time.monotonic_ns()}"
+    cfg = load(CONFIGS / config, {"network": {"port": free_port()}, **cfg_over})
     (tmp_path / "circle_8.yaml").write_text(dump(cfg))
-    secrets = ensure_secrets(cfg, tmp_path / "secrets")  # the run's credentials, so that this test may listen
-    session = tp.open_session(
-        tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
-    )
-    status = tp.open_channel(session, tp.Keys(run_id).status)
+    secrets = ensure_secrets(cfg, tmp_path / "secrets")
     cli = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "swarm.cli",
-            "run",
-            str(tmp_path / "circle_8.yaml"),
-            "--out",
-            str(out),
-            "--no-progress",
-            "--run-id",
-            run_id,
-            "--secrets",
-            str(secrets),
-        ],
+        [sys.executable, "-m", "swarm.cli", "run", str(tmp_path / "circle_8.yaml"), "--out", str(out),
+         "--no-progress", "--run-id", run_id, "--secrets", str(secrets), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         start_new_session=True,
-    )
+        text=True,
+    )  # fmt: skip
+    conf = tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
+    deadline = time.monotonic() + 60
+    while True:  # (a run through a router: its router comes up first)
+        try:
+            session = tp.open_session(conf)
+            break
+        except Exception:
+            if time.monotonic() > deadline or cli.poll() is not None:
+                raise
+            conf = tp.process_config(cfg, tp.Role.OBSERVER, tp.Access.of(cfg, run_id, tp.Role.OBSERVER, secrets))
+    status = tp.open_channel(session, tp.Keys(run_id).status)
+    return cli, status, out, run_id, session
+
+
+def _last_heights(out: Path) -> dict[str, float]:
+    """Each drone's height [m] in its last recorded measurement."""
+    return {a: float(xs[max(xs)][2]) for a, xs in trajectories(out).items()}
+
+
+# long enough that no drone is down by itself, slow enough that landing from 1 m takes seconds
+_STAY_UP = {"duration_s": 60.0, "stop_when_all_reached": False, "defaults": {"speed_mps": 0.3}}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_stop_signal_lands_every_drone_then_ends_the_run_and_keeps_the_recording(tmp_path, sig):
+    from swarm.config import load
+    from swarm.landing import DOWN_ABOVE_M, LANDED, LANDING_BANNER, LANDING_NOW, landing_height_m
+
+    cli, status, out, run_id, _session = _swarm_run(tmp_path, _STAY_UP)
     try:
-        first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking
+        first = tp.wait_sample(status, time.monotonic() + 120)  # the world is ticking: drones fly
         assert first is not None
         cli.send_signal(sig)
-        cli.wait(timeout=60)
-        assert cli.returncode == 1  # interrupted, not completed
+        said, _ = cli.communicate(timeout=180)
+        assert cli.returncode == 1, said  # not the scenario's end
+        assert LANDING_BANNER in said and LANDING_NOW in said
+        assert "| stop_reason | landed on request |" in said and "…" not in said  # markdown, nothing cut
+        m = json.loads((out / "metrics.json").read_text())
+        assert m["stop_reason"] == LANDED and m["complete"] is True
+        assert m["collisions"] == 0
+        heights = _last_heights(out)
+        cfg = load(out / "config.yaml")
+        down_m = {a.id: landing_height_m(a) + DOWN_ABOVE_M for a in cfg.agents}  # (simulated: the filter's floor)
+        assert len(heights) == 8 and all(z <= down_m[a] for a, z in heights.items()), heights
         assert _processes_mentioning(run_id) == []
-        assert (out / "run.mcap").exists() and json.loads((out / "metrics.json").read_text())[
-            "stop_reason"
-        ] == "interrupted"
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+        for pid in _processes_mentioning(run_id):
+            os.kill(pid, signal.SIGKILL)
+
+
+def _wait_sim_time(status: Any, run_id: str, t_s: float, timeout_s: float = 120.0) -> None:
+    """Until a status message of the run says sim time ``t_s`` [s] or later."""
+    from swarm.net.messages import decode
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        s = tp.wait_sample(status, deadline)
+        if s is not None and decode(tp.payload(s), run_id, ("status",)).t >= t_s:
+            return
+    raise AssertionError(f"the run did not reach t = {t_s} s")
+
+
+def test_a_stop_signal_lands_real_drones_by_their_flight_plan(tmp_path):
+    """mixed_sitl: two software-in-the-loop Crazyflies through cflib, and two simulated drones.
+    Ctrl-C once they fly: the real ones land by their flight plans (motors off on the ground),
+    the simulated ones descend to their floor, and the run ends as landed."""
+    from swarm.landing import LANDED
+
+    cli, status, out, run_id, _session = _swarm_run(
+        tmp_path, {"duration_s": 60.0, "stop_when_all_reached": False}, config="mixed_sitl.yaml"
+    )
+    try:
+        _wait_sim_time(status, run_id, 3.0)  # the real drones have taken off
+        cli.send_signal(signal.SIGINT)
+        said, _ = cli.communicate(timeout=180)
+        assert cli.returncode == 1, said
+        m = json.loads((out / "metrics.json").read_text())
+        assert m["stop_reason"] == LANDED and m["collisions"] == 0
+        for real in ("real1", "real2"):
+            log = (out / "logs" / f"agent-{real}.log").read_text()
+            assert "landing at t=" in log and "landed, motors off" in log, log[-2000:]
+            assert "emergency" not in log.lower(), log[-2000:]
+        assert _processes_mentioning(run_id) == []
+    finally:
+        if cli.poll() is None:
+            os.killpg(cli.pid, signal.SIGKILL)
+        for pid in _processes_mentioning(run_id):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_a_second_stop_signal_is_the_emergency_stop(tmp_path):
+    """Realtime: landing from 1 m at 0.3 m/s takes 3 s of wall clock, whatever the machine's
+    pace, and the second Ctrl-C comes as soon as the first is answered."""
+    from swarm.landing import LANDING_NOW
+
+    cli, status, out, run_id, _session = _swarm_run(tmp_path, _STAY_UP, "--mode", "realtime")
+    try:
+        first = tp.wait_sample(status, time.monotonic() + 120)
+        assert first is not None
+        cli.send_signal(signal.SIGINT)
+        assert cli.stdout is not None
+        for line in cli.stdout:  # until the launcher says it lands them
+            if LANDING_NOW in line:
+                break
+        cli.send_signal(signal.SIGINT)
+        cli.communicate(timeout=60)
+        assert cli.returncode == 1
+        assert json.loads((out / "metrics.json").read_text())["stop_reason"] == "interrupted"
+        heights = _last_heights(out)
+        assert len(heights) == 8 and all(z > 0.5 for z in heights.values()), heights  # stopped in the air
+        assert _processes_mentioning(run_id) == []
     finally:
         if cli.poll() is None:
             os.killpg(cli.pid, signal.SIGKILL)
@@ -302,6 +396,22 @@ def test_compare_runs_each_filter_and_saves_the_table(tmp_path):
     assert "kind: c3bf" in cfgs[0] and "kind: hocbf" in cfgs[1]
     table = (tmp_path / "compare.md").read_text()
     assert "| c3bf |" in table and "| hocbf |" in table
+
+
+def test_compare_over_seeds_flies_each_seed_and_tabulates_the_spread(tmp_path):
+    """The lab's world draws its imperfections from the seed: two seeds, two runs, one row."""
+    from swarm.runs.compare import compare
+
+    cfg = scenario("single_static_sphere.yaml", duration_s=6.0, world={"realism": "crazyflie_lab"})
+    rows = compare(cfg, ["c3bf"], tmp_path, seeds=2)
+    assert len(rows) == 1 and rows[0]["seeds"] == 2
+    clear = rows[0]["min_clearance_m"]
+    assert clear["n"] == 2 and clear["min"] <= clear["mean"] <= clear["max"]
+    seeds = sorted(p.name for p in (tmp_path / "c3bf").iterdir())
+    assert seeds == [f"seed{cfg.seed}", f"seed{cfg.seed + 1}"]
+    assert [load(tmp_path / "c3bf" / s / "config.yaml").seed for s in seeds] == [cfg.seed, cfg.seed + 1]
+    table = (tmp_path / "compare.md").read_text()
+    assert "| filter | seeds |" in table and "mean [min, max]" in table
 
 
 def _brakes_and_stays_short(a: dict) -> bool:
@@ -381,7 +491,7 @@ def test_sweep_runs_its_grid_in_parallel_and_writes_table_and_plots(tmp_path):
     assert c3bf["success"] == "1" and c3bf["collisions"] == "0"
     for r in rows:  # each row is its own run, with its own metrics
         assert (out / r["run"] / "metrics.json").exists()
-    assert {"success.png", "time_to_goal_s.png", "max_path_deviation_m.png"} <= {p.name for p in out.glob("*.png")}
+    assert {"success.png", "mean_time_to_goal_s.png", "max_path_deviation_m.png"} <= {p.name for p in out.glob("*.png")}
 
 
 @pytest.mark.parametrize("kind", ["circle", "sphere"])

@@ -72,3 +72,19 @@ def test_the_sweeps_circle_at_100_ms_on_every_link_touches_nothing_and_every_dro
     assert o.collisions == 0, o
     assert o.reached == len(agents), o
     assert log.min_separation_m > 2 * QuadModel().params.body_radius_m
+
+
+def test_a_late_state_is_used_at_its_true_age_and_an_older_one_arriving_after_a_newer_is_not_taken():
+    """Jitter delivers states late and out of order: a row is the newest state's, moved along its velocity
+    by its true age (now less its stamp), and grown by what the agreed acceleration allows over that age."""
+    from swarm.net.neighbours import NeighbourTable
+
+    a = 3.0
+    table = NeighbourTable(0.5, 0.5, 1.0, accel_bound_mps2=a)
+    v = np.array([1.0, 0.0, 0.0])
+    table.update("cf2", 1.00, 100, np.array([0.0, 0.0, 1.0]), v, 0.05)
+    table.update("cf2", 0.95, 95, np.array([-9.0, 0.0, 1.0]), v, 0.05)  # older, arriving after: not taken
+    rows = table.arrays(1.3)
+    assert table.row_age_s == pytest.approx([0.3])
+    assert rows.c_w[0] == pytest.approx([0.3, 0.0, 1.0])  # moved by its true age
+    assert rows.radius_m[0] == pytest.approx(0.05 + 0.5 * a * 0.3**2)

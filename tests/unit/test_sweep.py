@@ -78,7 +78,7 @@ def test_plots_run_against_the_axis_that_varies():
     from swarm.runs.sweep import aggregate
 
     rows = [
-        {"filter": f, "obstacle_speed": "1", "gamma": g, "success": 1, "time_to_goal_s": 8.0 + float(g)}
+        {"filter": f, "obstacle_speed": "1", "gamma": g, "success": 1, "mean_time_to_goal_s": 8.0 + float(g)}
         for f in ("c3bf", "hocbf")
         for g in ("0.5", "1", "2")
     ]
@@ -88,7 +88,7 @@ def test_plots_run_against_the_axis_that_varies():
         (("filter", "c3bf"), ("obstacle_speed", "1")),
         (("filter", "hocbf"), ("obstacle_speed", "1")),
     ]
-    assert table[(("filter", "c3bf"), ("obstacle_speed", "1"))][2.0]["time_to_goal_s"] == 10.0
+    assert table[(("filter", "c3bf"), ("obstacle_speed", "1"))][2.0]["mean_time_to_goal_s"] == 10.0
 
 
 def test_the_ray_engine_without_ray_names_the_extra(monkeypatch):

@@ -288,7 +288,7 @@ class AgentStep:
             offset_sd_m=offset_sd,
             publish_ahead=ahead > 0.0,
             plugin=contained_plugin(agent, fc, control_hz, realtime),
-            controller=contained_controller(agent, control_hz, realtime),
+            controller=contained_controller(agent, control_hz, realtime, delay_speed_mps(agent, realism, control_hz)),
         )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
@@ -696,11 +696,12 @@ def contained_plugin(
 
 
 def contained_controller(
-    agent: AgentConfig, control_hz: float | None, realtime: bool = False
+    agent: AgentConfig, control_hz: float | None, realtime: bool = False, speed_mps: float | None = None
 ) -> ContainedController | None:
     """The agent's reference controller plugin (``controller.kind``, ``swarm.plugins``) built and
     contained, or None for the built-in path tracker. ``control_hz`` (None: 100 Hz) sets its tick;
-    its budget is ``controller.budget_ms``, or as a filter plugin's (:func:`contained_plugin`)."""
+    its budget is ``controller.budget_ms``, or as a filter plugin's (:func:`contained_plugin`);
+    ``speed_mps``: the cruise speed its tracker flies (None: the agent's ``speed_mps``)."""
     from swarm.plugins import CONTROLLERS, plugin_class, plugin_options
     from swarm.reference import ControllerSpec, is_builtin
     from swarm.safety.external import budget_s
@@ -711,7 +712,8 @@ def contained_controller(
     period_s = 1.0 / (100.0 if control_hz is None else control_hz)
     params = agent.quad_params()
     spec = ControllerSpec(
-        agent.id, params, thrust_vector_input_set(params), agent.speed_mps, period_s,
+        agent.id, params, thrust_vector_input_set(params),
+        agent.speed_mps if speed_mps is None else speed_mps, period_s,
         plugin_options(cls, dict(agent.controller.options)),
     )  # fmt: skip
     wall = realtime or agent.backend == "crazyflie"

@@ -468,7 +468,7 @@ def scenario_swarm(cfg: ScenarioConfig) -> tuple[list[SwarmAgent], ObstacleArray
                 route,
                 a.id,
                 partial(contained_plugin, a, config),
-                partial(contained_controller, a),
+                partial(contained_controller, a, speed_mps=delay_speed_mps(a, cfg.world.realism, cfg.time.control_hz)),
             )
         )
     return agents, items_to_arrays(obstacle_items(list(cfg.obstacles), 0.0))

@@ -8,6 +8,7 @@ contact; a bad plugin config exits 2 naming the field."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -141,9 +142,9 @@ def test_a_raising_controller_is_contained_and_a_sound_one_flies(plugins, tmp_pa
 @pytest.mark.parametrize(
     ("section", "value", "field", "says"),
     [
-        ("controller", {"kind": "mypkg.mpc"}, "agents.0.controller.kind", "unknown controller 'mypkg.mpc'"),
-        ("controller", {"kind": "faulty.gentle", "options": {"k": 1}}, "agents.0.controller.options", "no options"),
-        ("controller", {"kind": "faulty.raises", "options": {"after_s": -1}}, "agents.0.controller.options.after_s",
+        ("controller", {"kind": "mypkg.mpc"}, "controller.kind", "unknown controller 'mypkg.mpc'"),
+        ("controller", {"kind": "faulty.gentle", "options": {"k": 1}}, "controller.options", "no options"),
+        ("controller", {"kind": "faulty.raises", "options": {"after_s": -1}}, "controller.options.after_s",
          "greater than or equal to 0"),
     ],
 )  # fmt: skip
@@ -152,18 +153,21 @@ def test_a_bad_controller_config_exits_2_naming_the_field(plugins, tmp_path, sec
     raw["defaults"][section] = value
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(raw))
     p = _swarm("run", "bad.yaml", "--out", "run", cwd=tmp_path)
-    assert p.returncode == 2 and f"bad.yaml: {field}: " in p.stderr and says in p.stderr, p.stderr
+    assert p.returncode == 2 and re.search(rf"bad\.yaml:\d+: defaults\.{field}: ", p.stderr), (
+        p.stderr
+    )  # file:line: field
+    assert says in p.stderr, p.stderr
     assert not (tmp_path / "run").exists()
 
 
 @pytest.mark.parametrize(
     ("filt", "level", "field", "says"),
     [
-        ({"kind": "mypkg.fancy_cbf"}, "attitude", "agents.0.filter.kind", "unknown filter 'mypkg.fancy_cbf'"),
-        ({"kind": "faulty.missing"}, "attitude", "agents.0.filter.kind", "cannot be imported: ModuleNotFoundError"),
-        ({"kind": VO, "options": {"horizon_s": -1}}, "attitude", "agents.0.filter.options.horizon_s", "greater than 0"),
-        ({"kind": VO, "options": {"horizon": 1}}, "attitude", "agents.0.filter.options.horizon", "Extra inputs"),
-        ({"kind": VO}, "rotors", "agents.0.filter.kind", "filters the attitude level"),
+        ({"kind": "mypkg.fancy_cbf"}, "attitude", "filter.kind", "unknown filter 'mypkg.fancy_cbf'"),
+        ({"kind": "faulty.missing"}, "attitude", "filter.kind", "cannot be imported: ModuleNotFoundError"),
+        ({"kind": VO, "options": {"horizon_s": -1}}, "attitude", "filter.options.horizon_s", "greater than 0"),
+        ({"kind": VO, "options": {"horizon": 1}}, "attitude", "filter.options.horizon", "Extra inputs"),
+        ({"kind": VO}, "rotors", "filter.kind", "filters the attitude level"),
     ],
 )
 def test_a_bad_plugin_config_exits_2_naming_the_field(plugins, tmp_path, filt, level, field, says):
@@ -171,7 +175,10 @@ def test_a_bad_plugin_config_exits_2_naming_the_field(plugins, tmp_path, filt, l
     raw["defaults"]["command_level"] = level
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(raw))
     p = _swarm("run", "bad.yaml", "--out", "run", cwd=tmp_path)
-    assert p.returncode == 2 and f"bad.yaml: {field}: " in p.stderr and says in p.stderr, p.stderr
+    assert p.returncode == 2 and re.search(rf"bad\.yaml:\d+: defaults\.{field}: ", p.stderr), (
+        p.stderr
+    )  # file:line: field
+    assert says in p.stderr, p.stderr
     assert not (tmp_path / "run").exists()  # nothing flew
 
 

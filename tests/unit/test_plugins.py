@@ -226,7 +226,7 @@ def test_a_sound_controller_s_reference_is_flown_and_the_built_in_is_registered(
     box = ContainedController(_Reference(mine), CTRL_SPEC, 1.0)
     assert np.array_equal(box.run(_ctrl_input(HOVER)), mine) and box.fallbacks == 0
     assert is_builtin(plugin_class(CONTROLLERS, "path_tracker")) and "path_tracker" in names(CONTROLLERS)
-    with pytest.raises(ConfigError, match=r"t.yaml: agents.0.controller.kind: unknown controller 'mypkg.mpc'"):
+    with pytest.raises(ConfigError, match=r"t.yaml: defaults.controller.kind: unknown controller 'mypkg.mpc'"):
         resolve({**_raw(), "defaults": {"controller": {"kind": "mypkg.mpc"}}}, "t.yaml")
-    with pytest.raises(ConfigError, match=r"agents.0.controller.options: PathTracking takes no options"):
+    with pytest.raises(ConfigError, match=r"defaults.controller.options: PathTracking takes no options"):
         resolve({**_raw(), "defaults": {"controller": {"options": {"k": 1}}}}, "t.yaml")

@@ -802,14 +802,15 @@ def cf_reboot(uri: str) -> None:
 
 @cli.command()
 def plugins() -> None:
-    """List the safety filters (filter.kind) and reference controllers (controller.kind) a config
-    can name (entry-point groups c3swarm.filters, c3swarm.controllers), each checked as a config
-    would check it: imported, its levels and its options (docs/plugins.md)."""
-    from swarm.plugins import CONTROLLERS, FILTERS, PluginError, plugin_class, registered
+    """List the safety filters (filter.kind), reference controllers (controller.kind) and planners
+    (planner.kind) a config can name (entry-point groups c3swarm.filters, c3swarm.controllers,
+    c3swarm.planners), each checked as a config would check it: imported, its levels and its
+    options (docs/plugins.md)."""
+    from swarm.plugins import CONTROLLERS, FILTERS, PLANNERS, PluginError, plugin_class, registered
     from swarm.safety.external import levels_of, options_of
 
     bad = 0
-    for group, title in ((FILTERS, "safety filters"), (CONTROLLERS, "reference controllers")):
+    for group, title in ((FILTERS, "safety filters"), (CONTROLLERS, "reference controllers"), (PLANNERS, "planners")):
         try:
             eps = registered(group)
         except PluginError as exc:

@@ -297,7 +297,10 @@ class PlannerConfig(_Strict):
     docs/design.md, "Reference paths"). It shapes the reference only: the filter keeps
     the agent safe whatever the path."""
 
-    kind: Literal["grid", "none"] = "grid"  # grid: planned where the straight path is blocked; none: straight
+    # a name registered in the entry-point group c3swarm.planners (swarm.plugins): the built-in grid (planned
+    # where the straight path is blocked) or none (straight), or an installed plugin's (swarm.planner)
+    kind: str = "grid"
+    options: dict[str, Any] = {}  # a plugin's own options, validated by its Options model
     resolution_m: float = Field(0.1, gt=0, le=1)  # m: the grid's cell
     clearance_m: float = Field(0.1, ge=0, le=2)  # m: kept from obstacles beyond the safety radius
     stall_s: float = Field(4.0, gt=0)  # s: replan from where the agent is after this long without progress
@@ -308,6 +311,27 @@ class PlannerConfig(_Strict):
     # than about this far in time with the horizon allowance (filter.obstacle_horizon_s), stretched by
     # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.tuning.obstacle_horizon_s); None: never
     obstacle_horizon_s: float | None = Field(3.0, gt=0, allow_inf_nan=False)
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import PLANNERS, PluginError, plugin_class
+
+        try:
+            plugin_class(PLANNERS, v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> PlannerConfig:
+        from swarm.plugins import PLANNERS, PluginError, plugin_class, plugin_options
+
+        try:
+            plugin_options(plugin_class(PLANNERS, self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
 
     def settings(self) -> PlannerSettings:
         return PlannerSettings(resolution_m=self.resolution_m, clearance_m=self.clearance_m, lanes=self.lanes)
@@ -761,6 +785,25 @@ class ScenarioConfig(_Strict):
                             f"agents.{i}.{what}: {a.id} at {p} and {b.id} at {q} are closer than "
                             f"their safety radii ({keep:.3f} m)"
                         )
+        return self
+
+    @model_validator(mode="after")
+    def _plugin_plans(self) -> ScenarioConfig:
+        """Each agent's plugin planner (``swarm.planner``) plans its path now, so that one that
+        raises or gives a path that cannot be flown stops the run before anything flies."""
+        from swarm.planner import PlanError, is_builtin, plugin_path
+        from swarm.planning import StaticObstacles
+        from swarm.plugins import PLANNERS, plugin_class
+
+        still = None
+        for i, a in enumerate(self.agents):
+            if is_builtin(plugin_class(PLANNERS, a.planner.kind)):
+                continue
+            still = still or StaticObstacles.of(list(self.obstacles))
+            try:
+                plugin_path(a, still)
+            except PlanError as exc:
+                raise ValueError(f"agents.{i}.planner.kind: {exc}") from None
         return self
 
     @model_validator(mode="after")

@@ -1,19 +1,20 @@
-"""Plugins by entry point: the safety filters and reference controllers a run can fly
+"""Plugins by entry point: the safety filters, reference controllers and planners a run can fly
 (docs/plugins.md).
 
 A safety filter is found by its name in the entry-point group :data:`FILTERS`
-(``c3swarm.filters``), a reference controller in :data:`CONTROLLERS` (``c3swarm.controllers``),
+(``c3swarm.filters``), a reference controller in :data:`CONTROLLERS` (``c3swarm.controllers``), a
+planner in :data:`PLANNERS` (``c3swarm.planners``),
 among the installed distributions' entries (``importlib.metadata.entry_points``), the built-ins
-as any other: c3swarm's own ``pyproject.toml`` registers ``c3bf``, ``hocbf`` and
-``path_tracker``, and :data:`BUILTIN` holds the same entries for an install whose metadata
+as any other: c3swarm's own ``pyproject.toml`` registers ``c3bf``, ``hocbf``, ``path_tracker``,
+``grid`` and ``none``, and :data:`BUILTIN` holds the same entries for an install whose metadata
 predates them (an editable install of an older checkout). A config names one with ``filter.kind``
 (``controller.kind``) and gives its options with ``filter.options`` (``controller.options``);
 :func:`plugin_class` and :func:`plugin_options` check both when the config is loaded, so an
 unknown name, a plugin that cannot be imported or options its own schema refuses stop the run
 before anything flies (``ConfigError`` naming the field: the CLI exits 2).
 
-The protocols, and their containment in flight, are in :mod:`swarm.safety.external` (filters)
-and :mod:`swarm.reference` (controllers).
+The protocols, and their containment in flight, are in :mod:`swarm.safety.external` (filters),
+:mod:`swarm.reference` (controllers) and :mod:`swarm.planner` (planners).
 """
 
 from __future__ import annotations
@@ -31,12 +32,16 @@ FILTERS = "c3swarm.filters"
 CONTROLLERS = "c3swarm.controllers"
 """The entry-point group of reference controllers: ``name = "module:Class"``."""
 
+PLANNERS = "c3swarm.planners"
+"""The entry-point group of planners: ``name = "module:Class"``."""
+
 BUILTIN: dict[str, dict[str, str]] = {
     FILTERS: {"c3bf": "swarm.safety.external:C3BF", "hocbf": "swarm.safety.external:HOCBF"},
     CONTROLLERS: {"path_tracker": "swarm.reference:PathTracking"},
+    PLANNERS: {"grid": "swarm.planner:GridPlanner", "none": "swarm.planner:Straight"},
 }
 
-_WHAT = {FILTERS: ("filter", "filter"), CONTROLLERS: ("controller", "reference")}
+_WHAT = {FILTERS: ("filter", "filter"), CONTROLLERS: ("controller", "reference"), PLANNERS: ("planner", "plan")}
 """Per group: what its plugins are called, and the method each must have."""
 """c3swarm's own entries (the same as its ``pyproject.toml``'s), per group."""
 

@@ -290,6 +290,11 @@ def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray
     """The waypoints (k, 3) [m, world] a configured agent flies from its start (each leg of
     its configured path planned around ``obstacles``), and its :class:`Route` for replanning
     (None unless it :func:`plans_round_walls`)."""
+    from swarm.planner import planned_path
+
+    custom = planned_path(agent, obstacles)  # a plugin planner's (swarm.planner): flown as it is
+    if custom is not None:
+        return custom, None
     pts = np.asarray(agent.path(), dtype=float)
     if not plans_round_walls(agent, obstacles):  # no wall: the straight path, as ever
         return pts, None

@@ -160,6 +160,27 @@ def test_a_bad_controller_config_exits_2_naming_the_field(plugins, tmp_path, sec
     assert not (tmp_path / "run").exists()
 
 
+def test_a_planner_plugin_s_path_is_flown_and_a_faulty_one_is_refused_at_load(plugins, tmp_path):
+    from swarm.planning import StaticObstacles
+    from swarm.step import AgentStep
+
+    raw = _swap(kind="c3bf")
+    raw["agents"][0]["planner"] = {"kind": "faulty.detour", "options": {"side_m": 0.6}}
+    cfg = resolve(raw)
+    step = AgentStep.of_agent(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=120.0)
+    assert step.tracker.W.round(9).tolist() == [[0.0, 0.0, 1.0], [2.0, 0.6, 1.0], [4.0, 0.0, 1.0]]
+    agents, obs = scenario_swarm(cfg)
+    log = simulate_swarm(QuadModel(cfg.agents[0].quad_params()), agents, obs, 10.0, control_hz=120)
+    out = outcome(cfg, log)
+    assert (out.collisions, out.reached) == (0, 2) and float(log.x_b_w[:, 0, 1].max()) > 0.4  # it took the detour
+    for kind, says in (("faulty.raises", "raised RuntimeError"), ("faulty.lost", "not the goal")):
+        raw["agents"][0]["planner"] = {"kind": kind}
+        (tmp_path / "bad.yaml").write_text(yaml.safe_dump(raw))
+        p = _swarm("run", "bad.yaml", "--out", "run", cwd=tmp_path)
+        assert p.returncode == 2 and re.search(r"bad\.yaml:\d+: agents\.0\.planner\.kind: ", p.stderr), p.stderr
+        assert says in p.stderr and not (tmp_path / "run").exists(), p.stderr
+
+
 @pytest.mark.parametrize(
     ("filt", "level", "field", "says"),
     [

@@ -14,7 +14,7 @@ import pytest
 from swarm.config import ConfigError, resolve
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
-from swarm.plugins import CONTROLLERS, FILTERS, filter_class, names, plugin_class, registered
+from swarm.plugins import CONTROLLERS, FILTERS, PLANNERS, filter_class, names, plugin_class, registered
 from swarm.reference import ContainedController, ControllerInput, ControllerOutput, ControllerSpec, is_builtin
 from swarm.safety.external import (
     C3BF,
@@ -230,3 +230,11 @@ def test_a_sound_controller_s_reference_is_flown_and_the_built_in_is_registered(
         resolve({**_raw(), "defaults": {"controller": {"kind": "mypkg.mpc"}}}, "t.yaml")
     with pytest.raises(ConfigError, match=r"defaults.controller.options: PathTracking takes no options"):
         resolve({**_raw(), "defaults": {"controller": {"options": {"k": 1}}}}, "t.yaml")
+
+
+def test_the_built_in_planners_are_registered_and_an_unknown_one_is_refused():
+    assert {"grid", "none"} <= set(names(PLANNERS))
+    assert is_builtin(plugin_class(PLANNERS, "grid")) and is_builtin(plugin_class(PLANNERS, "none"))
+    with pytest.raises(ConfigError, match=r"t.yaml: defaults.planner.kind: unknown planner 'mypkg.rrt'"):
+        resolve({**_raw(), "defaults": {"planner": {"kind": "mypkg.rrt"}}}, "t.yaml")
+    assert resolve({**_raw(), "defaults": {"planner": {"kind": "none"}}}).agents[0].planner.kind == "none"

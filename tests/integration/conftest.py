@@ -111,7 +111,7 @@ def cf2() -> Path:
 def install_plugins(target: Path) -> None:
     """Install the example plugin and the faulty ones into ``target`` as a user installs a
     package (pip, no dependencies), from copies (the build leaves nothing in the checkout). With
-    ``wheel`` in the environment (the dev extra) the build is offline, with its own setuptools;
+    setuptools and ``wheel`` in the environment (the dev extra) the build is offline, with them;
     without, pip builds in isolation from the configured index."""
     import importlib.util
     import shutil
@@ -123,7 +123,8 @@ def install_plugins(target: Path) -> None:
         copy = target.parent / f"src-{src.name}"
         shutil.copytree(src, copy, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
         srcs.append(str(copy))
-    offline = ["--no-build-isolation"] if importlib.util.find_spec("wheel") is not None else []
+    have = all(importlib.util.find_spec(m) is not None for m in ("setuptools", "wheel"))
+    offline = ["--no-build-isolation"] if have else []
     cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", *offline, "--target", str(target), *srcs]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, f"installing the plugins failed:\n{res.stdout}\n{res.stderr}"

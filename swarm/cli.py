@@ -23,6 +23,7 @@ import click
 
 from swarm.config import ConfigError, ScenarioConfig, dump, load
 from swarm.errors import InputError
+from swarm.proctitle import name_process
 from swarm.shutdown import StopSignals
 
 
@@ -63,7 +64,7 @@ def _console(stderr: bool = False) -> Any:
 
 def _world_landed(out: Path) -> bool:
     """Whether the world of the run in ``out`` took a land request (its summary line)."""
-    from swarm.runs.ledger import summaries
+    from swarm.ledger import summaries
 
     return summaries(out / "logs").get("world", {}).get("landing_from_s") is not None
 
@@ -295,6 +296,7 @@ def world(
     from swarm.world.main import main as world_main
 
     cfg, run_name = _process_args(config, run_id, port, mode)
+    name_process("world", run_name)
     conf = _zenoh_config(cfg, run_name, tp.Role.WORLD, secrets)
     tp.exit_when_sent(world_main(cfg, run_name, conf, gui=gui, expect=expect), "world")
 
@@ -311,6 +313,7 @@ def router(config: str, run_id: str | None, port: int | None, secrets: Path | No
     from swarm.runs.router import main as router_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
+    name_process("router", run_name)
     if cfg.topology != "router" and not cfg.uses_bundles:
         click.echo(
             f"config error: {config}: network.topology is {cfg.topology}, not router, and no agent takes bundles",
@@ -337,6 +340,7 @@ def agent(
     from swarm.net import transport as tp
 
     cfg, run_name = _process_args(config, run_id, port, mode)
+    name_process("agent", run_name, agent_id)
     try:
         cfg.agent(agent_id)
     except ConfigError as exc:
@@ -358,11 +362,12 @@ def record(
 ) -> None:
     """Start the recorder alone."""
     _pin_cpu()
+    from swarm.ledger import Ledger
     from swarm.net import transport as tp
-    from swarm.runs.ledger import Ledger
     from swarm.runs.record import main as record_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
+    name_process("recorder", run_name)
     out.mkdir(parents=True, exist_ok=True)
     target = out / "config.yaml"
     if not (target.exists() and target.resolve() == Path(config).resolve()):
@@ -386,6 +391,7 @@ def ros2_bridge(config: str, run_id: str | None, port: int | None, secrets: Path
     from swarm.ros2.bridge import main as bridge_main
 
     cfg, run_name = _process_args(config, run_id, port, None)
+    name_process("ros2-bridge", run_name)
     if not cfg.ros2.enabled:
         click.echo(f"config error: {config}: ros2.enabled is false", err=True)
         sys.exit(2)
@@ -398,7 +404,7 @@ def ros2_bridge(config: str, run_id: str | None, port: int | None, secrets: Path
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), help="default RUN_DIR/ros2_bag")
 def ros2_bag(run_dir: Path, out: Path | None) -> None:
     """Write a run as a ROS 2 bag (MCAP, ros2msg/cdr) that ros2 bag, Foxglove and rosbags open."""
-    from swarm.ros2.bag import write_bag
+    from swarm.runs.bag import write_bag
 
     try:
         path, n = write_bag(run_dir, out)

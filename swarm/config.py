@@ -12,7 +12,7 @@ import os
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
@@ -28,6 +28,9 @@ from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig
 from swarm.strict import Strict as _Strict
 from swarm.strict import merge as _merge
+
+if TYPE_CHECKING:
+    from swarm.planner import PlanRequest
 
 SCHEMA_VERSION = 1
 
@@ -286,7 +289,7 @@ class CrazyflieSettings(_Strict):
     on_agent_loss: Literal["estop", "watchdog"] = "estop"
     # from the end of the take-off on, the agent estimates the acceleration its drone has beyond its
     # commands (a thrust map off the motors, a sagging battery, a mass off the model) from the
-    # motion capture and takes it off its thrust (swarm.step.real_drone_estimator); false: it does not
+    # motion capture and takes it off its thrust (swarm.build.real_drone_estimator); false: it does not
     disturbance_estimate: bool = True
 
     _fin = field_validator("geofence_min_m", "geofence_max_m")(_finite)
@@ -386,6 +389,17 @@ class AgentConfig(_Strict):
                 f"not this agent's command_level {self.command_level.value}"
             )
         return self
+
+    def plan_request(self) -> PlanRequest:
+        """What its planner is asked (``swarm.planner.PlanRequest``): its configured path from its
+        start, and its planner's kind, options and clearance, its safety radius."""
+        from swarm.planner import PlanRequest
+
+        params = self.airframe.params()
+        return PlanRequest(
+            self.id, self.planner.kind, dict(self.planner.options), params,
+            params.body_radius_m + self.filter.margin_m, self.planner.clearance_m, np.asarray(self.path(), dtype=float),
+        )  # fmt: skip
 
     def quad_params(self) -> QuadParams:
         """The airframe the filter and the world use. A real Crazyflie's thrust-to-weight
@@ -615,7 +629,7 @@ class MocapSettings(_Strict):
 
 MAX_DURATION_S = 24 * 3600.0  # a longer run is a typo (and would put the launcher's wall-clock limit out of reach)
 MAX_CELLS = 512  # cell subscriptions an agent may hold (swarm.net.cells): each is a Zenoh subscriber
-AGENTS_PER_CPU = 32  # 32-agent process swarms have run here on 2 CPUs (lockstep, slowly); 2x that is untried
+AGENTS_PER_CPU = 32  # limits.max_agents' default, per CPU of the machine (what has run: docs/benchmarks.md)
 
 
 MonitorAction = Literal["warn", "slow", "hold", "land"]
@@ -801,7 +815,7 @@ class ScenarioConfig(_Strict):
                 continue
             still = still or StaticObstacles.of(list(self.obstacles))
             try:
-                plugin_path(a, still)
+                plugin_path(a.plan_request(), still)
             except PlanError as exc:
                 raise ValueError(f"agents.{i}.planner.kind: {exc}") from None
         return self

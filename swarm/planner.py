@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel
@@ -30,9 +30,6 @@ from pydantic import BaseModel
 from swarm.model import QuadParams, all_finite
 from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
-
-if TYPE_CHECKING:
-    from swarm.config import AgentConfig
 
 GOAL_TOL_M = 1e-6
 """How close [m] a planned path's last waypoint must be to the agent's goal."""
@@ -86,41 +83,51 @@ class PlanError(ValueError):
     """A plugin planner's path that cannot be flown (the message says why)."""
 
 
-def plugin_path(agent: AgentConfig, still: StaticObstacles) -> FloatArray:
-    """The path (k, 3) [m, world] the agent's plugin planner gives, from its start (first) to its
+class PlanRequest(NamedTuple):
+    """What an agent's planner is asked, as plain values (``swarm.build.planner_request`` and the
+    config's check read them off its config)."""
+
+    agent_id: str
+    kind: str  # planner.kind: a name registered in c3swarm.planners
+    options: dict[str, Any]  # planner.options
+    params: QuadParams  # its airframe
+    safety_radius_m: float  # m: its body radius plus its filter's margin
+    clearance_m: float  # m: planner.clearance_m
+    points_w: FloatArray  # (k, 3) m, world: its start, then its configured waypoints or goal
+
+
+def plugin_path(req: PlanRequest, still: StaticObstacles) -> FloatArray:
+    """The path (k, 3) [m, world] a plugin planner gives ``req``, from its start (first) to its
     goal (last). Raises :class:`PlanError` when the planner raises or its path is not flyable."""
     from swarm.plugins import PLANNERS, plugin_class, plugin_options
 
-    cls = plugin_class(PLANNERS, agent.planner.kind)
-    params = agent.airframe.params()
+    cls = plugin_class(PLANNERS, req.kind)
     spec = PlannerSpec(
-        agent.id, params, params.body_radius_m + agent.filter.margin_m, agent.planner.clearance_m,
-        plugin_options(cls, dict(agent.planner.options)),
-    )  # fmt: skip
-    pts = np.asarray(agent.path(), dtype=float)
+        req.agent_id, req.params, req.safety_radius_m, req.clearance_m, plugin_options(cls, dict(req.options))
+    )
+    pts = np.asarray(req.points_w, dtype=float)
     try:
         out = cls(spec).plan(PlannerInput(pts[0].copy(), pts[1:].copy(), still))
         W = np.array(out.waypoints_w if isinstance(out, PlannerOutput) else out, dtype=float)
     except Exception as exc:  # a plugin's fault of any kind
-        raise PlanError(f"planner {agent.planner.kind!r} raised {type(exc).__name__}: {exc}") from None
+        raise PlanError(f"planner {req.kind!r} raised {type(exc).__name__}: {exc}") from None
     if W.ndim != 2 or W.shape[1:] != (3,) or len(W) < 1 or not all_finite(W):
-        raise PlanError(f"planner {agent.planner.kind!r} returned no (n, 3) finite waypoints (got shape {W.shape})")
+        raise PlanError(f"planner {req.kind!r} returned no (n, 3) finite waypoints (got shape {W.shape})")
     if float(np.linalg.norm(W[-1] - pts[-1])) > GOAL_TOL_M:
-        raise PlanError(
-            f"planner {agent.planner.kind!r}'s path ends at {W[-1].tolist()}, not the goal {pts[-1].tolist()}"
-        )
+        raise PlanError(f"planner {req.kind!r}'s path ends at {W[-1].tolist()}, not the goal {pts[-1].tolist()}")
     return np.vstack([pts[:1], W])
 
 
-def planned_path(agent: AgentConfig, still: StaticObstacles) -> FloatArray | None:
-    """The agent's plugin planner's path from its start, or None: a built-in planner (the caller
-    plans), or a plugin whose path cannot be flown (said on stderr; the caller flies the grid's)."""
+def planned_path(req: PlanRequest, still: StaticObstacles) -> FloatArray | None:
+    """The plugin planner's path for ``req`` from its start, or None: a built-in planner (the
+    caller plans), or a plugin whose path cannot be flown (said on stderr; the caller flies the
+    grid's)."""
     from swarm.plugins import PLANNERS, plugin_class
 
-    if is_builtin(plugin_class(PLANNERS, agent.planner.kind)):
+    if is_builtin(plugin_class(PLANNERS, req.kind)):
         return None
     try:
-        return plugin_path(agent, still)
+        return plugin_path(req, still)
     except PlanError as exc:
-        print(f"agent {agent.id}: {exc}; flying the grid planner's path", file=sys.stderr)
+        print(f"agent {req.agent_id}: {exc}; flying the grid planner's path", file=sys.stderr)
         return None

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 
@@ -24,9 +24,6 @@ from swarm.planning import (
     plan,
 )
 from swarm.rotation import FloatArray
-
-if TYPE_CHECKING:
-    from swarm.config import AgentConfig
 
 WAIT_M = 1.0
 """An agent that gives way waits this far [m] before the passage's entry, or where it is."""
@@ -264,16 +261,23 @@ def corner_cut_m(route: Route | None) -> float:
     return 0.0 if route is None else route.cut_m
 
 
-def _safety_radius_m(agent: AgentConfig) -> float:
-    return agent.airframe.params().body_radius_m + agent.filter.margin_m
+class PathSpec(NamedTuple):
+    """What the planner takes of an agent, as plain values (``swarm.build.path_spec`` reads them
+    off its config)."""
+
+    points_w: FloatArray  # (k, 3) m, world: its start, then its configured waypoints or goal
+    safety_radius_m: float  # m: its body's radius plus its filter's margin
+    planner: PlannerSettings | None  # how its paths are planned; None: its configured path, straight
+    stall_s: float  # s: a route replans after this long without progress
 
 
-def plans_round_walls(agent: AgentConfig, obstacles: StaticObstacles) -> bool:
-    """Whether the agent flies a path planned round walls among ``obstacles`` (obstacles
-    closer together than two of its clearances), with a :class:`Route`; else it flies its
-    configured path straight."""
-    walls = obstacles.clustered(2 * (_safety_radius_m(agent) + agent.planner.clearance_m))
-    return agent.planner.kind != "none" and bool(len(walls)) and len(agent.path()) >= 2
+def plans_round_walls(spec: PathSpec, obstacles: StaticObstacles) -> bool:
+    """Whether the agent of ``spec`` flies a path planned round walls among ``obstacles``
+    (obstacles closer together than two of its clearances), with a :class:`Route`; else it flies
+    its configured path straight."""
+    if spec.planner is None or len(spec.points_w) < 2:
+        return False
+    return bool(len(obstacles.clustered(2 * (spec.safety_radius_m + spec.planner.clearance_m))))
 
 
 def follows(route: Route | None) -> bool:
@@ -286,20 +290,14 @@ def follows(route: Route | None) -> bool:
     return route is not None and route.lanes
 
 
-def path_for(agent: AgentConfig, obstacles: StaticObstacles) -> tuple[FloatArray, Route | None]:
-    """The waypoints (k, 3) [m, world] a configured agent flies from its start (each leg of
+def path_for(spec: PathSpec, obstacles: StaticObstacles) -> tuple[FloatArray, Route | None]:
+    """The waypoints (k, 3) [m, world] the agent of ``spec`` flies from its start (each leg of
     its configured path planned around ``obstacles``), and its :class:`Route` for replanning
     (None unless it :func:`plans_round_walls`)."""
-    from swarm.planner import planned_path
-
-    custom = planned_path(agent, obstacles)  # a plugin planner's (swarm.planner): flown as it is
-    if custom is not None:
-        return custom, None
-    pts = np.asarray(agent.path(), dtype=float)
-    if not plans_round_walls(agent, obstacles):  # no wall: the straight path, as ever
+    pts = np.asarray(spec.points_w, dtype=float)
+    if spec.planner is None or not plans_round_walls(spec, obstacles):  # no wall: the straight path, as ever
         return pts, None
-    radius_m = _safety_radius_m(agent)
-    route = Route(obstacles, radius_m, agent.planner.settings(), agent.planner.stall_s)
+    route = Route(obstacles, spec.safety_radius_m, spec.planner, spec.stall_s)
     legs = [route.first(a, b).waypoints_w for a, b in zip(pts[:-1], pts[1:], strict=True)]
     path = np.vstack([legs[0], *(leg[1:] for leg in legs[1:])])
     route.follow(path)

@@ -1,8 +1,8 @@
-"""One agent's control step, the same in every shell (the agent process, ``simulate_swarm``,
+"""One agent's control step, the same in every shell (the agent process, ``fly_scenario``,
 ``simulate``): built once from the agent's settings, then called once per control tick
 with what the agent knows at that tick (docs/design.md, "The control step").
 
-    step = AgentStep.of_agent(agent_cfg, StaticObstacles.of(cfg.obstacles), cfg.goal_tolerance_m)
+    step = swarm.build.agent_step(cfg, agent_id)          # as every shell builds it
     result = step(t_s, state, obstacles, neighbours)       # -> StepResult
 
 A call: the state acted on (the estimate, with its deviation and age) and its body centre; every
@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,31 +32,52 @@ from swarm.control import (
     right_hand_bias,
     setpoint_vector,
 )
-from swarm.model import CommandLevel, QuadModel, QuadState, body_centre, rotor_input_set, thrust_vector_input_set
-from swarm.planning import StaticObstacles
+from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
 from swarm.reference import ContainedController, ControllerInput
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
-from swarm.route import Route, corner_cut_m, follows, path_for
+from swarm.route import Route, follows
 from swarm.safety.external import ContainedFilter, FilterInput, Rows
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import (
-    command_lead_s,
-    delay_speed_mps,
-    design_std,
-    filter_config_for,
-    live_margin_m,
-    monitor_params,
-)
-
-if TYPE_CHECKING:
-    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
-    from swarm.realism.settings import RealismSettings
-
+from swarm.tuning import live_margin_m
 
 _NO_ESTIMATE = np.zeros(0)
+
+
+MAX_DISTURBANCE_FRACTION = 0.3
+"""The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
+the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an estimate gone
+wrong cannot tip the drone over."""
+
+
+class Sensing(NamedTuple):
+    """How an agent knows its own state (:class:`AgentStep`'s ``sensing``). ``estimator``: it acts
+    on its estimate from motion-capture frames (``world.realism.sensing``), never on the state it
+    is given. ``lead_s`` [s]: its command acts this much later (``swarm.tuning.command_lead_s``),
+    so it filters its state predicted to then (the estimate, or the given state moved by its last
+    command) against rows the caller gives at the same time. ``observer``: a real drone's
+    estimator of its disturbance alone, from the states it is given (it acts on them), run on the
+    ticks the caller says it is airborne. ``fixed_sd``: without an estimator, the position [m] and
+    velocity [m/s] deviations its states have (a real drone's motion capture in a world with
+    sensing; 0: exact). ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset
+    of the drone's markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``),
+    which no estimator sees: added in quadrature to the estimate's position deviation.
+    ``publish_ahead``: with a lead, the state it publishes is the one it filters, predicted for
+    when its command acts (it knows the commands in flight; its neighbours do not), so their rows
+    of it are a lead younger (docs/design.md, "Delay")."""
+
+    estimator: Estimator | None = None
+    lead_s: float = 0.0
+    observer: EstimatorParams | None = None
+    fixed_sd: tuple[float, float] = (0.0, 0.0)
+    offset_sd_m: float = 0.0
+    publish_ahead: bool = False
+
+
+EXACT = Sensing()
+"""An agent that acts on the exact state it is given, at once."""
 
 
 def _frozen(a: FloatArray) -> FloatArray:
@@ -64,23 +85,6 @@ def _frozen(a: FloatArray) -> FloatArray:
     out = np.array(a, dtype=float)
     out.flags.writeable = False
     return out
-
-
-def real_drone_estimator() -> EstimatorParams:
-    """What a real Crazyflie's agent estimates its disturbance with (the acceleration its drone has
-    beyond its command: a thrust map off the drone's motors, a sagging battery, a mass off the
-    model): the ``crazyflie_lab`` preset's estimator (its sources are cited there) on the states
-    the world relays from the real motion capture, taken as measured at the tick's time (latency 0)."""
-    from swarm.realism.settings import RealismSettings
-
-    lab = RealismSettings.model_validate("crazyflie_lab").sensing.estimator_params()
-    return replace(lab, latency_s=0.0)
-
-
-MAX_DISTURBANCE_FRACTION = 0.3
-"""The largest disturbance an agent takes off its command, per axis, as a fraction of g: well over
-the ``crazyflie_lab`` preset's 3-sigma thrust-to-mass departure (17 %), so an estimate gone
-wrong cannot tip the drone over."""
 
 
 class _Sensed(NamedTuple):
@@ -121,13 +125,13 @@ class StepResult:
     sd: tuple[float, float] = (0.0, 0.0)  # the published state's position [m] and velocity [m/s] deviations
     verdict: Verdict = CLEAR  # the safety monitor's at this step
     live_margin_m: float = 0.0  # m: the largest extra radius a row kept for the estimates' noise (live margins)
+    # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
+    # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
+    ahead_s: float = 0.0
     fallback: str = ""  # a plugin filter's command replaced at this step, why (swarm.safety.external.Fallback); ""
     fallbacks: int = 0  # steps so far whose plugin filter's command was replaced by the built-in safe command
     controller_fallback: str = ""  # a reference controller plugin's replaced at this step, why; ""
     controller_fallbacks: int = 0  # steps so far whose controller plugin's reference was replaced by the tracker's
-    # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
-    # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
-    ahead_s: float = 0.0
 
     @property
     def intervention(self) -> float:
@@ -147,8 +151,8 @@ class StepResult:
 
 class AgentStep:
     """One agent's control step; holds what persists between ticks (its path tracker and
-    route, the filter's QP workspace, the running tallies). Build with :meth:`of_agent` from a
-    config, or from its parts (``simulate``, tests)."""
+    route, the filter's QP workspace, the running tallies). Built from a scenario's agent by
+    ``swarm.build.agent_step`` (every shell), or from its parts (``simulate``, tests)."""
 
     def __init__(
         self,
@@ -163,13 +167,8 @@ class AgentStep:
         yaw_rad: float = 0.0,
         goal_tolerance_m: float = 0.15,
         landing: bool = False,
-        estimator: Estimator | None = None,
-        lead_s: float = 0.0,
-        observer: EstimatorParams | None = None,
+        sensing: Sensing = EXACT,
         monitor: MonitorParams | None = None,
-        fixed_sd: tuple[float, float] = (0.0, 0.0),
-        offset_sd_m: float = 0.0,
-        publish_ahead: bool = False,
         plugin: ContainedFilter | None = None,
         controller: ContainedController | None = None,
     ) -> None:
@@ -177,43 +176,30 @@ class AgentStep:
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
         ``filtered`` False flies the reference unfiltered; ``yaw_rad`` the yaw it holds;
         ``landing`` also builds the filter a real drone lands with (its floor off);
-        ``estimator``: the agent acts on its estimate from motion-capture frames
-        (``world.realism.sensing``), never on the state it is given; ``lead_s`` [s]: its command
-        acts this much later (``swarm.tuning.command_lead_s``), so it filters its state predicted
-        to then (the estimate, or the given state moved by its last command) against rows the
-        caller gives at the same time. ``observer``: a real drone's estimator of its disturbance
-        alone, from the states it is given (it acts on them), run on the ticks the caller says it
-        is airborne. ``monitor``: the safety monitor's parameters (None: no monitor).
-        ``fixed_sd``: without an estimator, the position [m] and velocity [m/s] deviations its
-        states have (a real drone's motion capture in a world with sensing; 0: exact). With an
-        estimator or a deviation every row grows by the live noise margin
-        (``swarm.tuning.live_margin_m``) of the agent's deviation now and the one the row's state carries.
-        ``offset_sd_m`` [m]: the deviation of the motion capture's constant offset of the drone's
-        markers from its centre of mass (``world.realism.sensing.centroid_offset_std_m``), which no
-        estimator sees: added in quadrature to the estimate's position deviation.
-        ``publish_ahead``: with a lead, the state it publishes is the one it filters, predicted for
-        when its command acts (it knows the commands in flight; its neighbours do not), so their rows
-        of it are a lead younger (docs/design.md, "Delay").
-        ``plugin``: a safety filter plugin (``swarm.safety.external``) flown in place of the
-        C3BF-QP of ``config``, which is its fallback; ``controller``: a reference controller plugin
-        (``swarm.reference``) whose reference replaces the path tracker's on a mission's ticks."""
+        ``sensing``: how it knows its own state (:class:`Sensing`: its estimator, command lead,
+        observer, deviations and whether it publishes its state ahead); with an estimator or a
+        deviation every row grows by the live noise margin (``swarm.tuning.live_margin_m``) of the
+        agent's deviation now and the one the row's state carries. ``monitor``: the safety
+        monitor's parameters (None: no monitor). ``plugin``: a safety filter plugin
+        (``swarm.safety.external``) flown in place of the C3BF-QP of ``config``, which is its
+        fallback; ``controller``: a reference controller plugin (``swarm.reference``) whose
+        reference replaces the path tracker's on a mission's ticks."""
         self.model, self.config, self.level = model, config, config.level
-        self.plugin = plugin
-        self.controller = controller
+        self.plugin, self.controller = plugin, controller
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
         self.goal_w = np.asarray(tracker.goal_w if goal_w is None else goal_w, dtype=float)
         self.filt = SafetyFilter(model, config)
         self.filt_land = SafetyFilter(model, replace(config, floor_z_m=None)) if landing else None
         self.att = AttitudeController(model)
-        self.estimator = estimator
-        self.lead_s = lead_s
-        self.observer = observer
+        self.estimator = sensing.estimator
+        self.lead_s = sensing.lead_s
+        self.observer = sensing.observer
         self.monitor = None if monitor is None or not monitor.enabled else SafetyMonitor(monitor)
-        self.fixed_sd = (float(fixed_sd[0]), float(fixed_sd[1]))
-        self.offset_sd_m = float(offset_sd_m)
-        self.publish_ahead = publish_ahead and lead_s > 0.0
-        self.live = estimator is not None or self.fixed_sd[0] > 0.0
+        self.fixed_sd = (float(sensing.fixed_sd[0]), float(sensing.fixed_sd[1]))
+        self.offset_sd_m = float(sensing.offset_sd_m)
+        self.publish_ahead = sensing.publish_ahead and self.lead_s > 0.0
+        self.live = self.estimator is not None or self.fixed_sd[0] > 0.0
         self._observed: Estimator | None = None  # the observer's filter since the drone is airborne
         self._frames = 0  # states fed to it
         self._a_w = np.zeros(3)  # m/s^2, world: the last command's acceleration (gravity included) (no estimator)
@@ -222,74 +208,6 @@ class AgentStep:
         self.infeasible = 0
         self.arrived = False
         self.solo = not filtered
-
-    @classmethod
-    def of_agent(
-        cls,
-        agent: AgentConfig,
-        still: StaticObstacles,
-        goal_tolerance_m: float,
-        level: CommandLevel | None = None,
-        realism: RealismSettings | None = None,
-        control_hz: float | None = None,
-        monitor: MonitorSettings | None = None,
-        failure: FailureSettings | None = None,
-        realtime: bool = False,
-    ) -> AgentStep:
-        """The step of a configured agent among the static obstacles ``still``: its path
-        planned round the walls (``swarm.route.path_for``), its filter tuned for that path
-        (``swarm.tuning.filter_config_for``), at its command level (or ``level``); with
-        ``realism.sensing`` a simulated drone's estimator, starting at its start with its start velocity (a real
-        drone acts on the states the world relays from the real motion capture, whose deviations
-        are taken as the design's, ``swarm.tuning.design_std``); with
-        ``control_hz`` its command's lead in that world; with ``monitor`` (and the scenario's
-        ``failure`` settings) its safety monitor; a safety filter plugin contained
-        (:func:`contained_plugin`; ``realtime``: the run is on the wall clock)."""
-        level = agent.command_level if level is None else level
-        lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
-        path_w, route = path_for(agent, still)
-        estimator = None
-        observer = None
-        if agent.crazyflie is not None and agent.crazyflie.disturbance_estimate:
-            observer = real_drone_estimator()
-        if realism is not None and realism.sensing.enabled and agent.backend == "sim":  # (a real drone: real frames)
-            half = 0.5 * agent.yaw_rad
-            estimator = realism.estimator(
-                np.asarray(agent.start, float),
-                np.array([0.0, 0.0, math.sin(half), math.cos(half)]),
-                v0_w=np.asarray(agent.start_velocity, float),
-            )
-        mon = None
-        fixed_sd = design_std(realism) if estimator is None else (0.0, 0.0)
-        offset_sd = realism.sensing.centroid_offset_std_m if realism is not None and realism.sensing.enabled else 0.0
-        fc = filter_config_for(agent, still, level, route, realism, control_hz)
-        ahead = lead_s if fc.accel_limit_mps2 is not None else 0.0  # (the swarm's delay contract binds)
-        if monitor is not None:
-            from swarm.config import FailureSettings as _Failure
-
-            fail = failure if failure is not None else _Failure()
-            mon = monitor_params(monitor, realism, fail, control_hz, neighbours_ahead_s=ahead)
-        return cls(
-            QuadModel(agent.quad_params()),
-            fc,
-            PathTracker(path_w, delay_speed_mps(agent, realism, control_hz), cut_m=corner_cut_m(route)),
-            goal_w=np.asarray(agent.final_goal, dtype=float),
-            route=route,
-            tiebreak=agent.tiebreak.pair,
-            filtered=agent.filter.enabled,
-            yaw_rad=agent.yaw_rad,
-            goal_tolerance_m=goal_tolerance_m,
-            landing=agent.backend == "crazyflie",
-            estimator=estimator,
-            lead_s=lead_s,
-            observer=observer,
-            monitor=mon,
-            fixed_sd=fixed_sd,
-            offset_sd_m=offset_sd,
-            publish_ahead=ahead > 0.0,
-            plugin=contained_plugin(agent, fc, control_hz, realtime),
-            controller=contained_controller(agent, control_hz, realtime, delay_speed_mps(agent, realism, control_hz)),
-        )
 
     def follow(self, goal_w: FloatArray, tracker: PathTracker, route: Route | None, config: FilterConfig) -> None:
         """Fly a new course from this tick on (a goal from ROS 2): to ``goal_w`` [m, world] along
@@ -663,58 +581,3 @@ class AgentStep:
                 for obstacles in (ahead, wall):  # the wall at 2 m/s is infeasible: the slack QP
                     filt.filter(state, u, obstacles)
         self.reset_tallies()
-
-
-def contained_plugin(
-    agent: AgentConfig, config: FilterConfig, control_hz: float | None, realtime: bool = False
-) -> ContainedFilter | None:
-    """The agent's safety filter plugin (``filter.kind``, ``swarm.plugins``) built and contained,
-    or None when its filter is a built-in barrier (its own QP) or it flies unfiltered. ``config``:
-    its tuned C3BF-QP settings (the fallback's), whose level, margin, sensing radius and input set
-    the plugin is given; ``control_hz`` (None: 100 Hz) sets its tick. Its budget is
-    ``filter.budget_ms``, or without it one tick where the run is on the wall clock (``realtime``, or
-    a real drone) and none otherwise (``swarm.safety.external.budget_s``)."""
-    from swarm.plugins import filter_class, filter_options
-    from swarm.safety.external import FilterSpec, barrier_of, budget_s
-
-    cls = filter_class(agent.filter.kind)
-    if barrier_of(cls) is not None or not agent.filter.enabled:
-        return None
-    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
-    params = agent.quad_params()
-    limits = (
-        rotor_input_set(params)
-        if config.level is CommandLevel.ROTORS
-        else thrust_vector_input_set(params, accel_limit_mps2=config.accel_limit_mps2)
-    )
-    spec = FilterSpec(
-        agent.id, params, config.level, limits, config.margin_m,
-        config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),
-    )  # fmt: skip
-    wall = realtime or agent.backend == "crazyflie"
-    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s, wall))
-
-
-def contained_controller(
-    agent: AgentConfig, control_hz: float | None, realtime: bool = False, speed_mps: float | None = None
-) -> ContainedController | None:
-    """The agent's reference controller plugin (``controller.kind``, ``swarm.plugins``) built and
-    contained, or None for the built-in path tracker. ``control_hz`` (None: 100 Hz) sets its tick;
-    its budget is ``controller.budget_ms``, or as a filter plugin's (:func:`contained_plugin`);
-    ``speed_mps``: the cruise speed its tracker flies (None: the agent's ``speed_mps``)."""
-    from swarm.plugins import CONTROLLERS, plugin_class, plugin_options
-    from swarm.reference import ControllerSpec, is_builtin
-    from swarm.safety.external import budget_s
-
-    cls = plugin_class(CONTROLLERS, agent.controller.kind)
-    if is_builtin(cls):
-        return None
-    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
-    params = agent.quad_params()
-    spec = ControllerSpec(
-        agent.id, params, thrust_vector_input_set(params),
-        agent.speed_mps if speed_mps is None else speed_mps, period_s,
-        plugin_options(cls, dict(agent.controller.options)),
-    )  # fmt: skip
-    wall = realtime or agent.backend == "crazyflie"
-    return ContainedController(cls(spec), spec, budget_s(agent.controller.budget_ms, period_s, wall))

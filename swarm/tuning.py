@@ -5,21 +5,18 @@ horizon stretched at a low gain on a path planned round walls, and a lane's cont
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from swarm.model import CommandLevel
-from swarm.net.neighbours import NeighbourTable
-from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
-from swarm.route import Route, plans_round_walls
+from swarm.route import Route
 from swarm.safety.monitor import Action, Breach, MonitorParams
 
 if TYPE_CHECKING:
-    from swarm.config import AgentConfig, FailureSettings, MonitorSettings
+    from swarm.config import FailureSettings, MonitorSettings
     from swarm.model import QuadParams
     from swarm.realism.settings import RealismSettings
     from swarm.safety.filter import FilterConfig
@@ -117,58 +114,19 @@ def agreed_accel_mps2(
     return a if a < a_max else None
 
 
-def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float | None:
-    """The agreed acceleration (:func:`agreed_accel_mps2`) of ``agent``'s airframe and filter settings."""
-    return agreed_accel_mps2(agent.quad_params(), realism, control_hz, agent.filter.delay_growth_m)
-
-
-def delay_speed_mps(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float:
-    """The speed [m/s] ``agent`` cruises at: its ``speed_mps``, and where the swarm's delay
-    contract binds (:func:`agent_accel_mps2`) at most ``a A``, the velocity a neighbour can gain
-    at the agreed acceleration ``a`` over its row's expected age ``A`` (:func:`expected_ages`):
-    no faster than what its neighbours may not yet know of, so a neighbour's velocity error is
-    no larger than the agent's own speed (``2 delay_growth_m / A``; docs/design.md, "Delay")."""
-    a = agent_accel_mps2(agent, realism, control_hz) if agent.command_level is CommandLevel.ATTITUDE else None
-    if a is None:
-        return agent.speed_mps
+def delay_speed_mps(
+    speed_mps: float, accel_mps2: float | None, realism: RealismSettings | None, control_hz: float | None
+) -> float:
+    """The speed [m/s] an agent of target speed ``speed_mps`` cruises at: that, and where the
+    swarm's delay contract binds (its agreed acceleration ``accel_mps2``, :func:`agreed_accel_mps2`;
+    None: it does not) at most ``a A``, the velocity a neighbour can gain at the agreed acceleration
+    ``a`` over its row's expected age ``A`` (:func:`expected_ages`): no faster than what its
+    neighbours may not yet know of, so a neighbour's velocity error is no larger than the agent's
+    own speed (``2 delay_growth_m / A``; docs/design.md, "Delay")."""
+    if accel_mps2 is None:
+        return speed_mps
     age = expected_ages(realism, control_hz).neighbour_s
-    return min(agent.speed_mps, a * age)
-
-
-def swarm_accel_mps2(
-    agents: Sequence[AgentConfig], realism: RealismSettings | None, control_hz: float | None
-) -> float | None:
-    """The acceleration [m/s^2] an agent's neighbour rows may assume of every other agent of
-    ``agents``: the largest of their agreed bounds (:func:`agent_accel_mps2`), or None (the
-    airframe's) where any one of them keeps none (it flies the rotor level, or has
-    ``filter.delay_growth_m`` null)."""
-    bounds = [
-        agent_accel_mps2(a, realism, control_hz) if a.command_level is CommandLevel.ATTITUDE else None for a in agents
-    ]
-    return None if not bounds or any(b is None for b in bounds) else max(b for b in bounds if b is not None)
-
-
-def neighbour_table(
-    failure: FailureSettings,
-    params: QuadParams,
-    realism: RealismSettings | None,
-    control_hz: float | None = None,
-    accel_mps2: float | None = None,
-) -> NeighbourTable:
-    """The neighbour table of an agent flying an airframe like ``params`` at ``control_hz``
-    [Hz]: its ``failure`` settings, with the timeout counted beyond the rows' expected age
-    (:func:`expected_ages`: a known delay is predicted through, not a loss); the prediction
-    bounds of ``realism`` (:func:`prediction_bounds`), the acceleration the swarm agreed
-    (``accel_mps2``, :func:`agreed_accel_mps2`) in place of the airframe's where given; and with
-    ``realism.sensing`` each row's velocity error :data:`NOISE_SIGMAS` times the deviation its
-    state carries where that exceeds the bound (the one builder of every shell)."""
-    accel, vel_err = prediction_bounds(params, realism)
-    if accel_mps2 is not None:
-        accel = min(accel, accel_mps2)
-    sigmas = NOISE_SIGMAS if realism is not None and realism.sensing.enabled else 0.0
-    f = failure
-    timeout = f.neighbour_timeout_s + expected_ages(realism, control_hz).neighbour_s
-    return NeighbourTable(timeout, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas)
+    return min(speed_mps, accel_mps2 * age)
 
 
 class ExpectedAges(NamedTuple):
@@ -267,21 +225,30 @@ than the inputs give, by an amount that falls as ``1 / tau`` (the measurements: 
 section 4, "Among walls")."""
 
 
-def obstacle_horizon_s(agent: AgentConfig, obstacles: StaticObstacles) -> float | None:
-    """The time horizon [s] of the agent's obstacle rows' horizon allowance: its
-    ``filter.obstacle_horizon_s``, else, when it plans round walls, its
-    ``planner.obstacle_horizon_s`` times ``max(1, u / (g`` :data:`HORIZON_SPEED_PER_GAIN_M` ``))``
-    for target speed ``u`` [m/s] and gain ``g`` [1/s] (3 s at 0.8 m/s and gamma 2, 6 s at
-    gamma 1), else None (the rows then keep ``filter.horizon_s``). On a planned path the path
-    takes the agent round the walls; the far pillars' cones along a corridor or a doorway's
-    line of sight would otherwise hold its velocity to a slit between them, where the velocity
-    buffer asks it to speed up (docs/design.md, "Reference paths")."""
-    if agent.filter.obstacle_horizon_s is not None:
-        return agent.filter.obstacle_horizon_s
-    tau = agent.planner.obstacle_horizon_s
-    if tau is None or not plans_round_walls(agent, obstacles):
+class HorizonSpec(NamedTuple):
+    """What :func:`obstacle_horizon_s` takes of an agent, as plain values
+    (``swarm.build.horizon_spec`` reads them off its config)."""
+
+    filter_s: float | None  # s: its filter's own obstacle horizon (filter.obstacle_horizon_s), or None
+    planner_s: float | None  # s: its planner's (planner.obstacle_horizon_s), or None
+    speed_mps: float  # m/s: its target speed
+    gamma: float  # 1/s: its filter's class-K gain
+
+
+def obstacle_horizon_s(spec: HorizonSpec, plans_round_walls: bool) -> float | None:
+    """The time horizon [s] of the agent's obstacle rows' horizon allowance: its filter's
+    (``spec.filter_s``), else, when it ``plans_round_walls`` (``swarm.route.plans_round_walls``),
+    its planner's times ``max(1, u / (g`` :data:`HORIZON_SPEED_PER_GAIN_M` ``))`` for target speed
+    ``u`` [m/s] and gain ``g`` [1/s] (3 s at 0.8 m/s and gamma 2, 6 s at gamma 1), else None (the
+    rows then keep ``filter.horizon_s``). On a planned path the path takes the agent round the
+    walls; the far pillars' cones along a corridor or a doorway's line of sight would otherwise
+    hold its velocity to a slit between them, where the velocity buffer asks it to speed up
+    (docs/design.md, "Reference paths")."""
+    if spec.filter_s is not None:
+        return spec.filter_s
+    if spec.planner_s is None or not plans_round_walls:
         return None
-    return tau * max(1.0, agent.speed_mps / (HORIZON_SPEED_PER_GAIN_M * agent.filter.gamma))
+    return spec.planner_s * max(1.0, spec.speed_mps / (HORIZON_SPEED_PER_GAIN_M * spec.gamma))
 
 
 LANE_CONTACT_S = 0.75
@@ -291,26 +258,24 @@ while far; a neighbour more than this from contact relaxes its radius instead of
 
 
 def filter_config_for(
-    agent: AgentConfig,
-    obstacles: StaticObstacles,
-    level: CommandLevel,
+    base: FilterConfig,
+    obstacle_horizon: float | None,
     route: Route | None = None,
-    realism: RealismSettings | None = None,
-    control_hz: float | None = None,
+    accel_limit_mps2: float | None = None,
 ) -> FilterConfig:
-    """The agent's filter settings at command ``level`` among the static ``obstacles``: its
-    configured ones, with :func:`obstacle_horizon_s`; with ``route`` (from :func:`path_for`)
-    flying a lane (:func:`swarm.planning.keep_right`), a contact horizon of at least :data:`LANE_CONTACT_S`
-    and no velocity buffer: a lane runs a few centimetres beyond the safety radius from a wall
-    and from the other flow's lane, on purpose, and the buffer asks every row for about 0.1 m/s
-    of velocity margin, which pushes drones off their lanes (docs/design.md, "Reference paths").
-    The estimates' noise is not in the margin: each row grows by it live (:func:`live_margin_m`,
-    ``swarm.step``). At the attitude level in a world with delays (``realism``, an agent ticking
-    at ``control_hz``) its command keeps within the swarm's agreed acceleration
-    (:func:`agreed_accel_mps2`, ``filter.delay_growth_m``)."""
-    cfg = replace(agent.filter.filter_config(level), obstacle_horizon_s=obstacle_horizon_s(agent, obstacles))
-    if level is CommandLevel.ATTITUDE:
-        cfg = replace(cfg, accel_limit_mps2=agent_accel_mps2(agent, realism, control_hz))
+    """The agent's filter settings: its configured ones ``base`` (at its command level), with its
+    obstacle horizon ``obstacle_horizon`` [s] (:func:`obstacle_horizon_s`); with ``route`` (from
+    ``swarm.route.path_for``) flying a lane (:func:`swarm.planning.keep_right`), a contact horizon
+    of at least :data:`LANE_CONTACT_S` and no velocity buffer: a lane runs a few centimetres beyond
+    the safety radius from a wall and from the other flow's lane, on purpose, and the buffer asks
+    every row for about 0.1 m/s of velocity margin, which pushes drones off their lanes
+    (docs/design.md, "Reference paths"). The estimates' noise is not in the margin: each row grows
+    by it live (:func:`live_margin_m`, ``swarm.step``). At the attitude level its command keeps
+    within ``accel_limit_mps2`` [m/s^2], the swarm's agreed acceleration in a world with delays
+    (:func:`agreed_accel_mps2`, ``filter.delay_growth_m``; None: the airframe's)."""
+    cfg = replace(base, obstacle_horizon_s=obstacle_horizon)
+    if cfg.level is CommandLevel.ATTITUDE:
+        cfg = replace(cfg, accel_limit_mps2=accel_limit_mps2)
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
     return cfg

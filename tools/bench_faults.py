@@ -290,11 +290,11 @@ def outsider(out: Path, mode: str) -> dict[str, Any]:
 
 
 def bad_config(out: Path, mode: str) -> dict[str, Any]:
-    from tests.unit.test_config_faults import _write_bad_files  # the malformed configs the tests refuse
+    from tools.bad_configs import write_bad_files  # the malformed configs the tests refuse
 
     out.mkdir(parents=True, exist_ok=True)
     slowest, codes = 0.0, set()
-    for _case, (path, _needle) in _write_bad_files(out).items():
+    for _case, (path, _needle) in write_bad_files(out).items():
         t0 = time.monotonic()
         p = subprocess.run(
             [sys.executable, "-m", "swarm.cli", "run", str(path), "--out", str(out / "never")],

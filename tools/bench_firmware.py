@@ -47,7 +47,8 @@ import numpy as np
 from swarm.config import resolve
 from swarm.rotation import R_to_euler, quat_to_R
 from swarm.runs.launch import RunHandle
-from swarm.world.sitl_fw import CF2_ENV, read_trace
+from swarm.world.fw_process import CF2_ENV
+from swarm.world.fw_trace import read_trace
 
 from .bench_swarm import summaries
 

@@ -1,6 +1,6 @@
 """Imperfections one at a time: how far can each go before the swarm touches?
 
-Each point flies a scene in one process (``swarm.offline.closed_loop.simulate_swarm``, the same
+Each point flies a scene in one process (``swarm.offline.closed_loop.fly_scenario``, the same
 control step, plant, motion capture, links and safety monitor as the world and agent processes)
 with ONE imperfection of ``world.realism`` raised from zero and everything else ideal, under
 C3BF and HO-CBF, and prints one JSON line. The imperfections and their levels:
@@ -89,7 +89,7 @@ import numpy as np
 from swarm.config import resolve
 from swarm.geometry import min_pair_distance
 from swarm.model import QuadModel
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import SwapSettings, circle_swap, sphere_swap
 from swarm.realism.settings import PRESETS, RealismSettings
 from swarm.safety.monitor import Action
@@ -226,23 +226,12 @@ def fly(p: Point) -> dict[str, Any]:
         return _fly_orca(p)
     raw = scene(p.scene, p.method, p.axis, p.level, p.duration_s)
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=cfg.seed,
-    )
+    log = fly_scenario(cfg)
     o = outcome(cfg, log)
     sep = min(min_pair_distance(x) for x in log.x_b_w)
     err = log.estimate_error_m
     return {
-        **_key(p, len(agents), RealismSettings.model_validate(raw["world"]["realism"]).ideal),
+        **_key(p, len(cfg.agents), RealismSettings.model_validate(raw["world"]["realism"]).ideal),
         "success": o.success,
         "collisions": o.collisions,
         "margin_violations": o.margin_violations,

@@ -5,9 +5,9 @@ and of how fast the filter changes its command in a swarm, printed as JSON lines
 
 The attitude level's filter treats its command, the thrust vector ``F`` [N, world], as the
 acceleration ``a_cmd = F / m - g e3`` of a point mass, at once; the drone's attitude loop (the
-firmware's, ``swarm.control.OnboardController``), its rotors and its radio get there later. Pure
-use of the offline world (``swarm.offline.closed_loop``: the attitude loop, RK4, the plant of
-``swarm.realism``), no PyBullet.
+firmware's, ``swarm.control.OnboardController``), its rotors and its radio get there later. Flown
+on the world's plant (``swarm.sim.stepper``: the attitude loop, PyBullet, the plant of
+``swarm.realism``), in-process.
 
 ``"kind": "step"``: one drone hovers level, and from t = 0 is sent each tick the setpoint that the
 filter sends for ``a_cmd`` (``swarm.control.setpoint_vector`` of ``F = m (a_cmd + g e3)``), a step of
@@ -26,7 +26,7 @@ wind and sensing are off. ``lab_3sigma`` hovers in trim: its command is scaled b
 ``accel_gain`` (``thrust_factor / mass_factor``) is the fraction of a commanded change it makes
 without that feedback, a steady gap, not a lag.
 
-``"kind": "swarm"``: ``swarm.offline.closed_loop.simulate_swarm`` of ``circle_swap(--agents, 2.0)``
+``"kind": "swarm"``: ``swarm.offline.closed_loop.fly_scenario`` of ``circle_swap(--agents, 2.0)``
 in ``world`` (``SwapSettings.realism``; resolved by ``swarm.config.resolve``, flown with its
 realism and seed). Over every agent tick: ``da_tick_*`` the change of the commanded acceleration
 over one tick ``|a_cmd[k] - a_cmd[k-1]|`` [m/s^2]; ``da_win_*`` the change over the lag window
@@ -53,11 +53,12 @@ import numpy as np
 
 from swarm.config import resolve
 from swarm.control import YAW_GAIN_PER_S, setpoint_vector
-from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, thrust_vector_input_set
-from swarm.offline.closed_loop import _Plant, scenario_swarm, simulate_swarm
+from swarm.model import QuadParams, thrust_vector_input_set
+from swarm.offline.closed_loop import fly_scenario
 from swarm.offline.scenario import SwapSettings, circle_swap
 from swarm.realism.settings import PRESETS, RealismSettings
 from swarm.rotation import E3, FloatArray
+from swarm.sim.stepper import Stepper
 
 HORIZONTAL_MPS2 = (0.5, 1.0, 2.0, 5.0)
 VERTICAL_MPS2 = (1.0, -1.0, 3.0, -3.0)
@@ -111,10 +112,28 @@ def fly_step(
 ) -> StepResponse:
     """Hover ``PREROLL_S`` on the trim command, then send ``a_cmd_w`` (3,) [m/s^2, world] each tick."""
     realism, kf, mf = world_settings(world)
-    model = QuadModel(params)
-    plant = _Plant(
-        model, CommandLevel.ATTITUDE, [QuadState.hover()], [0.0], physics_hz, control_hz, realism, seed, ["cf1"]
-    )
+    raw = {
+        "version": 1,
+        "name": f"step_{world}",
+        "seed": seed,
+        "duration_s": PREROLL_S + horizon_s,
+        "time": {"mode": "lockstep", "control_hz": control_hz, "physics_hz": physics_hz},
+        "world": {"realism": realism.model_dump(mode="json")},
+        "agents": [{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0]}],
+    }
+    plant = Stepper(resolve(raw))  # the world's plant (swarm.sim.stepper), one drone
+    dt = 1.0 / control_hz
+    k = 0
+
+    def fly(setpoint: FloatArray) -> None:
+        nonlocal k
+        v_tick = plant.read().v_w
+        plant.send("cf1", setpoint, k * dt, k)
+        for j in range(plant.cfg.time.substeps):
+            plant.deliver(k)
+            plant.substep(None, j == 0, {}, v_tick)
+        k += 1
+
     trim = mf / kf
     m, g = params.mass_kg, params.g_mps2
 
@@ -123,21 +142,17 @@ def fly_step(
         return setpoint_vector(F_w, 0.0, 0.0, YAW_GAIN_PER_S)
 
     hover = command(np.zeros(3))
-    k = 0
     for _ in range(round(PREROLL_S * control_hz)):
-        plant.send(0, hover, k)
-        plant.fly(k)
-        k += 1
-    v0 = plant.states[0].v_w.copy()
+        fly(hover)
+    v0 = plant.read().v_w[0].copy()
     step = command(a_cmd_w)
     d = a_cmd_w / np.linalg.norm(a_cmd_w)
     ticks = round(horizon_s * control_hz)
     e = np.empty((ticks, 3))  # integral of (a_cmd - a) [m/s, world] at the end of each tick
     for j in range(ticks):
-        plant.send(0, step, k)
-        plant.fly(k)
-        k += 1
-        e[j] = a_cmd_w * (j + 1) / control_hz - (plant.states[0].v_w - v0)
+        fly(step)
+        e[j] = a_cmd_w * (j + 1) / control_hz - (plant.read().v_w[0] - v0)
+    plant.close()
     e_v = e @ d
     e_perp = np.linalg.norm(e - np.outer(e_v, d), axis=1)
     back = max(1, round(SLOPE_S * control_hz))
@@ -194,24 +209,12 @@ def swarm_line(world: str, agents: int, tau_eff_s: float) -> dict[str, object]:
     params = cfg.agents[0].quad_params()
     if any(a.quad_params() != params for a in cfg.agents):
         raise ValueError("circle_swap: the agents' airframes differ")
-    swarm, obs = scenario_swarm(cfg)
     t = cfg.time
-    log = simulate_swarm(
-        QuadModel(params),
-        swarm,
-        obs,
-        cfg.duration_s,
-        control_hz=t.control_hz,
-        physics_hz=t.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=cfg.seed,
-    )
+    log = fly_scenario(cfg)
     assert log.accel_cmd_w is not None
-    a = log.accel_cmd_w  # (T, N, 3): the command of tick k, flown over tick k
+    a = log.accel_cmd_w[:-1]  # (T-1, N, 3): the command of tick k, flown over tick k
     dt = 1.0 / t.control_hz
-    v0 = np.array([np.zeros(3) if s.start_velocity_w is None else s.start_velocity_w for s in swarm])
-    v = np.concatenate([v0[None], log.v_w])  # v[k]: at the start of tick k (log.v_w: at its end)
+    v = log.v_w  # v[k]: at the start of tick k
     w = max(1, round(tau_eff_s / dt))
     da_tick = np.linalg.norm(a[1:] - a[:-1], axis=2).ravel()
     da_win = np.linalg.norm(a[w:] - a[:-w], axis=2).ravel()

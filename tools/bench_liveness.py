@@ -1,9 +1,10 @@
 """Liveness benchmark: swarms that start at rest, C3BF (live rows, the default) beside
 ORCA on the same scenes. Prints one JSON line per scene family point.
 
-Each point flies its scenes in one process (``swarm.offline.closed_loop.simulate_swarm``: the
-agents' tracker and filter, the firmware's attitude loop, RK4 rigid bodies, the world's
-roster of body centres each tick) for every seed, and reports the success rate (every
+Each point flies its scenes in one process (``swarm.offline.closed_loop.fly_scenario``: a
+lockstep run of the processes, bit for bit: the agents as ``swarm agent`` builds them, the
+firmware's attitude loop, the world's PyBullet bodies, each agent's neighbours' states of the
+tick before) for every seed, and reports the success rate (every
 agent at its goal, no contact), collisions (contacts: pairs and obstacle contacts), margin
 violations (pairs and agent-obstacles ever inside the safety radius, body radii plus the
 margin), deadlocked agents (``swarm.offline.metrics.deadlock_at``, the same rule for ORCA), infeasible
@@ -65,9 +66,9 @@ from typing import Any
 
 import numpy as np
 
+from swarm.build import path_of
 from swarm.config import ScenarioConfig, resolve
-from swarm.model import QuadModel
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import (
     SwapSettings,
     circle_swap,
@@ -81,7 +82,6 @@ from swarm.offline.scenario import (
     trap,
 )
 from swarm.planning import PlannerSettings, StaticObstacles, plan
-from swarm.route import path_for
 from swarm.safety.monitor import Action
 
 PERTURB_M = 0.05  # perturbed swaps: starts and goals moved up to this much per axis
@@ -174,18 +174,7 @@ def points(quick: bool, seeds: int) -> Iterator[Point]:
 
 
 def _c3bf(cfg: ScenarioConfig) -> dict[str, Any]:
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=cfg.seed,
-    )
+    log = fly_scenario(cfg)
     err = log.estimate_error_m
     o = outcome(cfg, log)
     free = free_times(cfg)
@@ -238,7 +227,7 @@ def _orca(cfg: ScenarioConfig, with_paths: bool = False) -> dict[str, Any] | Non
     from swarm.offline.orca import run_orca
 
     still = StaticObstacles.of(list(cfg.obstacles))
-    paths = [path_for(a, still)[0] for a in cfg.agents] if with_paths else None
+    paths = [path_of(a, still)[0] for a in cfg.agents] if with_paths else None
     with tempfile.TemporaryDirectory() as tmp:
         try:
             m = run_orca(cfg, Path(tmp), paths=paths)

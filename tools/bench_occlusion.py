@@ -1,7 +1,7 @@
 """One drone occluded as the swarm converges: is the swarm still safe?
 
 Flies ``configs/circle_8.yaml`` (8 drones swapping across a circle, ``world.realism:
-crazyflie_lab``) in the in-process closed loop (``swarm.offline.closed_loop.simulate_swarm``, the
+crazyflie_lab``) in the in-process closed loop (``swarm.offline.closed_loop.fly_scenario``, the
 agents' own control step, estimator and safety monitor), once per seed without a failure to find
 when the swarm converges (the tick its closest pair is closest), then again with one drone's
 motion capture gone for ``--gap-s`` seconds ending ``--after-s`` after that moment
@@ -25,27 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from swarm.config import ScenarioConfig, load
-from swarm.model import QuadModel
-from swarm.offline.closed_loop import SwarmLog, outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import SwarmLog, fly_scenario, outcome
 from swarm.safety.monitor import Action
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _fly(cfg: ScenarioConfig, seed: int, occlusions: list[tuple[int, float, float]]) -> SwarmLog:
-    agents, obs = scenario_swarm(cfg)
-    return simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=seed,
-        occlusions=occlusions,
-    )
+    return fly_scenario(cfg.model_copy(update={"seed": seed}), occlusions)
 
 
 def converging_s(log: SwarmLog) -> float:

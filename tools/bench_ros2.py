@@ -40,8 +40,8 @@ from swarm.config import resolve
 from swarm.net import access
 from swarm.net import transport as tp
 from swarm.net.messages import decode
+from swarm.net.ros2.topics import Kind, run_topics
 from swarm.offline.scenario import SwapSettings, circle_swap
-from swarm.ros2.topics import Kind, run_topics
 from swarm.runs.launch import RunHandle
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")

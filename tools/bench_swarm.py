@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm import ledger
 from swarm.config import resolve
 from swarm.offline.scenario import SwapSettings, circle_swap
-from swarm.runs import ledger
 from swarm.runs.launch import RunHandle
 
 

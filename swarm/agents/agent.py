@@ -23,8 +23,10 @@ from typing import Any
 import numpy as np
 
 from swarm.agents.crazyflie import CrazyflieLink, FlightPlan, Phase
+from swarm.build import agent_neighbour_table, agent_step
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays
+from swarm.ledger import timing_sketch
 from swarm.model import QuadState, body_centre
 from swarm.net import transport as tp
 from swarm.net.access import LAUNCHER
@@ -39,11 +41,10 @@ from swarm.net.messages import (
     warm_up,
 )
 from swarm.net.neighbours import roster_arrays
-from swarm.net.sources import CellSource, NeighbourSource, pick
+from swarm.net.sources import NeighbourSource, pick
 from swarm.planning import StaticObstacles
 from swarm.ros2.goals import GoalInbox, course, landing_goal
 from swarm.rotation import FloatArray
-from swarm.runs.ledger import timing_sketch
 from swarm.safety.filter import FilterStatus
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import NamedObstacles
@@ -71,10 +72,6 @@ def command_body(result: StepResult) -> CommandBody:
         int(result.verdict.action),
         int(result.verdict.breaches),
         result.live_margin_m,
-        result.fallback,
-        result.fallbacks,
-        result.controller_fallback,
-        result.controller_fallbacks,
     )
 
 
@@ -146,14 +143,6 @@ class RealDrone:
         self.link.close()
 
 
-def _step_of(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles) -> AgentStep:
-    return AgentStep.of_agent(
-        cfg.agent(agent_id), still, cfg.goal_tolerance_m,
-        realism=cfg.world.realism, control_hz=cfg.time.control_hz, monitor=cfg.monitor, failure=cfg.failure,
-        realtime=cfg.time.mode is TimeMode.REALTIME,
-    )  # fmt: skip
-
-
 def _warm_up(step: AgentStep, source: NeighbourSource, agent_id: str, start_w: FloatArray) -> None:
     """The first tick loads numba's compiled code and pays every other first-call cost
     (about a second): pay it now, before the world can see this agent, so that no real
@@ -171,8 +160,13 @@ def warm_kernels(cfg: ScenarioConfig) -> None:
     forks find every compiled kernel loaded (or compiled, on a cold cache)."""
     sim = next((a.id for a in cfg.agents if a.backend == "sim"), None)
     if sim is not None:
-        step = _step_of(cfg, sim, StaticObstacles.of(list(cfg.obstacles)))
-        _warm_up(step, pick(cfg, sim, "warm-up", tp.Counter()), sim, np.asarray(cfg.agent(sim).start))
+        step = agent_step(cfg, sim)
+        _warm_up(
+            step,
+            pick(cfg, sim, "warm-up", tp.Counter(), agent_neighbour_table(cfg, sim)),
+            sim,
+            np.asarray(cfg.agent(sim).start),
+        )
 
 
 class AgentProcess:
@@ -187,10 +181,10 @@ class AgentProcess:
         self.cfg, self.id, self.run_id, self.keys = cfg, agent_id, run, tp.Keys(run)
         self.lockstep = cfg.time.mode is TimeMode.LOCKSTEP
         self.me, self.still = me, StaticObstacles.of(list(cfg.obstacles))
-        self.step = _step_of(cfg, agent_id, self.still)
+        self.step = agent_step(cfg, agent_id, self.still)
         self.radius_m = self.step.model.params.body_radius_m
         self.counter = tp.Counter()
-        self.source = pick(cfg, agent_id, run, self.counter)
+        self.source = pick(cfg, agent_id, run, self.counter, agent_neighbour_table(cfg, agent_id))
         self.others = {a.id for a in cfg.agents} - {agent_id}
         self.real = me.backend == "crazyflie"  # measured by motion capture on its own key, not in the clock
         self.ticked = cfg.uses_ticks and not self.real  # measured by its own tick message, not the clock
@@ -232,17 +226,14 @@ class AgentProcess:
             ],
         )
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-        self.pub_state = (
-            session.declare_publisher(keys.state(self.id))
-            if self.source.publishes_state and not isinstance(self.source, CellSource)
-            else None
-        )
-        self.cell_pubs: dict[tuple[int, int, int], Any] = {}  # cell -> publisher of this agent's state there
+        self.state_pubs: dict[str, Any] = {}  # key -> publisher of this agent's state there
         self.cell_subs = tp.Channels(session)  # the neighbours' states, drained when the tick has woken us
-        if isinstance(self.source, CellSource):  # listen to the cells near the start before anyone sees this agent
-            start = np.asarray(cfg.agent(self.id).start, float)
-            start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)
-            self.source.follow(self.cell_subs, start_b[0])
+        start = np.asarray(cfg.agent(self.id).start, float)
+        start_b = body_centre(start, np.zeros(3), np.array([0, 0, 0, 1.0]), np.zeros(3), self.step.model.params.l_m)[0]
+        self.source.follow(self.cell_subs, start_b)  # (cells: listen near the start before anyone sees this agent)
+        first = self.source.state_key(start_b)
+        if first is not None:
+            self.state_pubs[first] = session.declare_publisher(first)
         self.pub_cmd = session.declare_publisher(keys.command(self.id))
         self.goals = GoalInbox(session, keys, self.id, self.run_id, self.counter) if cfg.ros2.enabled else None
         self.startup_cpu_s = time.process_time()
@@ -465,21 +456,19 @@ class AgentProcess:
             self.plan.land()
 
     def publish(self, msg: Message, result: StepResult) -> None:
-        """This agent's state (by cell, or on its own key) and then its command."""
-        keys, run, source = self.keys, self.run_id, self.source
+        """This agent's state (on the key its source gives: its own, or its cell's) and then its command."""
+        run, source = self.run_id, self.source
         if source.publishes_state:
             self.seq += 1
             body = StateBody(result.x_b_w, result.v_b_w, self.radius_m, result.solo, result.sd)
             state = encode_state(run, self.id, self.seq, msg.t + result.ahead_s, msg.k, body)
-            if isinstance(source, CellSource):
-                cell = source.cell_of(result.x_b_w)
-                pub = self.cell_pubs.get(cell)
+            key = source.state_key(result.x_b_w)
+            if key is not None:
+                pub = self.state_pubs.get(key)
                 if pub is None:
-                    pub = self.cell_pubs[cell] = self.session.declare_publisher(keys.cell_state(cell, self.id))
+                    pub = self.state_pubs[key] = self.session.declare_publisher(key)
                 pub.put(state)
-                source.follow(self.cell_subs, result.x_b_w)
-            elif self.pub_state is not None:
-                self.pub_state.put(state)
+            source.follow(self.cell_subs, result.x_b_w)
         self.seq += 1
         self.pub_cmd.put(
             encode_command(run, self.id, self.seq, msg.t, msg.k, command_body(result), self.counter.dropped)

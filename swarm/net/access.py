@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from swarm.errors import SecretsError
 
 if TYPE_CHECKING:
-    from swarm.ros2.topics import Ros2Keys
+    from swarm.net.ros2.topics import Ros2Keys
 
 USERS_FILE = "users.txt"  # Zenoh's usrpwd dictionary: one ``user:password`` per line
 LAUNCHER, WORLD, RECORDER, OBSERVER, ROUTER = "launcher", "world", "recorder", "observer", "router"
@@ -106,7 +106,7 @@ def acl(
     router: it accepts everything of the run the router forwards.
 
     ``ros2`` (``ros2.enabled``, through the router only): the keys of the run's ROS 2 side
-    (``swarm.ros2.topics.ros2_keys``). Anyone linked may subscribe to the domain's data and
+    (``swarm.net.ros2.topics.ros2_keys``). Anyone linked may subscribe to the domain's data and
     liveliness; the router accepts from the bridge (``ros2-bridge``) the topics it
     publishes, its liveliness tokens and its goals for the agents (``ros2/**``), and from
     a ROS 2 participant (``ros2``) puts on exactly the goal, land and stop topics and

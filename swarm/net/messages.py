@@ -25,15 +25,9 @@ from swarm.model import all_finite
 from swarm.net import statewire
 from swarm.realism.sensing import MocapFrame
 
-VERSION = 11  # 2: the clock carries the measurements and obstacles; the command the filter report
-# 3: vectors as float64 binaries; 4: who does not share responsibility (state and clock "solo")
-# 5: stalls (the stall message, the status's count), the dead (status), a dead drone's contacts
-# 6: the tick message (one agent's measurement, obstacles and near neighbours)
-# 7: the state as a fixed binary record, and the router's bundle of them (swarm.net.statewire)
-# 8: the tick names the agents the world has seen go ("gone")
-# 9: the tick and the clock carry motion-capture frames (world.realism.sensing), the command the estimate
-# 10: the state carries its estimate's deviations; the command the monitor's verdict and the live margin
-# 11: the command carries a plugin filter's and controller's fallbacks and their counts; the status the agents' counts
+VERSION = 11
+"""The schema version every message carries; a message of another is dropped and counted
+(what each version added: docs/design.md, "Processes and messages")."""
 
 # kind -> {field: spec}; spec is a vector length, "f" float, "i" int, "s" str, "b" bool,
 # "vf" variable-length vector, "ls" list of str, "obs" obstacle list (vectors: float64 binaries)

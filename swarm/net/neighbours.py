@@ -525,7 +525,7 @@ class HeardNeighbours:
     """The other agents as an agent hears them: their states (:meth:`take`) in a
     :class:`NeighbourTable`, and per tick the world's list of the agents that tick waits for
     (:meth:`on_list`). In lockstep tick k uses exactly their states of tick k-1. Pure: the
-    neighbour sources (``swarm.net.sources``) feed it from the wire, ``simulate_swarm`` directly.
+    neighbour sources (``swarm.net.sources``) feed it from the wire, ``fly_scenario`` directly.
 
     With a ``comms`` model (``world.realism.comms``) a state of tick k reaches the table at tick
     ``k + max(1, d)`` for its seeded fate ``d`` from its sender to ``agent_id`` (through the relay

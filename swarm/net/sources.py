@@ -12,13 +12,13 @@ names, and in lockstep says how many messages that tick still waits for.
 
 The last three hold a :class:`swarm.net.neighbours.NeighbourTable` and, in lockstep, use
 exactly the states of tick k-1 (bundles and cells: of the neighbours the world names near
-the agent with tick k). Taking states and building rows is pure (``simulate_swarm`` feeds a
+the agent with tick k). Taking states and building rows is pure (``fly_scenario`` feeds a
 :class:`BundleSource` directly); :meth:`hear` decodes what the transport brings.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -39,7 +39,9 @@ from swarm.net.neighbours import (
 from swarm.realism.comms import CommsModel, MessageKind
 from swarm.rotation import FloatArray
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.tuning import neighbour_table, swarm_accel_mps2
+
+if TYPE_CHECKING:
+    from swarm.config import ScenarioConfig
 
 
 def _keep_newest(by_tick: dict, n: int) -> None:
@@ -64,6 +66,16 @@ class NeighbourSource(Protocol):
 
     def subscriptions(self) -> list[str]:
         """The keys of the neighbours' traffic (added to the agent's inbox)."""
+        ...
+
+    def state_key(self, x_b_w: FloatArray) -> str | None:
+        """The key the agent publishes its state on with its body centre at ``x_b_w`` [m, world]
+        (None: it publishes none)."""
+        ...
+
+    def follow(self, subs: tp.Channels, x_b_w: FloatArray) -> None:
+        """The agent's body centre is at ``x_b_w`` [m, world] (at its start, then each tick): the
+        channels of neighbours' traffic that depend on where it is, in ``subs`` (cells only)."""
         ...
 
     def hear(self, key: str, sample: Any) -> bool:
@@ -139,6 +151,12 @@ class RosterSource:
         self._rows = np.zeros(0, dtype=np.intp)  # indices of the other drones in the clock's ids
         self._shares = np.zeros(0, dtype=bool)  # each roster drone does its share (a neighbour row)
 
+    def state_key(self, x_b_w: FloatArray) -> str | None:
+        return None  # (the world measures every drone)
+
+    def follow(self, subs: tp.Channels, x_b_w: FloatArray) -> None:
+        pass
+
     def subscriptions(self) -> list[str]:
         return []
 
@@ -212,9 +230,16 @@ class StateSource(HeardNeighbours):
         super().__init__(others, table, agent_id, comms)
         self.run, self.counter = run, counter
         self._keys = {keys.state(n): n for n in sorted(others)}
+        self._own = keys.state(agent_id)
 
     def subscriptions(self) -> list[str]:
         return list(self._keys)
+
+    def state_key(self, x_b_w: FloatArray) -> str | None:
+        return self._own
+
+    def follow(self, subs: tp.Channels, x_b_w: FloatArray) -> None:
+        pass
 
     def hear(self, key: str, sample: Any) -> bool:
         name = self._keys.get(key)
@@ -266,10 +291,17 @@ class BundleSource(_NearSource):
                  interest: Interest, keys: tp.Keys, comms: CommsModel | None = None) -> None:  # fmt: skip
         super().__init__(agent_id, others, table, run, counter, interest, comms)
         self.key = keys.bundle(agent_id)
+        self._own = keys.state(agent_id)  # (the relay bundles it for the others)
         self.bundle_k = -1  # the newest tick whose bundle arrived
 
     def subscriptions(self) -> list[str]:
         return [self.key]
+
+    def state_key(self, x_b_w: FloatArray) -> str | None:
+        return self._own
+
+    def follow(self, subs: tp.Channels, x_b_w: FloatArray) -> None:
+        pass
 
     def wake(self, lockstep: bool, pending_k: int | None, acted_k: int) -> tuple[int, float | None]:
         """One bundle brings every neighbour's state: in lockstep, wait for the next tick and
@@ -381,6 +413,10 @@ class CellSource(_NearSource):
         """The cell this agent publishes its state in, at body centre ``x_b_w`` [m, world]."""
         return cell_of(x_b_w.tolist(), self.interest.cell_m)
 
+    def state_key(self, x_b_w: FloatArray) -> str | None:
+        """The key of this agent's state in the cell of its body centre ``x_b_w`` [m, world]."""
+        return self.keys.cell_state(self.cell_of(x_b_w), self.id)
+
     def follow(self, subs: tp.Channels, x_b_w: FloatArray) -> None:
         """Subscribe to the cells near the body centre ``x_b_w`` [m, world] and drop the ones
         left behind (nothing while within the hysteresis)."""
@@ -391,17 +427,14 @@ class CellSource(_NearSource):
             subs.remove(self.keys.cell(c))
 
 
-def pick(cfg: Any, agent_id: str, run: str, counter: tp.Counter) -> NeighbourSource:
+def pick(cfg: ScenarioConfig, agent_id: str, run: str, counter: tp.Counter, table: NeighbourTable) -> NeighbourSource:
     """The source ``agent_id`` of the scenario ``cfg`` (:class:`swarm.config.ScenarioConfig`)
-    hears its neighbours from, chosen once by its ``neighbours`` settings."""
+    hears its neighbours from, chosen once by its ``neighbours`` settings, keeping them in
+    ``table`` (``swarm.build.agent_neighbour_table``)."""
     others = {a.id for a in cfg.agents} - {agent_id}
     if cfg.neighbours.source == "world":
         return RosterSource(others)
     realism = cfg.world.realism
-    hz = cfg.time.control_hz
-    accel = swarm_accel_mps2(cfg.agents, realism, hz)
-    table = neighbour_table(cfg.failure, cfg.agent(agent_id).quad_params(), realism, hz, accel)
-    table.limits = statewire.Plausible.of(cfg)  # what a neighbour's state may say (a run's own agent gone wrong)
     keys = tp.Keys(run)
     interest = Interest(cfg.interest_radius_m(agent_id), cfg.cell_m, cfg.neighbours.hysteresis_m)
     comms = None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)

@@ -255,7 +255,7 @@ def _secure(conf: zenoh.Config, cfg: ScenarioConfig, acc: Access, listens: bool)
         router = "client"
     ros2 = None
     if cfg.ros2.enabled:
-        from swarm.ros2.topics import ros2_keys
+        from swarm.net.ros2.topics import ros2_keys
 
         ros2 = ros2_keys(cfg.ros2.domain_id, cfg.ros2.namespace, list(acc.agent_ids))
     rules = access.acl(
@@ -642,12 +642,11 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
     ``SCHED_BATCH`` policy: a Zenoh thread that wakes then waits for the running thread's
     time slice instead of preempting it. The calling thread keeps its policy.
 
-    With more processes than cores, the transmit thread woken by each command preempted its
-    agent's main thread (its ``put`` took 2 to 3 ms of wall time for 45 us of CPU), costing
-    context switches and the main thread's caches. In 5 A/B pairs at 16 agents on 2 cores
-    this raised the ticks on time from 98.7 % to 99.3 % on average (better or equal in each
-    pair) and lowered the agents' CPU by up to 15 % (README). The threads inherit the policy
-    from the thread that starts them; where it cannot be set the session opens as usual."""
+    With more processes than cores, a transmit thread woken by each command would otherwise
+    preempt its agent's main thread, costing context switches and the main thread's caches
+    (the measurements: docs/benchmarks.md, "Figures behind the code's choices"). The threads
+    inherit the policy from the thread that starts them; where it cannot be set the session
+    opens as usual."""
     runtime_env()
     set_policy = getattr(os, "sched_setscheduler", None)
     if set_policy is None:

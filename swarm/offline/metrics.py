@@ -11,7 +11,7 @@ Safety figures, all from the measured (ground-truth) states:
 * ``min_h``: the exact C3BF barrier (:func:`swarm.safety.barriers.cone_h`) of every pair and
   agent-obstacle an agent's filter had a row for (obstacles, and neighbours within its
   sensing radius), plus the horizon allowance where the agent's rows of that kind have one
-  (``filter.horizon_s``; for obstacles ``swarm.tuning.obstacle_horizon_s``: on a path
+  (``filter.horizon_s``; for obstacles ``swarm.build.obstacle_horizon_of``: on a path
   planned round walls the row keeps ``h_tau``, not the cone), its smallest value and the
   ticks it was negative; the ticks a
   neighbour outside the sensing radius was on a collision course (h < 0, no row yet) are
@@ -60,18 +60,18 @@ from typing import Any
 
 import numpy as np
 
+from swarm.build import obstacle_horizon_of
 from swarm.config import ScenarioConfig
 from swarm.geometry import items_to_arrays, min_pair_distance, surface_clearance
+from swarm.ledger import Ledger, sent_counts
 from swarm.model import body_centre
 from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
-from swarm.runs.ledger import Ledger, sent_counts
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
 from swarm.safety.external import FALLBACK_NAMES
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import ObstacleArrays
-from swarm.tuning import obstacle_horizon_s
 
 SUMMARY_KEYS = (
     "collisions",
@@ -156,7 +156,7 @@ def deadlock_at(
 
 class SafetyFigures:
     """The exact-barrier and margin figures of a run, tick by tick from measured states
-    (see the module docstring), for the runtime's metrics and ``simulate_swarm``'s outcome
+    (see the module docstring), for the runtime's metrics and ``fly_scenario``'s outcome
     alike. ``add`` takes one tick; :meth:`agent` and the attributes give the figures."""
 
     def __init__(self, cfg: ScenarioConfig) -> None:
@@ -174,7 +174,7 @@ class SafetyFigures:
         still = StaticObstacles.of(list(cfg.obstacles))
         # (n,) 1/s: the horizon allowance of each agent's neighbour rows and obstacle rows (0: the cone)
         self.inv_tau_nb = np.array([1.0 / a.filter.horizon_s if a.filter.horizon_s else 0.0 for a in cfg.agents])
-        tau_obs = [obstacle_horizon_s(a, still) for a in cfg.agents]
+        tau_obs = [obstacle_horizon_of(a, still) for a in cfg.agents]
         self.inv_tau_obs = np.array([1.0 / t if t else nb for t, nb in zip(tau_obs, self.inv_tau_nb, strict=True)])
         n = len(self.ids)
         self.min_h = np.full(n, math.inf)  # (n,) m^2/s: smallest exact h of a row the agent had
@@ -382,7 +382,7 @@ def compute(
     in file order, read once: a stream (:class:`swarm.runs.runfiles.RecordingStream`) keeps
     an hour's recording out of memory. The barrier figures are taken a tick at a time once
     the measurements are :data:`TICK_WINDOW` ticks past it. ``said``: each process's summary
-    line (:func:`swarm.runs.ledger.summaries`): what it sent, to find what the recording lacks
+    line (:func:`swarm.ledger.summaries`): what it sent, to find what the recording lacks
     at the end of a stream, and what it dropped from whom, to name the offenders."""
     ledger = Ledger.of(cfg)
     silence = Silence()

@@ -5,7 +5,7 @@
 One process for the whole swarm, a client of the run's Zenoh router: it takes the world's
 clock (every simulated drone's measurement and the obstacles, in one message per tick),
 the real drones' motion-capture measurements and the agents' commands (their filter's
-report), and publishes through the router, as rmw_zenoh would (:mod:`swarm.ros2.graph`):
+report), and publishes through the router, as rmw_zenoh would (:mod:`swarm.net.ros2.graph`):
 
 * per drone, ``<ns>/<id>/pose`` (PoseStamped) and ``<ns>/<id>/velocity`` (TwistStamped),
   ``/tf`` (world -> every drone) and ``/clock`` (sim time) at ``ros2.rate_hz`` of wall
@@ -35,10 +35,11 @@ from swarm.errors import DecodeError
 from swarm.net import transport as tp
 from swarm.net.access import ROS2_BRIDGE
 from swarm.net.messages import CLOCK_MEAS, Message, encode, record_of
-from swarm.ros2 import convert, graph
+from swarm.net.ros2 import graph
+from swarm.net.ros2.interfaces import deserialize, serialize, store
+from swarm.net.ros2.topics import TYPES, Kind, Topic, run_topics
+from swarm.ros2 import convert
 from swarm.ros2.goals import GOAL, LAND, STOP
-from swarm.ros2.interfaces import deserialize, serialize, store
-from swarm.ros2.topics import TYPES, Kind, Topic, run_topics
 from swarm.shutdown import StopFlag
 
 NODE_NAME = "c3swarm_bridge"

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from swarm.errors import DecodeError
-from swarm.ros2.interfaces import store
+from swarm.net.ros2.interfaces import store
 from swarm.rotation import FloatArray, quat_to_R
 from swarm.safety.monitor import BREACH_NAMES, Action
 

@@ -2,7 +2,7 @@
 
 :func:`course` is pure: the path, route, tracker and filter settings an agent flies from
 where it is to a new goal, built exactly as the agent builds them for its configured goal
-at the start (``swarm.route.path_for``: planned round the walls when it plans round
+at the start (``swarm.build.path_of``: planned round the walls when it plans round
 walls, straight otherwise). :class:`GoalInbox` is the agent process's side: the bridge's
 goal messages (``swarm/<run>/ros2/goal/<id>`` and ``.../ros2/all``), queued by Zenoh and
 taken once per tick, the newest first (no Python runs per message, nothing wakes the agent).
@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from swarm.build import cruise_speed_mps, filter_of, path_of
 from swarm.control import PathTracker
 from swarm.landing import landing_height_m
 from swarm.model import CommandLevel
@@ -21,9 +22,8 @@ from swarm.net import transport as tp
 from swarm.net.access import ROS2_BRIDGE
 from swarm.planning import StaticObstacles
 from swarm.rotation import FloatArray
-from swarm.route import Route, corner_cut_m, path_for
+from swarm.route import Route, corner_cut_m
 from swarm.safety.filter import FilterConfig
-from swarm.tuning import delay_speed_mps, filter_config_for
 
 if TYPE_CHECKING:
     from swarm.config import AgentConfig
@@ -55,9 +55,9 @@ def course(
     now = me.model_copy(
         update={"start": [float(v) for v in x_w], "goal": [float(v) for v in goal_w], "waypoints": None}
     )
-    path_w, route = path_for(now, obstacles)
-    tracker = PathTracker(path_w, delay_speed_mps(now, realism, control_hz), cut_m=corner_cut_m(route))
-    cfg = filter_config_for(now, obstacles, level, route, realism, control_hz)
+    path_w, route = path_of(now, obstacles)
+    tracker = PathTracker(path_w, cruise_speed_mps(now, realism, control_hz), cut_m=corner_cut_m(route))
+    cfg = filter_of(now, obstacles, level, route, realism, control_hz)
     return Course(np.asarray(goal_w, dtype=float), path_w, route, tracker, cfg)
 
 

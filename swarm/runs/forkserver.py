@@ -47,6 +47,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm.proctitle import name_process
+
 PRELOAD = (
     "numpy",
     "numba",
@@ -143,7 +145,9 @@ def _warm(config: str) -> None:
 
 
 def serve() -> int:
-    """The server's loop (``python -m swarm.runs.forkserver``)."""
+    """The server's loop (``python -m swarm.runs.forkserver``), named ``swarm fork-server`` (each
+    child names itself as its process of a run: ``swarm.proctitle``)."""
+    name_process("fork-server")
     proto_fd = os.dup(1)  # the protocol's; fd 1 goes to stderr (PyBullet prints on import)
     os.dup2(2, 1)
     for name in PRELOAD:

@@ -475,8 +475,8 @@ class RunHandle:
         return reason
 
     def ros2_bag(self) -> None:
-        """The run as a ROS 2 bag in ``ros2_bag/`` (``ros2.bag``; swarm.ros2.bag)."""
-        from swarm.ros2.bag import write_bag
+        """The run as a ROS 2 bag in ``ros2_bag/`` (``ros2.bag``; swarm.runs.bag)."""
+        from swarm.runs.bag import write_bag
 
         try:
             write_bag(self.out)

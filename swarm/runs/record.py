@@ -17,7 +17,7 @@ It never stops while a process of the run may still have something for it: it en
 the world has reported done (or is gone), every agent's liveliness is gone (each sends its
 last command before it goes, on the same link) and nothing has arrived for ``TAIL_S``; or
 ``tp.SEND_DRAIN_S`` after the world, if an agent hangs on. Every stream is checked for holes
-as it is written (:class:`swarm.runs.ledger.Ledger`); ``recorder.json`` lists them.
+as it is written (:class:`swarm.ledger.Ledger`); ``recorder.json`` lists them.
 
 With ``live_port`` the same channels also go to Foxglove's WebSocket server
 (foxglove-sdk's, on 127.0.0.1): Foxglove's "Open connection" shows the run as it goes.
@@ -35,11 +35,11 @@ from typing import Any
 import orjson
 from mcap.writer import CompressionType, Writer
 
+from swarm.ledger import Ledger
 from swarm.net import transport as tp
 from swarm.net.messages import DecodeError, decode, json_schema, record_of
 from swarm.runs.foxglove_scene import SCHEMAS as SCENE_SCHEMAS
 from swarm.runs.foxglove_scene import Scene
-from swarm.runs.ledger import Ledger
 from swarm.shutdown import StopFlag
 
 FLUSH_S = 0.5

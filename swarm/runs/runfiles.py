@@ -16,9 +16,9 @@ from mcap.stream_reader import StreamReader
 
 from swarm.config import ScenarioConfig, load
 from swarm.errors import InputError
+from swarm.ledger import summaries
 from swarm.net.messages import expand_record
 from swarm.offline.metrics import compute
-from swarm.runs.ledger import summaries
 
 
 @dataclass(frozen=True)

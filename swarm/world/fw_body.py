@@ -15,7 +15,7 @@
 * **Rigid body.** The project's equations (``swarm.model``: ``m v' = -m g e3 + T R e3``,
   ``J Omega' = tau - Omega x J Omega``, ``q' = q (x) (0, Omega) / 2``), integrated by the
   same RK4 as :func:`swarm.model.step_rk4`, compiled, because the firmware wants a step
-  every millisecond (the numpy step takes about 0.5 ms on this machine).
+  every millisecond (a numpy step takes half of that: docs/benchmarks.md).
 * **Ground.** A flat floor at z = 0: a body on it whose thrust cannot lift it rests there,
   level at its yaw, at rest.
 * **IMU.** The accelerometer measures the specific force (acceleration minus gravity) in
@@ -128,11 +128,13 @@ def _clip16(v):
 
 
 @njit(cache=True)
-def step(s, pwm, a_N, b_N, spin, tau_up_s, tau_down_s, B, J, J_inv, m, g, dt, imu):
+def step(s, pwm, spin, body, dt, imu):
     """One millisecond of the body: motor thrusts from ``pwm`` through the rotors' lag
     (:func:`lagged_thrusts`), the RK4 step, the floor, and the IMU reading at its end into
-    ``imu`` (6,) int16 counts (accelerometer x, y, z, gyro x, y, z, body frame). Returns
-    the collective thrust [N]."""
+    ``imu`` (6,) int16 counts (accelerometer x, y, z, gyro x, y, z, body frame). ``body``: its
+    constants, ``(a_N, b_N, tau_up_s, tau_down_s, B, J, J_inv, m, g)`` (:attr:`FirmwareBody.constants`).
+    Returns the collective thrust [N]."""
+    a_N, b_N, tau_up_s, tau_down_s, B, J, J_inv, m, g = body
     f = np.empty(4)
     lagged_thrusts(pwm, a_N, b_N, spin, tau_up_s, tau_down_s, dt, f)
     v0 = s[3:6].copy()
@@ -191,11 +193,14 @@ class FirmwareBody:
         self.imu = np.zeros(6, dtype=np.int64)
         self.thrust_N = 0.0  # collective thrust [N] of the last step
 
+    @property
+    def constants(self) -> tuple:
+        """What :func:`step` takes of the body besides its state: thrust map, rotor lag, mixer,
+        inertia, mass and gravity."""
+        return (self.a_N, self.b_N, self.tau_up_s, self.tau_down_s, self.B, self.J, self.J_inv, self.m, self.g)
+
     def step(self, dt_s: float) -> None:
-        self.thrust_N = step(
-            self.s, self.pwm, self.a_N, self.b_N, self.spin, self.tau_up_s, self.tau_down_s,
-            self.B, self.J, self.J_inv, self.m, self.g, dt_s, self.imu,
-        )  # fmt: skip
+        self.thrust_N = step(self.s, self.pwm, self.spin, self.constants, dt_s, self.imu)
 
     @property
     def x_w(self) -> FloatArray:

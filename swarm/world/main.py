@@ -1,4 +1,4 @@
-"""The world process: the physics (``swarm.world.stepper``) wired to Zenoh, measurements out,
+"""The world process: the physics (``swarm.sim.stepper``) wired to Zenoh, measurements out,
 commands in.
 
     swarm world CONFIG [--run RUN] [--port P] [--gui]
@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-import threading
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -38,38 +37,21 @@ from ddsketch import DDSketch
 from swarm.config import ScenarioConfig, TimeMode
 from swarm.geometry import items_to_arrays, min_pair_distance, obstacle_items, surface_clearance
 from swarm.landing import down, landing_height_m
+from swarm.ledger import timing_sketch
 from swarm.net import transport as tp
 from swarm.net.cells import near_lists
 from swarm.net.messages import encode, frames_wire, warm_up
 from swarm.rotation import quat_to_R
-from swarm.runs.ledger import timing_sketch
 from swarm.safety.monitor import Action
 from swarm.shutdown import StopFlag
-from swarm.world.mocap import BodyEstimate, MocapRelay, connect
-from swarm.world.physics import DroneStates
-from swarm.world.stepper import Stepper
+from swarm.sim.physics import DroneStates
+from swarm.sim.stepper import Stepper
+from swarm.world.real_drones import RealDroneFeed
 
 
 def _ms(s: float | None) -> float | None:
     """Seconds as milliseconds (None stays None)."""
     return None if s is None else s * 1e3
-
-
-def mocap_stamp(wall_s: float, physics_s: float, max_lag_s: float, behind_at_end_s: float | None) -> float:
-    """The world's time [s] of a real drone's motion-capture frame taken ``wall_s`` after the
-    run's start: the wall clock, but at most ``max_lag_s`` ahead of the physics at ``physics_s``
-    while the ticks go on; once they are over (``behind_at_end_s`` given: :func:`behind_at_end`)
-    the wall clock less what the world was behind it then, so the stamps go on from where they
-    were at the wall clock's pace, without a jump."""
-    if behind_at_end_s is None:
-        return min(wall_s, physics_s + max_lag_s)
-    return wall_s - behind_at_end_s
-
-
-def behind_at_end(wall_s: float, physics_s: float, max_lag_s: float) -> float:
-    """How far [s] the last frame's stamp (:func:`mocap_stamp`) was behind the wall clock when
-    the last tick was flown, ``wall_s`` after the run's start, with the physics at ``physics_s``."""
-    return max(0.0, wall_s - physics_s - max_lag_s)
 
 
 @dataclass
@@ -157,12 +139,7 @@ class World:
         self.seq = 0
         self.others_alive: set[str] = set()
         self.phase = {"publish": 0.0, "wait": 0.0, "physics": 0.0}
-        self.relay: MocapRelay | None = None
-        self.running = threading.Event()  # the relay publishes only while the run is on
-        self._mocap_seq = 10**9  # the relay thread's own sequence numbers
-        self._mocap_t: dict[str, float] = {}  # the relay thread's newest stamp per real drone [s]
-        self.ticks_over = False  # the last tick is flown: real drones' measurements on the wall clock alone ...
-        self.behind_at_end_s = 0.0  # ... less what the world was behind it then [s]
+        self.feed = RealDroneFeed(cfg, run, self.real, lambda: physics.t_s)  # the real drones' measurements
         self.wall0 = time.monotonic()
         self.stop = StopFlag()
         self.landing = False  # the launcher asked every drone to land (swarm.landing) ...
@@ -173,65 +150,18 @@ class World:
     def open(self, conf: Any) -> None:
         """The session, its publishers and subscribers, this world's liveliness, and the
         motion-capture relay of the real drones."""
-        keys, cfg = self.keys, self.cfg
+        keys = self.keys
         self.session = session = tp.open_session(conf)
         self.token = tp.declare_liveliness(session, keys.alive("world"))
         self.cmd_in = tp.Inbox(session, keys.all_commands)
         self.live_sub = tp.liveliness_subscriber(session, keys.all_alive)
-        self.pubs = {aid: session.declare_publisher(keys.measurement(aid)) for aid in self.real}  # motion capture
         self.pub_tick = {a: session.declare_publisher(keys.tick(a)) for a in self.flown if self.cells}
         self.pub_clock = session.declare_publisher(keys.clock)
         self.pub_status = session.declare_publisher(keys.status)
         self.pub_coll = session.declare_publisher(keys.collision)
         self.pub_stall = session.declare_publisher(keys.stall)
         self.land_sub = tp.open_channel(session, keys.land, 16)
-        if self.real and cfg.mocap is not None:  # (the config requires mocap when any drone is real)
-            m = cfg.mocap
-            bodies = {a.mocap_body: a.id for a in cfg.agents if a.id in self.real}
-            self.relay = MocapRelay(
-                connect(m.type, m.hostname, m.options),
-                bodies,
-                m.rate_hz,
-                m.lost_after_s,
-                m.velocity_filter_s,
-                self._on_frame,
-                lambda aid: None,
-            ).start()
-
-    def _on_frame(self, aid: str, est: BodyEstimate) -> None:
-        """The relay's thread: a real drone's measurement, at the capture rate, stamped on the
-        wall clock, but never more than ``time.max_lag_s`` ahead of the physics while the
-        ticks go on (a world that cannot keep the wall clock, :meth:`catch_up`): the agents
-        take their neighbours' states in the world's time, and no agent may hear of a state
-        far ahead of the newest tick. Once the ticks are over (the real drones land) the stamps
-        go on at the wall clock's pace from where they were, not from the wall clock itself: a
-        world that ended seconds behind it would otherwise stamp the next frame seconds after the
-        last, and a landing drone's agent would take that jump as its own (its flight plan's
-        time, its disturbance estimate). A frame
-        whose stamp would not be newer than its drone's last is not sent (the world has not
-        moved on: there is nothing newer to say)."""
-        if not self.running.is_set():
-            return
-        t = mocap_stamp(time.monotonic() - self.wall0, self.physics.t_s, self.cfg.time.max_lag_s,
-                        self.behind_at_end_s if self.ticks_over else None)  # fmt: skip
-        if t <= self._mocap_t.get(aid, -math.inf):
-            return
-        self._mocap_t[aid] = t
-        self._mocap_seq += 1
-        self.pubs[aid].put(
-            encode(
-                "measurement",
-                self.run_id,
-                "world",
-                self._mocap_seq,
-                t,
-                int(t / self.dt_ctrl),
-                x=est.x_w,
-                v=est.v_w,
-                q=est.q,
-                w=est.Omega_b,
-            )
-        )
+        self.feed.open(session, keys)
 
     def _put(self, pub: Any, kind: str, t: float, k: int, **body: Any) -> None:
         self.seq += 1
@@ -338,10 +268,10 @@ class World:
     def measure(self, k: int, t: float) -> TickView:
         """Ground truth for metrics and measurements (motion capture for real drones), and
         the running metrics it updates."""
-        names, slots, relay, c = self.names, self.slots, self.relay, self.counts
+        names, slots, feed, c = self.names, self.slots, self.feed, self.counts
         ds = self.physics.read()
         for i, a in enumerate(names):
-            est = relay.latest(a) if relay and a in self.real else None
+            est = feed.latest(a) if a in self.real else None
             if est is not None:
                 ds.x_w[i], ds.v_w[i], ds.q[i], ds.Omega_b[i] = est.x_w, est.v_w, est.q, est.Omega_b
                 ds.R[i] = quat_to_R(est.q)
@@ -556,7 +486,7 @@ class World:
         self.physics.deliver(k)  # (world.realism.comms)
         poses = {}
         for a in self.real:
-            est = self.relay.latest(a) if self.relay else None
+            est = self.feed.latest(a)
             if est is not None:
                 poses[a] = (est.x_w, est.q)
         fs = view.ds if j == 0 and not self.real else None  # (`flown` order: every drone is flown)
@@ -610,7 +540,7 @@ class World:
             time.sleep(0.02)
 
     def summary(self, k: int, startup_cpu_s: float) -> dict[str, Any]:
-        slots, c, relay = self.slots.values(), self.counts, self.relay
+        slots, c = self.slots.values(), self.counts
         lat = timing_sketch()
         for s in slots:
             lat.merge(s.latencies_s)
@@ -636,9 +566,7 @@ class World:
             "braking_ticks": sum(d.braking_ticks for d in self.physics.drones.values()),
             "commands_lost": self.physics.commands_lost,  # world.realism.comms.command
             "mocap_frames_dropped": 0 if self.physics.mocap is None else self.physics.mocap.dropped,
-            "mocap": None
-            if relay is None
-            else {"frames": relay.frames, "dropped_frames": relay.dropped_frames, "lost": sorted(relay.lost)},
+            "mocap": self.feed.summary(),
         }
 
     def run(self, conf: Any, expect: tuple[str, ...] = ()) -> int:
@@ -651,18 +579,14 @@ class World:
             return 2
         self.wall0 = time.monotonic()
         startup_cpu_s = time.process_time()  # imports, PyBullet, compiled code, waiting for everyone
-        self.running.set()
+        self.feed.start(self.wall0)
         try:
             k = self.loop()
-            wall_s = time.monotonic() - self.wall0
-            self.behind_at_end_s = behind_at_end(wall_s, self.physics.t_s, self.cfg.time.max_lag_s)
-            self.ticks_over = True
-            if self.relay is not None:
+            self.feed.end(time.monotonic() - self.wall0)
+            if self.feed.relay is not None:
                 self.land_real_drones()
         finally:
-            self.running.clear()
-            if self.relay is not None:
-                self.relay.stop()
+            self.feed.stop()
             self.token.undeclare()
             self.physics.close()
         print("WORLD_SUMMARY " + json.dumps(self.summary(k, startup_cpu_s)), file=sys.stderr)

@@ -55,7 +55,7 @@ firmware process and plays everything around it, as CrazySim's Gazebo plugin doe
   the setpoint it flies (``ctrltarget.roll``, ``.pitch``, ``.yaw``, ``stabilizer.thrust``)
   and its position estimate (``stateEstimateZ``); a client that resets the firmware's
   logging gets its block back. Those samples, the body, every setpoint relayed and the
-  notable packets go to ``DIR/NAME.jsonl`` (:func:`read_trace` reads it).
+  notable packets go to ``DIR/NAME.jsonl`` (``swarm.world.fw_trace.read_trace`` reads it).
 
 The drone counts as ready, and answers probes, once the firmware has its gyro bias and
 the monitor is logging. With ``--until-handed-back`` the process ends when every drone has
@@ -67,9 +67,7 @@ off, with its client silent for 3 s after talking (:meth:`FirmwareDrone.done`); 
 from __future__ import annotations
 
 import argparse
-import ctypes
 import math
-import os
 import shutil
 import signal
 import socket
@@ -79,9 +77,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
 from dataclasses import dataclass, field
-from enum import StrEnum
 from pathlib import Path
 from typing import IO, Any
 
@@ -90,6 +86,22 @@ import numpy as np
 import orjson
 
 from swarm.world.fw_body import FirmwareBody
+from swarm.world.fw_crtp import (
+    ANSWERED,
+    CONTROL_RESET,
+    LOG_CONTROL_CH,
+    LOG_DATA_CH,
+    PORT_LINK,
+    PORT_LOG,
+    PORT_SIM,
+    RESEND_AFTER_S,
+    RESENDS,
+    FwState,
+    fw_state,
+    header,
+)
+from swarm.world.fw_monitor import LogMonitor
+from swarm.world.fw_process import CF2_ENV, cpu_s, die_with_parent, find_cf2
 
 PHYSICS_HZ = 1000.0  # the firmware's stabilizer rate (stabilizer.c: one loop per sensor packet)
 MOCAP_HZ = 100.0
@@ -97,165 +109,9 @@ FORWARD_PER_TICK = 1  # client and monitor packets into the firmware per millise
 # its link queue holds 5, and the task that fills it and the one that empties it share a priority (config.h), so
 # they take turns at the 1 ms tick
 OUTBOX_MAX = 400  # queued client packets beyond this are dropped (counted)
-# (port, channel) the firmware answers (crtp.h ports; param.c, crtp_mem.c, log.c, platformservice.c, crtpservice.c)
-ANSWERED = frozenset({(2, 0), (2, 1), (2, 2), (2, 3), (4, 0), (4, 1), (4, 2), (5, 0), (5, 1), (13, 0), (13, 1),
-                      (15, 0), (15, 1)})  # fmt: skip
-RESEND_AFTER_S = 0.2  # cflib crazyflie/__init__.py send_packet(timeout=0.2)
-RESENDS = 5
-MONITOR_BLOCK = 255  # cflib's log block ids run 0..254 (log.py: (counter + 1) % 255)
-MONITOR_PERIOD_10MS = 1  # 100 Hz
 HANDED_BACK_SILENT_S = 3.0
 HANDED_BACK_SETTLE_S = 4.0  # at most this long after a hand-back for the supervisor to stop counting it flying
 BOOT_TIMEOUT_S = 5.0  # a firmware without its gyro bias this long after its hello is restarted (about 1 s normally)
-CF2_ENV = "C3SWARM_CF2"
-
-# CRTP (crtp.h): header = port << 4 | link bits 0b11 << 2 | channel
-PORT_LOG, PORT_SIM, PORT_LINK = 5, 9, 15
-LOG_TOC_CH, LOG_CONTROL_CH, LOG_DATA_CH = 0, 1, 2  # log.c
-CMD_GET_ITEM_V2, CMD_GET_INFO_V2 = 2, 3  # log.c TOC channel
-CONTROL_START_BLOCK, CONTROL_RESET, CONTROL_CREATE_BLOCK_V2 = 3, 5, 6  # log.c control channel
-LOG_TYPES = {1: "<B", 2: "<H", 3: "<I", 4: "<b", 5: "<h", 6: "<i", 7: "<f"}  # log.h LOG_UINT8 .. LOG_FLOAT
-MONITOR_VARS = (
-    "supervisor.info",  # supervisor.c: the state bits (cflib's Supervisor.STATES order)
-    "ctrltarget.roll",  # stabilizer.c: the setpoint after the supervisor's override [deg]
-    "ctrltarget.pitch",
-    "ctrltarget.yaw",  # the yaw rate [deg/s]
-    "stabilizer.thrust",  # the controller's thrust command (control.thrust)
-    "stateEstimateZ.x",  # the position estimate [mm]
-    "stateEstimateZ.y",
-    "stateEstimateZ.z",
-)
-LEVEL_OUT_AFTER_S = 0.45  # supervisor.c levels out 500 ms after the newest setpoint (COMMANDER_WDT_TIMEOUT_STABILIZE)
-BIT_CAN_FLY, BIT_FLYING, BIT_TUMBLED, BIT_LOCKED, BIT_CRASHED = 3, 4, 5, 6, 7  # supervisor.c infoBitfield
-
-
-def header(port: int, channel: int) -> int:
-    return (port & 0x0F) << 4 | 0x0C | (channel & 0x03)
-
-
-class FwState(StrEnum):
-    """The supervisor's state as its log shows it (``supervisor.info`` and the setpoint it
-    flies). ``level_out`` is not a bit: it is read off the setpoint, roll, pitch and yaw rate
-    zeroed with the thrust kept (supervisor.c ``supervisorOverrideSetpoint``), once the
-    client's newest setpoint is :data:`LEVEL_OUT_AFTER_S` old (a client may send such a
-    setpoint itself, and the log's thrust can trail a motors-off setpoint by a sample).
-    ``ready`` covers ready to fly and landed (both may fly, neither flies)."""
-
-    NOT_READY = "not_ready"
-    READY = "ready"
-    FLYING = "flying"
-    LEVEL_OUT = "level_out"
-    LOCKED = "locked"
-    CRASHED = "crashed"
-
-
-def fw_state(
-    info: int, roll_deg: float, pitch_deg: float, yaw_dps: float, thrust: float, setpoint_age_s: float = math.inf
-) -> FwState:
-    """The state of one monitor sample (see :class:`FwState`); ``setpoint_age_s``: how long
-    ago the client's newest setpoint came."""
-    if info >> BIT_LOCKED & 1:
-        return FwState.LOCKED
-    if info >> BIT_CRASHED & 1:
-        return FwState.CRASHED
-    if info >> BIT_FLYING & 1:
-        level = roll_deg == 0.0 and pitch_deg == 0.0 and yaw_dps == 0.0 and thrust > 0.0
-        level = level and setpoint_age_s >= LEVEL_OUT_AFTER_S
-        return FwState.LEVEL_OUT if level else FwState.FLYING
-    return FwState.READY if info >> BIT_CAN_FLY & 1 else FwState.NOT_READY
-
-
-def find_cf2(given: str | None) -> Path:
-    """The firmware binary: ``given``, else ``$C3SWARM_CF2``; raises saying how to get one."""
-    path = given or os.environ.get(CF2_ENV, "")
-    if not path:
-        raise FileNotFoundError(
-            "no Crazyflie firmware binary: build CrazySim's cf2 (bash crazyflie-sitl/build.sh OUT_DIR, or "
-            f"CrazySim's sitl_make) and give its path as mocap.options.cf2 or in ${CF2_ENV}"
-        )
-    p = Path(path).expanduser()
-    if not (p.is_file() and os.access(p, os.X_OK)):
-        raise FileNotFoundError(f"the Crazyflie firmware binary {p} is not an executable file")
-    return p
-
-
-class LogMonitor:
-    """This process's own log client of one firmware (log.c, protocol v2): the table of
-    contents, then :data:`MONITOR_VARS` in block :data:`MONITOR_BLOCK` at 100 Hz. It asks one
-    thing at a time and asks again after 50 ms without an answer."""
-
-    RETRY_S = 0.05
-
-    def __init__(self) -> None:
-        self.toc: dict[str, tuple[int, int]] = {}  # "group.name" -> (id, type)
-        self.n_items: int | None = None
-        self.next_item = 0
-        self.fields: list[tuple[str, str]] = []  # (name, struct format) in block order
-        self.stage = "info"  # info, items, create, start, running
-        self.sent_s = -math.inf
-        self.missing: list[str] = []
-
-    @property
-    def running(self) -> bool:
-        return self.stage == "running"
-
-    def request(self, now: float) -> bytes | None:
-        """The next request to send, or None (waiting for an answer, or running)."""
-        if self.stage == "running" or now - self.sent_s < self.RETRY_S:
-            return None
-        self.sent_s = now
-        if self.stage == "info":
-            return bytes([header(PORT_LOG, LOG_TOC_CH), CMD_GET_INFO_V2])
-        if self.stage == "items":
-            return bytes([header(PORT_LOG, LOG_TOC_CH), CMD_GET_ITEM_V2]) + struct.pack("<H", self.next_item)
-        if self.stage == "create":
-            spec = b"".join(struct.pack("<BH", t << 4 | t, i) for i, t in (self.toc[n] for n, _ in self.fields))
-            return bytes([header(PORT_LOG, LOG_CONTROL_CH), CONTROL_CREATE_BLOCK_V2, MONITOR_BLOCK]) + spec
-        return bytes([header(PORT_LOG, LOG_CONTROL_CH), CONTROL_START_BLOCK, MONITOR_BLOCK, MONITOR_PERIOD_10MS])
-
-    def restart_block(self) -> None:
-        """The client reset the firmware's logging: create the block again."""
-        if self.stage in ("start", "running"):
-            self.stage, self.sent_s = "create", -math.inf
-
-    def answer(self, ch: int, data: bytes) -> bool:
-        """Take an answer meant for the monitor; False when it is not one (relay it)."""
-        if ch == LOG_TOC_CH and self.stage in ("info", "items") and data:
-            if self.stage == "info" and data[0] == CMD_GET_INFO_V2 and len(data) >= 7:
-                self.n_items = struct.unpack_from("<H", data, 1)[0]
-                self.stage, self.sent_s = "items", -math.inf
-                return True
-            if self.stage == "items" and data[0] == CMD_GET_ITEM_V2 and len(data) >= 4:
-                ident, t = struct.unpack_from("<HB", data, 1)
-                if ident != self.next_item:
-                    return True  # a repeated answer
-                group, name = data[4:].split(b"\0")[:2]
-                self.toc[f"{group.decode()}.{name.decode()}"] = (ident, t & 0x0F)
-                self.next_item += 1
-                self.sent_s = -math.inf
-                if self.n_items is not None and self.next_item >= self.n_items:
-                    self.fields = [(n, LOG_TYPES[self.toc[n][1]]) for n in MONITOR_VARS if n in self.toc]
-                    self.missing = [n for n in MONITOR_VARS if n not in self.toc]
-                    self.stage = "create"
-                return True
-            return False
-        if ch == LOG_CONTROL_CH and len(data) >= 3 and data[1] == MONITOR_BLOCK:
-            if data[0] == CONTROL_CREATE_BLOCK_V2 and self.stage == "create":
-                self.stage, self.sent_s = "start", -math.inf  # (17, EEXIST: it is there already)
-            elif data[0] == CONTROL_START_BLOCK and self.stage == "start" and data[2] == 0:
-                self.stage = "running"
-            return True
-        return ch == LOG_DATA_CH and len(data) >= 4 and data[0] == MONITOR_BLOCK
-
-    def decode(self, data: bytes) -> dict[str, float]:
-        """A data packet of the block: its variables by name, and the firmware's time ``t_fw_ms``."""
-        out = {"t_fw_ms": float(data[1] | data[2] << 8 | data[3] << 16)}
-        k = 4
-        for name, fmt in self.fields:
-            n = struct.calcsize(fmt)
-            out[name] = float(struct.unpack_from(fmt, data, k)[0])
-            k += n
-        return out
 
 
 @dataclass
@@ -341,7 +197,7 @@ class FirmwareDrone:
             stdin=subprocess.DEVNULL,
             stdout=log,
             stderr=subprocess.STDOUT,
-            preexec_fn=_die_with_parent,
+            preexec_fn=die_with_parent,
         )
 
     def firmware_runs(self) -> bool:
@@ -516,7 +372,7 @@ class FirmwareDrone:
     def sample_cpu(self) -> None:
         """Read the firmware process's CPU time (while it lives: a run's end signals its whole group)."""
         if self.proc is not None and self.proc.poll() is None:
-            cpu = _cpu_s(self.proc.pid)
+            cpu = cpu_s(self.proc.pid)
             self.cpu_s = cpu if math.isfinite(cpu) else self.cpu_s
 
     def finish(self) -> None:
@@ -533,24 +389,6 @@ class FirmwareDrone:
                     "missing": self.monitor.missing, **self.counters.__dict__})  # fmt: skip
         self.fw_sock.close()
         self.cl_sock.close()
-
-
-def _die_with_parent() -> None:
-    """In the firmware's process before exec: die when this relay dies (Linux prctl
-    PR_SET_PDEATHSIG), so no firmware spins on at half a core behind a killed relay."""
-    try:
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass
-
-
-def _cpu_s(pid: int) -> float:
-    """User plus system CPU time [s] of a live process (/proc/PID/stat, clock ticks)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return math.nan
 
 
 def run(drones: list[FirmwareDrone], mocap_port: int, stop: threading.Event, until_handed_back: bool) -> None:
@@ -606,98 +444,6 @@ def _handshake(drones: list[FirmwareDrone], timeout_s: float) -> None:
             late = [d.name for d in drones if d.fw_addr is None]
             raise RuntimeError(f"no hello from the firmware of {late} within {timeout_s:.0f} s")
         time.sleep(0.002)
-
-
-@dataclass
-class FirmwareTrace:
-    """One drone's trace (:func:`read_trace`); times are monotonic seconds of the machine.
-
-    ``body_*``: the body at 100 Hz (position [m], quaternion x, y, z, w, motor PWM, the
-    collective thrust it made [N]); ``fw_*``: the firmware's own log at 100 Hz (its state,
-    supervisor bits, the setpoint it flies: roll, pitch [deg], yaw rate [deg/s], thrust
-    command; its position estimate [m]); ``sp_*``: every RPYT setpoint relayed (roll [deg],
-    pitch [deg, as on the wire], yaw rate [deg/s, as on the wire], thrust command);
-    ``pose_*``: every external pose relayed (position [m]); ``packets``: (t, what) of stops,
-    emergency stops and the notify-stop; ``end``: the
-    summary the relay wrote last (counters, CPU time, final state, transitions)."""
-
-    body_t: np.ndarray
-    body_x: np.ndarray
-    body_q: np.ndarray
-    body_pwm: np.ndarray
-    body_thrust_N: np.ndarray
-    fw_t: np.ndarray
-    fw_clock_s: np.ndarray  # the firmware's own clock at each sample (its log's timestamp) [s]
-    fw_state: list[str]
-    fw_info: np.ndarray
-    fw_setpoint: np.ndarray  # (n, 4): roll, pitch, yaw rate, thrust
-    fw_estimate: np.ndarray  # (n, 3) m
-    sp_t: np.ndarray
-    sp: np.ndarray  # (n, 4)
-    pose_t: np.ndarray
-    pose_x: np.ndarray  # (n, 3) m
-    packets: list[tuple[float, str]]
-    end: dict[str, Any]
-
-    def transitions(self) -> list[tuple[float, str]]:
-        """(t, state) where the firmware's state changed, starting with its first."""
-        out: list[tuple[float, str]] = []
-        for t, s in zip(self.fw_t, self.fw_state, strict=True):
-            if not out or out[-1][1] != s:
-                out.append((float(t), s))
-        return out
-
-
-def _records(path: Path) -> Iterator[dict[str, Any]]:
-    for line in path.read_bytes().splitlines():
-        try:
-            yield orjson.loads(line)
-        except orjson.JSONDecodeError:  # a line cut by a killed relay
-            continue
-
-
-def read_trace(path: Path) -> FirmwareTrace:
-    """Read ``DIR/NAME.jsonl`` as the relay wrote it."""
-    body, fw, sp, pose, pk, end = [], [], [], [], [], {}
-    for r in _records(path):
-        kind = r.get("k")
-        if kind == "body":
-            body.append(r)
-        elif kind == "fw":
-            fw.append(r)
-        elif kind == "sp":
-            sp.append(r)
-        elif kind == "pose":
-            pose.append(r)
-        elif kind == "pkt":
-            pk.append((r["t"], r["what"]))
-        elif kind == "end":
-            end = r
-    nan = math.nan
-    return FirmwareTrace(
-        body_t=np.array([r["t"] for r in body]),
-        body_x=np.array([r["x"] for r in body]).reshape(-1, 3),
-        body_q=np.array([r["q"] for r in body]).reshape(-1, 4),
-        body_pwm=np.array([r["pwm"] for r in body]).reshape(-1, 4),
-        body_thrust_N=np.array([r["thrust_N"] for r in body]),
-        fw_t=np.array([r["t"] for r in fw]),
-        fw_clock_s=np.array([r.get("t_fw_ms", nan) / 1000.0 for r in fw]),
-        fw_state=[r["state"] for r in fw],
-        fw_info=np.array([int(r.get("supervisor.info", 0)) for r in fw], dtype=int),
-        fw_setpoint=np.array(
-            [
-                [r.get(f"ctrltarget.{n}", nan) for n in ("roll", "pitch", "yaw")] + [r.get("stabilizer.thrust", nan)]
-                for r in fw
-            ]  # fmt: skip
-        ).reshape(-1, 4),
-        fw_estimate=np.array([[r.get(f"stateEstimateZ.{n}", nan) / 1000.0 for n in "xyz"] for r in fw]).reshape(-1, 3),
-        sp_t=np.array([r["t"] for r in sp]),
-        sp=np.array([[r["roll"], r["pitch"], r["yaw"], r["thrust"]] for r in sp]).reshape(-1, 4),
-        pose_t=np.array([r["t"] for r in pose]),
-        pose_x=np.array([r["x"] for r in pose]).reshape(-1, 3),
-        packets=pk,
-        end=end,
-    )
 
 
 def parse_drone(text: str) -> tuple[str, int, list[float], float]:

@@ -86,7 +86,7 @@ def cf2() -> Path:
     import os
     import shutil
 
-    from swarm.world.sitl_fw import CF2_ENV, find_cf2
+    from swarm.world.fw_process import CF2_ENV, find_cf2
 
     why = ""
     if os.environ.get(CF2_ENV):

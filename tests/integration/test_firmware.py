@@ -31,7 +31,7 @@ import yaml
 from swarm.config import ScenarioConfig
 from swarm.crazyflie_fw import CRAZYSIM
 from swarm.rotation import R_to_euler, quat_to_R
-from swarm.world.sitl_fw import FirmwareTrace, read_trace
+from swarm.world.fw_trace import FirmwareTrace, read_trace
 
 from .conftest import scenario
 

@@ -17,9 +17,9 @@ from typing import Any
 import pytest
 import yaml
 
+from swarm.build import contained_plugin, step_of
 from swarm.config import load, resolve
-from swarm.model import QuadModel
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.runs.compare import in_world, with_filter
 from swarm.runs.launch import RunHandle
 from swarm.runs.runfiles import read_records
@@ -82,10 +82,7 @@ def test_the_example_flies_in_a_local_sweep_and_offline(plugins, tmp_path):
     base = resolve(_swap(kind=VO))
     for world in ("ideal", "crazyflie_lab"):
         cfg = in_world(base, world)
-        agents, obs = scenario_swarm(cfg)
-        log = simulate_swarm(
-            QuadModel(cfg.agents[0].quad_params()), agents, obs, 8.0, control_hz=120, realism=cfg.world.realism
-        )
+        log = fly_scenario(cfg)
         out = outcome(cfg, log)
         assert (out.collisions, out.reached, log.fallbacks) == (0, 2, [0, 0]), (world, out)
 
@@ -134,8 +131,7 @@ def test_a_raising_controller_is_contained_and_a_sound_one_flies(plugins, tmp_pa
     assert m["agents"]["cf1"]["plugin_fallbacks"]["total"] == 0  # (its filter, the built-in C3BF, never replaced)
     status = [r for r in read_records(tmp_path / "run" / "run.mcap") if r["kind"] == "status"][-1]
     assert dict(zip(status["fallback_ids"], status["fallback_ticks"], strict=True)) == {"cf1": float(cf1["total"])}
-    agents, obs = scenario_swarm(resolve(raw))  # offline: the same plugins, the same containment
-    log = simulate_swarm(QuadModel(resolve(raw).agents[0].quad_params()), agents, obs, 8.0, control_hz=120)
+    log = fly_scenario(resolve(raw))  # offline: the same plugins, the same containment
     assert log.controller_fallbacks[0] > 0 and log.controller_fallbacks[1] == 0 and log.all_reached
 
 
@@ -162,15 +158,13 @@ def test_a_bad_controller_config_exits_2_naming_the_field(plugins, tmp_path, sec
 
 def test_a_planner_plugin_s_path_is_flown_and_a_faulty_one_is_refused_at_load(plugins, tmp_path):
     from swarm.planning import StaticObstacles
-    from swarm.step import AgentStep
 
     raw = _swap(kind="c3bf")
     raw["agents"][0]["planner"] = {"kind": "faulty.detour", "options": {"side_m": 0.6}}
     cfg = resolve(raw)
-    step = AgentStep.of_agent(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=120.0)
+    step = step_of(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=120.0)
     assert step.tracker.W.round(9).tolist() == [[0.0, 0.0, 1.0], [2.0, 0.6, 1.0], [4.0, 0.0, 1.0]]
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(QuadModel(cfg.agents[0].quad_params()), agents, obs, 10.0, control_hz=120)
+    log = fly_scenario(cfg)
     out = outcome(cfg, log)
     assert (out.collisions, out.reached) == (0, 2) and float(log.x_b_w[:, 0, 1].max()) > 0.4  # it took the detour
     for kind, says in (("faulty.raises", "raised RuntimeError"), ("faulty.lost", "not the goal")):
@@ -225,8 +219,6 @@ def test_swarm_plugins_lists_every_registered_plugin_and_says_which_cannot_be_us
 
 
 def test_a_plugin_s_default_budget_is_one_tick_on_the_wall_clock_and_none_in_lockstep(plugins):
-    from swarm.step import contained_plugin
-
     agent = resolve(_swap(kind=VO)).agents[0]
     fc = agent.filter.filter_config(agent.command_level)
     assert contained_plugin(agent, fc, 120.0, realtime=True).budget_s == 1 / 120.0

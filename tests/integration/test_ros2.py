@@ -161,7 +161,7 @@ def _ros2_session(h, user: str) -> zenoh.Session:
 
 
 def test_a_ros2_participant_may_publish_goals_and_nothing_else(start_run, ros2_client):
-    from swarm.ros2.topics import Kind, run_topics
+    from swarm.net.ros2.topics import Kind, run_topics
 
     cfg = scenario("ros2_swap_2.yaml", duration_s=120.0, stop_when_all_reached=False, time={"mode": "lockstep"})
     h = start_run(cfg, "ros2_acl")

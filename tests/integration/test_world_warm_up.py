@@ -19,7 +19,7 @@ from swarm.config import load
 from swarm.control import onboard_rotor_thrusts
 from swarm.geometry import _min_pair_d2
 from swarm.world.main import World
-from swarm.world.physics import _frames
+from swarm.sim.physics import _frames
 
 kernels = (onboard_rotor_thrusts, _frames, _min_pair_d2)
 world = World(load("configs/mixed_sitl.yaml"), "warm-up-test")  # real and simulated drones

@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from swarm.build import agent_step
+from swarm.config import ScenarioConfig
 from swarm.model import QuadState
+from swarm.planning import StaticObstacles
 from swarm.rotation import euler_to_quat
+from swarm.route import Route
 from swarm.safety.barriers import BarrierKind, BarrierRows, evaluate_pw
+from swarm.safety.filter import FilterConfig
+from swarm.step import AgentStep
 
 vec = arrays(np.float64, 3, elements=st.floats(-3, 3, allow_nan=False))
 """Hypothesis: a 3-vector with components in [-3, 3] (a position [m], velocity [m/s] or acceleration [m/s^2])."""
@@ -138,3 +145,22 @@ def live_rows(
         reference_clear=reference_clear,
         **settings,
     )
+
+
+class Planned(NamedTuple):
+    """An agent as ``swarm agent`` builds it (``swarm.build.agent_step``): what the tests look at."""
+
+    path_w: np.ndarray  # (k, 3) m, world: the path its tracker flies, from its start
+    route: Route | None  # its route among walls, or None
+    config: FilterConfig  # its filter's settings
+    step: AgentStep
+
+
+def planned(cfg: ScenarioConfig) -> list[Planned]:
+    """Every agent of ``cfg`` built as its process builds it, in the config's order."""
+    still = StaticObstacles.of(list(cfg.obstacles))
+    out = []
+    for a in cfg.agents:
+        s = agent_step(cfg, a.id, still)
+        out.append(Planned(s.tracker.W, s.route, s.config, s))
+    return out

@@ -9,10 +9,12 @@ import pytest
 
 from swarm.config import resolve
 from swarm.model import QuadModel, QuadParams, thrust_vector_input_set
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.realism.settings import RealismSettings
 from swarm.tuning import MIN_AGREED_ACCEL_MPS2, agreed_accel_mps2, expected_ages, max_accel_mps2
 from tools.bench_imperfections import realism, scene
+
+from .helpers import planned
 
 HZ = 100.0
 
@@ -55,19 +57,9 @@ def test_the_sweeps_circle_at_100_ms_on_every_link_touches_nothing_and_every_dro
     motion capture and every state, bundle and command 100 ms late, flown offline: the filter of a
     fixed airframe bound touched 28 times here; the delay-aware one touches nothing."""
     cfg = resolve(scene("circle_8", "c3bf", "latency", 0.1))
-    agents, obs = scenario_swarm(cfg)
+    agents = planned(cfg)
     assert all(a.config.accel_limit_mps2 is not None for a in agents)  # the contract binds at this delay
-    log = simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-        realism=cfg.world.realism,
-        seed=cfg.seed,
-    )
+    log = fly_scenario(cfg)
     o = outcome(cfg, log)
     assert o.collisions == 0, o
     assert o.reached == len(agents), o

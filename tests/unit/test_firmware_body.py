@@ -17,7 +17,7 @@ from swarm.model import QuadModel, QuadParams, step_rk4
 from swarm.realism.motors import MotorParams
 from swarm.rotation import euler_to_quat, quat_to_R
 from swarm.world.fw_body import DEG_PER_LSB, G_PER_LSB, FirmwareBody, firmware_mixer, rk4
-from swarm.world.sitl_fw import FwState, fw_state
+from swarm.world.fw_crtp import FwState, fw_state
 
 from .helpers import random_state, real_drone_raw
 
@@ -209,7 +209,8 @@ def test_the_relay_asks_again_what_the_firmware_left_unanswered():
     Real sockets: the test holds the firmware's end and the client's."""
     import socket
 
-    from swarm.world.sitl_fw import RESEND_AFTER_S, RESENDS, FirmwareDrone
+    from swarm.world.fw_crtp import RESEND_AFTER_S, RESENDS
+    from swarm.world.sitl_fw import FirmwareDrone
 
     d = FirmwareDrone("real1", 0, [0.0, 0.0, 0.0], 0.0, cf2=Path("/nonexistent"))
     fw, client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

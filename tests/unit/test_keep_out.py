@@ -301,13 +301,13 @@ def test_two_drones_passing_one_over_the_other_keep_out_of_the_downwash():
     """Head on, one 0.2 m above the other's path: the spheres (0.16 m) let them pass straight,
     the upper drone's rotors 0.2 m over the lower; the ellipsoid (0.30 m up and down) keeps the
     pair out of it, and the figures say so."""
-    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+    from swarm.config import WorldSettings
+    from swarm.offline.closed_loop import fly_scenario, outcome
 
     got = {}
     for ellipsoid in (False, True):
         cfg = resolve(_pair(filter={"ellipsoid": ellipsoid}))
-        agents, obs = scenario_swarm(cfg)
-        log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0)
+        log = fly_scenario(cfg.model_copy(update={"world": WorldSettings()}))
         got[ellipsoid] = outcome(cfg, log)
     assert got[False].downwash_pairs == 1 and got[False].downwash_pair_ticks >= 5
     assert got[False].min_downwash_distance < 0.8

@@ -1,7 +1,7 @@
 """The lag between the filter's commanded acceleration and the plant's (``tools.bench_lag``), by
 its definitions: the attitude loop's effective lag is ``kOm / kR`` (the integral of its tilt error
 for a unit step), the collective acts at once in the ideal world and through the rotors' lag in
-the lab's; and the commanded accelerations ``simulate_swarm`` logs are the ones the drones fly,
+the lab's; and the commanded accelerations ``fly_scenario`` logs are the ones the drones fly,
 each at its tick."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 
 from swarm.config import resolve
 from swarm.control import AttitudeGains
-from swarm.model import QuadModel, QuadParams
-from swarm.offline.closed_loop import scenario_swarm, simulate_swarm
+from swarm.model import QuadParams
+from swarm.offline.closed_loop import fly_scenario
 from swarm.offline.scenario import SwapSettings, circle_swap
 from swarm.rotation import E3
 from tools.bench_lag import fly_step, world_settings
@@ -52,16 +52,15 @@ def test_the_collective_acts_at_once_in_the_ideal_world_and_through_the_rotors_l
 def test_the_swarms_logged_commands_are_the_accelerations_its_drones_fly():
     raw = circle_swap(2, 1.0, SwapSettings(realism="ideal"))
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
     t = cfg.time
-    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=t.control_hz,
-                         physics_hz=t.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m)  # fmt: skip
-    a = log.accel_cmd_w
-    assert a is not None and a.shape == log.v_w.shape
+    log = fly_scenario(cfg)
+    assert log.accel_cmd_w is not None and log.accel_cmd_w.shape == log.v_w.shape
+    a = log.accel_cmd_w[:-1]  # the commands flown before the last tick's velocity (log.v_w: at a tick's start)
     assert log.all_reached
     # from hover (0) the drones' velocity follows the commands but for the lag of the last one, tau a[-1]
     gap_mps = a.sum(axis=0) / t.control_hz - log.v_w[-1]  # (N, 3)
     g = AttitudeGains()
     lag_mps = 2 * g.zeta / g.wn_rp_radps * a[-1]
     assert np.abs(a[-1, :, :2]).max() > 1.0  # (still braking at the goal: a gap to measure)
-    assert np.abs(gap_mps[:, :2] - lag_mps[:, :2]).max() < 0.03  # horizontal (0.025 here: a first-order reading)
+    # horizontal, to a first-order reading of the lag (0.033 here, on the world's PyBullet plant)
+    assert np.abs(gap_mps[:, :2] - lag_mps[:, :2]).max() < 0.04

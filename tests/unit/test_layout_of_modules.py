@@ -64,3 +64,29 @@ def test_a_class_imported_by_its_old_path_is_the_same_class():
     from swarm.safety.qp.problem import QPStatus
 
     assert OldFilter is SafetyFilter and OldStatus is QPStatus
+
+
+def _room(module: str) -> str | None:
+    """The room of ``swarm...`` module ``module``: its top-level folder or module of the package."""
+    parts = module.split(".")
+    if parts[0] != "swarm" or len(parts) < 2:
+        return None
+    top = SWARM / parts[1]
+    return parts[1] if top.is_dir() or top.with_suffix(".py").exists() else None
+
+
+def test_the_package_s_folders_and_modules_import_one_way():
+    """No top-level folder or module of the package imports one that imports it back, at any
+    depth (function-level imports count): the layers point one way."""
+    import graphlib
+
+    graph: dict[str, set[str]] = {}
+    for path in SWARM.rglob("*.py"):
+        rel = path.relative_to(SWARM)
+        src = rel.parts[0].removesuffix(".py")
+        rooms = {_room(m) for m in _imports(path)} - {None, src}
+        graph.setdefault(src, set()).update(r for r in rooms if r is not None)
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as e:
+        pytest.fail(f"a loop of imports between the package's folders and modules: {e.args[1]}")

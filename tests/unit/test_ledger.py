@@ -7,7 +7,7 @@ from pathlib import Path
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm.runs.ledger import Gap, Ledger, sent_counts, summaries
+from swarm.ledger import Gap, Ledger, sent_counts, summaries
 
 
 def _clocks(ledger: Ledger, ticks: list[int]) -> None:

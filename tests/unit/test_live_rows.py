@@ -302,25 +302,12 @@ def test_a_drone_at_rest_before_a_sphere_is_not_frozen():
     assert live(p, np.zeros(3), 0.2, np.zeros(3), a_ref).dh_dw[0] @ a_ref >= 0
 
 
-def _fly(raw, **over):
-    from swarm.config import resolve
-    from swarm.model import QuadModel
-    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+def _fly(raw):
+    from swarm.config import WorldSettings, resolve
+    from swarm.offline.closed_loop import fly_scenario, outcome
 
-    cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    for a in agents:
-        for k, v in over.items():
-            setattr(a, k, v)
-    log = simulate_swarm(
-        QuadModel(),
-        agents,
-        obs,
-        cfg.duration_s,
-        control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz,
-        goal_tolerance_m=cfg.goal_tolerance_m,
-    )
+    cfg = resolve(raw).model_copy(update={"world": WorldSettings()})
+    log = fly_scenario(cfg)
     return outcome(cfg, log), log
 
 
@@ -338,19 +325,15 @@ def test_with_rho_half_an_unfiltered_neighbour_head_on_is_still_avoided():
     """rho = 0.5, head-on at 0.8 m/s each from rest, the neighbour flying its reference
     unfiltered: no contact. (This scene also held with the neighbour counted as sharing;
     the rule itself is tested on the rows below.)"""
-    from swarm.config import resolve
-    from swarm.model import CommandLevel, QuadModel
-    from swarm.offline.closed_loop import SwarmAgent, outcome, simulate_swarm
+    from swarm.config import WorldSettings, resolve
+    from swarm.offline.closed_loop import fly_scenario, outcome
     from swarm.offline.scenario import SwapSettings, circle_swap
-    from swarm.safety.filter import FilterConfig
 
-    cfg = resolve(circle_swap(2, 2.0, SwapSettings(perturb_m=0.02, seed=4)))
-    fc = FilterConfig(level=CommandLevel.ATTITUDE, rho=0.5, floor_z_m=0.25, sensing_radius_m=2.5)
-    agents = [
-        SwarmAgent(np.array(a.start), np.array([a.final_goal]), a.speed_mps, fc, filtered=(i == 0))
-        for i, a in enumerate(cfg.agents)
-    ]
-    log = simulate_swarm(QuadModel(), agents, ObstacleArrays.empty(), cfg.duration_s)
+    raw = circle_swap(2, 2.0, SwapSettings(perturb_m=0.02, seed=4))
+    raw["defaults"]["filter"] = {"rho": 0.5, "floor_z_m": 0.25, "sensing_radius_m": 2.5}
+    raw["agents"][1]["filter"] = {"enabled": False}  # flies its reference unfiltered
+    cfg = resolve(raw).model_copy(update={"world": WorldSettings()})
+    log = fly_scenario(cfg)
     o = outcome(cfg, log)
     assert o.collisions == 0 and log.min_separation_m >= 2 * 0.07 + 0.02 - 2e-3
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarm.world.main import behind_at_end, mocap_stamp
+from swarm.world.real_drones import behind_at_end, mocap_stamp
 
 MAX_LAG_S = 0.25
 

@@ -15,11 +15,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.config import ConfigError, FailureSettings, MonitorSettings, resolve
+from swarm.build import neighbour_table
+from swarm.config import ConfigError, FailureSettings, MonitorSettings, WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.net.neighbours import NeighbourTable
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import circle_swap
 from swarm.realism.sensing import MocapFrame
 from swarm.realism.settings import RealismSettings
@@ -34,7 +35,7 @@ from swarm.safety.monitor import (
     SafetyMonitor,
 )
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.step import AgentStep
+from swarm.step import AgentStep, Sensing
 from swarm.tuning import (
     NOISE_SIGMAS,
     command_lead_s,
@@ -42,7 +43,6 @@ from swarm.tuning import (
     expected_ages,
     live_margin_m,
     monitor_params,
-    neighbour_table,
 )
 
 pytestmark = pytest.mark.unit
@@ -355,7 +355,7 @@ def test_the_live_margin_is_three_sigma_of_own_and_rows_deviations_in_quadrature
 def _hover_step(monitor: MonitorParams, start: np.ndarray, floor_z_m: float | None = None) -> AgentStep:
     """A step holding ``start`` with the lab's estimator (its own frames from :func:`_frame`)."""
     return AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE, floor_z_m=floor_z_m), PathTracker([start], 0.5),
-                     estimator=LAB.estimator(start, LEVEL_Q), monitor=monitor)  # fmt: skip
+                     sensing=Sensing(LAB.estimator(start, LEVEL_Q)), monitor=monitor)  # fmt: skip
 
 
 def _frame(k: int, t: float, at: np.ndarray, rng: np.random.Generator) -> MocapFrame:
@@ -442,7 +442,7 @@ def test_a_neighbours_carried_deviation_widens_its_row_by_the_live_margin():
     results, rows = [], []
     for neighbours in (carried, exact):
         step = AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE), PathTracker([start, [2.0, 0.0, 1.0]], 0.8),
-                         fixed_sd=own)  # fmt: skip
+                         sensing=Sensing(fixed_sd=own))  # fmt: skip
         seen = _spy(step)
         results.append(step(0.0, QuadState.hover(start), PILLAR, neighbours))
         rows.append(seen[-1])
@@ -490,9 +490,9 @@ def test_in_the_ideal_world_a_swap_flies_bit_for_bit_the_same_with_the_monitor_o
     raw = circle_swap(2, 1.0)
     raw["duration_s"] = 4.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    off = simulate_swarm(MODEL, agents, obs, cfg.duration_s, monitor=MonitorSettings(enabled=False))
-    on = simulate_swarm(MODEL, agents, obs, cfg.duration_s)
+    cfg = cfg.model_copy(update={"world": WorldSettings()})
+    off = fly_scenario(cfg.model_copy(update={"monitor": MonitorSettings(enabled=False)}))
+    on = fly_scenario(cfg)
     assert on.x_b_w.tobytes() == off.x_b_w.tobytes()
     for log in (on, off):
         assert log.live_margin_m is not None and not log.live_margin_m.any()
@@ -538,11 +538,11 @@ def test_a_circle_in_the_bad_day_breaches_slows_and_holds_and_collides_with_noth
     raw = circle_swap(4, 1.5)
     raw["duration_s"] = 8.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    simulate_swarm(MODEL, agents, obs, 0.05, realism=bad, seed=4)  # (the compiled kernels loaded: not timed)
-    t0 = time.perf_counter()
     # (seed 4: a day whose occlusions outlast the estimate's age bound beyond the known latency and lead)
-    log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0, realism=bad, seed=4)
+    cfg = cfg.model_copy(update={"world": WorldSettings(realism=bad), "seed": 4})
+    fly_scenario(cfg.model_copy(update={"duration_s": 0.05}))  # (the compiled kernels loaded: not timed)
+    t0 = time.perf_counter()
+    log = fly_scenario(cfg)
     took = time.perf_counter() - t0
     assert took < 10.0, took  # about 2 s on an idle machine
     assert sum(log.breach_ticks.values()) > 0

@@ -12,16 +12,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.config import resolve
+from swarm.build import filter_of, obstacle_horizon_of, path_of
+from swarm.config import WorldSettings, resolve
 from swarm.control import PathTracker, reference_thrust
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.offline.closed_loop import SwarmAgent, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario
 from swarm.offline.scenario import corridor, doorway, forest, trap
 from swarm.planning import LANE_MARGIN_M, PlannerSettings, StaticObstacles, clear, plan
 from swarm.route import Route, corner_cut_m
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import ObstacleArrays
-from swarm.tuning import obstacle_horizon_s
+
+from .helpers import planned
 
 pytestmark = pytest.mark.unit
 
@@ -181,11 +183,18 @@ def test_a_path_straight_through_a_pillar_is_flown_without_touching_it():
     """The planner's worst case (a stale path through an obstacle): the filter alone keeps
     the drone outside its safety radius."""
     cfg = resolve(doorway(2))
-    agents, obs = scenario_swarm(cfg)
     wall = [o for o in cfg.obstacles if o.id == "wall_l3"][0]
-    through = np.array([[wall.center[0], wall.center[1], 1.0], [2.0, wall.center[1], 1.0]])
-    a = SwarmAgent(np.array([-2.0, wall.center[1], 1.0]), through, 0.8, agents[0].config)
-    log = simulate_swarm(QuadModel(), [a], obs, 6.0, control_hz=cfg.time.control_hz, physics_hz=cfg.time.physics_hz)
+    horizon_s = planned(cfg)[0].config.obstacle_horizon_s  # the filter's, as on its planned path
+    one = cfg.agents[0].model_copy(
+        update={
+            "start": [-2.0, wall.center[1], 1.0],
+            "goal": [2.0, wall.center[1], 1.0],  # straight through the pillar: no path planned
+            "speed_mps": 0.8,
+            "planner": cfg.agents[0].planner.model_copy(update={"kind": "none"}),
+            "filter": cfg.agents[0].filter.model_copy(update={"obstacle_horizon_s": horizon_s}),
+        }
+    )
+    log = fly_scenario(cfg.model_copy(update={"agents": [one], "duration_s": 6.0, "world": WorldSettings()}))
     assert log.min_clearance_m >= R - 0.01  # the safety radius, less the attitude lag's few mm
 
 
@@ -198,11 +207,11 @@ def test_a_route_s_tracker_cuts_corners_only_within_the_clearance_its_path_keeps
     cfg = resolve(make())
     still = StaticObstacles.of(list(cfg.obstacles))
     walls = still.clustered(2 * KEEP)
-    agents, _ = scenario_swarm(cfg)
+    agents = planned(cfg)
     for a in agents:
         cut = corner_cut_m(a.route)
         assert 0.0 <= cut <= PlannerSettings().clearance_m
-        assert keeps(np.vstack([a.start_w, a.path_w]), walls, R + cut - 1e-3)
+        assert keeps(a.path_w, walls, R + cut - 1e-3)
         if a.route is not None and a.route.lanes:
             assert cut < LANE_MARGIN_M + 0.01
     if make is trap:
@@ -214,9 +223,9 @@ def test_a_route_s_tracker_cuts_corners_only_within_the_clearance_its_path_keeps
 def test_every_scene_among_walls_is_valid_and_planned_round_its_walls(make):
     cfg = resolve(make())
     still = StaticObstacles.of(list(cfg.obstacles))
-    agents, _ = scenario_swarm(cfg)
+    agents = planned(cfg)
     for spec, a in zip(cfg.agents, agents, strict=True):
-        path = np.vstack([a.start_w, a.path_w])
+        path = a.path_w
         assert np.array_equal(path[-1], spec.goal)
         lane = a.route is not None and a.route.lanes
         keep = R + LANE_MARGIN_M if lane else KEEP  # a lane keeps its margin, not the clearance
@@ -227,8 +236,8 @@ def _corridor_routes() -> tuple[list, list]:
     raw = corridor(1)  # one drone each way, the corridor taken in turn (no lanes)
     raw["defaults"]["planner"] = {"lanes": False}
     cfg = resolve(raw)
-    agents, _ = scenario_swarm(cfg)
-    return agents, [np.vstack([a.start_w, a.path_w]) for a in agents]
+    agents = planned(cfg)
+    return agents, [a.path_w for a in agents]
 
 
 @pytest.mark.parametrize("left_m, right_m", [(0.5, 0.8), (0.8, 0.5), (0.6, 0.6)])
@@ -366,26 +375,26 @@ def test_a_drone_stopped_behind_in_the_passage_does_not_turn_the_flow_back():
 
 def test_an_agent_on_a_path_round_walls_relaxes_its_obstacles_cones_and_only_then():
     from swarm.offline.scenario import circle_swap
-    from swarm.tuning import HORIZON_SPEED_PER_GAIN_M, filter_config_for, obstacle_horizon_s
+    from swarm.tuning import HORIZON_SPEED_PER_GAIN_M
 
     walled = resolve(corridor(1))
     still = StaticObstacles.of(list(walled.obstacles))
     a = walled.agents[0]
-    assert obstacle_horizon_s(a, still) == a.planner.obstacle_horizon_s == 3.0
-    assert filter_config_for(a, still, CommandLevel.ATTITUDE).obstacle_horizon_s == 3.0
+    assert obstacle_horizon_of(a, still) == a.planner.obstacle_horizon_s == 3.0
+    assert filter_of(a, still, CommandLevel.ATTITUDE).obstacle_horizon_s == 3.0
     for off in ({"obstacle_horizon_s": None}, {"kind": "none"}):
-        assert obstacle_horizon_s(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
+        assert obstacle_horizon_of(a.model_copy(update={"planner": a.planner.model_copy(update=off)}), still) is None
     mine = a.model_copy(update={"filter": a.filter.model_copy(update={"obstacle_horizon_s": 5.0})})
-    assert obstacle_horizon_s(mine, still) == 5.0  # the filter's own setting wins
+    assert obstacle_horizon_of(mine, still) == 5.0  # the filter's own setting wins
     paper = a.model_copy(update={"filter": a.filter.model_copy(update={"gamma": 1.0})})  # 0.8 m/s at gain 1
     assert a.speed_mps / a.filter.gamma <= HORIZON_SPEED_PER_GAIN_M < paper.speed_mps / paper.filter.gamma
-    assert obstacle_horizon_s(paper, still) == pytest.approx(6.0)  # stretched by speed / gain over 0.4 m
+    assert obstacle_horizon_of(paper, still) == pytest.approx(6.0)  # stretched by speed / gain over 0.4 m
     slow = paper.model_copy(update={"speed_mps": 0.3})
-    assert obstacle_horizon_s(slow, still) == 3.0  # within 0.4 m: as written, never shortened
-    assert obstacle_horizon_s(paper.model_copy(update={"speed_mps": 1.2}), still) == pytest.approx(9.0)
+    assert obstacle_horizon_of(slow, still) == 3.0  # within 0.4 m: as written, never shortened
+    assert obstacle_horizon_of(paper.model_copy(update={"speed_mps": 1.2}), still) == pytest.approx(9.0)
     open_space = resolve(circle_swap(4))
-    assert obstacle_horizon_s(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
-    assert filter_config_for(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
+    assert obstacle_horizon_of(open_space.agents[0], StaticObstacles.of(list(open_space.obstacles))) is None
+    assert filter_of(open_space.agents[0], StaticObstacles.of([]), CommandLevel.ATTITUDE) == open_space.agents[
         0
     ].filter.filter_config(CommandLevel.ATTITUDE)
 
@@ -404,16 +413,12 @@ def test_a_two_way_corridor_written_at_the_paper_s_gain_brings_every_drone_home(
     del raw["defaults"]["filter"]["gamma"]  # the config's default (swarm scenario writes 2)
     cfg = resolve(raw)
     assert cfg.agents[0].filter.gamma == 1.0
-    agents, obs = scenario_swarm(cfg)
+    agents = planned(cfg)
     still = StaticObstacles.of(list(cfg.obstacles))
     assert all(a.config.obstacle_horizon_s == pytest.approx(6.0) for a in agents)
-    assert obstacle_horizon_s(cfg.agents[0], still) == pytest.approx(6.0)
+    assert obstacle_horizon_of(cfg.agents[0], still) == pytest.approx(6.0)
     # in the world the config says (swarm scenario writes the lab's), as its margins are sized for
-    log = simulate_swarm(
-        QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m, realism=cfg.world.realism,
-        seed=cfg.seed,
-    )  # fmt: skip
+    log = fly_scenario(cfg)
     o = outcome(cfg, log)
     assert log.all_reached, log.time_to_goal_s
     assert o.collisions == 0 and o.margin_violations == 0
@@ -456,15 +461,12 @@ def test_a_drone_flying_into_the_junction_of_two_pillars_brakes_turns_and_is_thr
     raw["agents"][0].update(start=[*start_xy, 1.0], start_velocity=[*v_xy, 0.0], goal=[2.0, -0.5, 1.0])
     raw["duration_s"] = 8.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(
-        QuadModel(), agents, obs, cfg.duration_s, control_hz=cfg.time.control_hz,
-        physics_hz=cfg.time.physics_hz, goal_tolerance_m=cfg.goal_tolerance_m,
-    )  # fmt: skip
+    assert planned(cfg)[0].route is not None
+    log = fly_scenario(cfg)
     o = outcome(cfg, log)
     assert log.all_reached and log.time_to_goal_s[0] < 6.0, log.time_to_goal_s
     assert o.collisions == 0 and o.margin_violations == 0
-    assert agents[0].route is not None and agents[0].route.replans == 0
+    assert log.replans == [0]
 
 
 def _lane_offsets(path: np.ndarray, x_lo: float, x_hi: float) -> np.ndarray:
@@ -483,12 +485,12 @@ def test_opposite_flows_fly_a_two_lane_corridor_each_in_its_right_hand_lane():
     from swarm.planning import LANE_MARGIN_M, lane_wall_m
 
     cfg = resolve(corridor(4))
-    agents, _ = scenario_swarm(cfg)
+    agents = planned(cfg)
     r = cfg.agents[0].airframe.params().body_radius_m + cfg.agents[0].filter.margin_m
     wall = lane_wall_m(0.5, r)
     assert wall - r >= LANE_MARGIN_M and (0.5 - 2 * wall) - 2 * r >= LANE_MARGIN_M
     for spec, a in zip(cfg.agents, agents, strict=True):
-        path = np.vstack([a.start_w, a.path_w])
+        path = a.path_w
         east = spec.goal[0] > spec.start[0]
         y = _lane_offsets(path, -0.8, 0.8)  # inside the corridor, along its side walls
         assert len(y)
@@ -508,38 +510,38 @@ def test_lanes_are_for_long_passages_wide_enough_and_can_be_turned_off():
     assert not has_lanes(np.full(5, 1.0), LANE_MIN_LENGTH_M - 0.01, r)  # a doorway: crossed in turn
     door = resolve(doorway(6))  # its gap is a short stretch: paths as planned, the gap taken in turn
     still = StaticObstacles.of(list(door.obstacles))
-    for a in scenario_swarm(door)[0]:
-        path = np.vstack([a.start_w, a.path_w])
+    for a in planned(door):
+        path = a.path_w
         np.testing.assert_array_equal(keep_right(path, still, r), path)
         assert not a.route.lanes and a.route.passage is not None
     agents, _ = _corridor_routes()  # planner.lanes false: the corridor in turn, on its centre line
     for a in agents:
         assert not a.route.lanes and a.route.passage is not None
-        assert np.abs(_lane_offsets(np.vstack([a.start_w, a.path_w]), -0.8, 0.8)).max() < 0.07
+        assert np.abs(_lane_offsets(a.path_w, -0.8, 0.8)).max() < 0.07
 
 
 def test_a_lane_flying_agent_gets_the_lane_contact_horizon_and_no_buffer_and_only_it():
-    from swarm.route import follows, path_for
-    from swarm.tuning import LANE_CONTACT_S, filter_config_for
+    from swarm.route import follows
+    from swarm.tuning import LANE_CONTACT_S
 
     cfg = resolve(corridor(1))
     still = StaticObstacles.of(list(cfg.obstacles))
     a = cfg.agents[0]
-    _, route = path_for(a, still)
+    _, route = path_of(a, still)
     assert route is not None and route.lanes and follows(route)
     assert not follows(None)
-    lane = filter_config_for(a, still, CommandLevel.ATTITUDE, route)
+    lane = filter_of(a, still, CommandLevel.ATTITUDE, route)
     assert lane.contact_s == LANE_CONTACT_S and lane.buffer_mps == 0.0
-    plain = filter_config_for(a, still, CommandLevel.ATTITUDE)
+    plain = filter_of(a, still, CommandLevel.ATTITUDE)
     assert plain.contact_s == a.filter.contact_s == 0.0 and plain.buffer_mps == a.filter.buffer_mps > 0
     longer = a.model_copy(update={"filter": a.filter.model_copy(update={"contact_s": 2.0})})
-    assert filter_config_for(longer, still, CommandLevel.ATTITUDE, route).contact_s == 2.0  # a longer one kept
+    assert filter_of(longer, still, CommandLevel.ATTITUDE, route).contact_s == 2.0  # a longer one kept
     raw = corridor(1)
     raw["defaults"]["planner"] = {"lanes": False}
     off = resolve(raw)
-    _, in_turn = path_for(off.agents[0], still)
+    _, in_turn = path_of(off.agents[0], still)
     assert not follows(in_turn)  # the tie-break turns from every agent ahead, as in the open
-    turn = filter_config_for(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
+    turn = filter_of(off.agents[0], still, CommandLevel.ATTITUDE, in_turn)
     assert turn.contact_s == 0.0 and turn.buffer_mps == a.filter.buffer_mps
 
 

@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from swarm.build import contained_plugin, step_of
 from swarm.config import ConfigError, resolve
 from swarm.model import CommandLevel, QuadModel, QuadParams, QuadState, rotor_input_set, thrust_vector_input_set
 from swarm.planning import StaticObstacles
@@ -30,7 +31,6 @@ from swarm.safety.external import (
 )
 from swarm.safety.filter import FilterConfig, FilterStatus, SafetyFilter
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
-from swarm.step import AgentStep, contained_plugin
 
 
 def _raw(**filt: object) -> dict:
@@ -156,8 +156,8 @@ def test_when_the_fallback_cannot_run_either_the_drone_brakes():
 def test_the_step_flies_the_fallback_and_reports_it():
     state, _, sphere, _ = _scene()
     agent = resolve(_raw(kind="c3bf")).agents[0]
-    step = AgentStep.of_agent(agent, StaticObstacles.of([]), 0.1)
-    ref = AgentStep.of_agent(agent, StaticObstacles.of([]), 0.1)
+    step = step_of(agent, StaticObstacles.of([]), 0.1)
+    ref = step_of(agent, StaticObstacles.of([]), 0.1)
     step.plugin = ContainedFilter(_Raises(), replace(SPEC, control_period_s=1 / 100), 1.0)
     named, none = NamedObstacles(sphere, ["ball"]), NamedObstacles.none()
     for k in range(3):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from swarm.model import QuadModel, QuadParams
-from swarm.world.physics import PhysicsWorld
+from swarm.sim.physics import PhysicsWorld
 
 P = QuadParams()
 HZ = 240.0

@@ -13,20 +13,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.config import resolve
+from swarm.build import step_of
+from swarm.config import WorldSettings, resolve
 from swarm.control import PathTracker
 from swarm.errors import ConfigError
 from swarm.model import CommandLevel, QuadModel, QuadState
 from swarm.net import statewire
 from swarm.net.neighbours import HeardNeighbours, NeighbourTable
-from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+from swarm.offline.closed_loop import fly_scenario, outcome
 from swarm.offline.scenario import circle_swap
 from swarm.realism.comms import LOST, MessageKind
 from swarm.realism.sensing import MocapFrame
 from swarm.realism.settings import RealismSettings
 from swarm.safety.filter import FilterConfig
 from swarm.safety.obstacles import NamedObstacles
-from swarm.step import AgentStep
+from swarm.step import AgentStep, Sensing
 
 pytestmark = pytest.mark.unit
 
@@ -37,10 +38,8 @@ def _fly(realism: RealismSettings | None, seed: int = 0, n: int = 4):
     raw = circle_swap(n, 1.5)
     raw["duration_s"] = 6.0
     cfg = resolve(raw)
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0,
-                         realism=realism, seed=seed)  # fmt: skip
-    return cfg, log
+    cfg = cfg.model_copy(update={"world": WorldSettings(realism=realism or RealismSettings()), "seed": seed})
+    return cfg, fly_scenario(cfg)
 
 
 def test_the_ideal_world_changes_nothing_bit_for_bit():
@@ -77,11 +76,10 @@ def test_a_drone_whose_thrust_is_off_its_model_flies_where_it_is_sent(offset):
     off = {**over, "sensing": {"estimator": {"disturbance_walk_mps2": 0.0, "initial_disturbance_std_mps2": 0.0}}}
     cfg = resolve({"version": 1, "name": "hold", "duration_s": 8.0,
                    "agents": [{"id": "cf1", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0]}]})  # fmt: skip
-    agents, obs = scenario_swarm(cfg)
     ends = []
     for realism in (over, off):
-        log = simulate_swarm(MODEL, agents, obs, cfg.duration_s, goal_tolerance_m=0.01,
-                             realism=RealismSettings.model_validate(realism), seed=1)  # fmt: skip
+        world = WorldSettings(realism=RealismSettings.model_validate(realism))
+        log = fly_scenario(cfg.model_copy(update={"world": world, "goal_tolerance_m": 0.01, "seed": 1}))
         ends.append((log.time_to_goal_s[0], float(log.x_b_w[-1, 0, 2])))
     (reached, _), (never, z_off) = ends
     assert reached is not None and reached < 5.0
@@ -97,10 +95,10 @@ def test_only_a_simulated_drone_acts_on_an_estimate_from_the_worlds_frames():
     mixed = Path(__file__).parents[2] / "configs" / "mixed_sitl.yaml"
     cfg = load(mixed, {"world": {"realism": "crazyflie_lab"}, "neighbours": {"source": "agents"}})
     still = StaticObstacles.of(list(cfg.obstacles))
-    kinds = {a.backend: AgentStep.of_agent(a, still, cfg.goal_tolerance_m, realism=cfg.world.realism).estimator
+    kinds = {a.backend: step_of(a, still, cfg.goal_tolerance_m, realism=cfg.world.realism).estimator
              for a in cfg.agents}  # fmt: skip
     assert kinds["sim"] is not None and kinds["crazyflie"] is None
-    observers = {a.backend: AgentStep.of_agent(a, still, cfg.goal_tolerance_m).observer for a in cfg.agents}
+    observers = {a.backend: step_of(a, still, cfg.goal_tolerance_m).observer for a in cfg.agents}
     assert observers["sim"] is None and observers["crazyflie"] is not None  # (its disturbance alone)
 
 
@@ -116,7 +114,7 @@ def _real_hold(offset: float, estimate: bool, takeoff_s: float = 0.0, seconds: f
                    "time": {"mode": "realtime"},
                    "agents": [{"id": "cf1", "backend": "crazyflie", "start": [0.0, 0.0, 1.0], "goal": [1.0, 0.0, 1.0],
                                "crazyflie": real}]})  # fmt: skip
-    step = AgentStep.of_agent(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=100.0)
+    step = step_of(cfg.agents[0], StaticObstacles.of([]), cfg.goal_tolerance_m, control_hz=100.0)
     p = step.model.params
     x, v, q = np.array([0.0, 0.0, 1.0]), np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
     hold = PathTracker([x.copy(), [1.0, 0.0, 1.0]], 0.5)
@@ -153,7 +151,7 @@ def test_an_agent_with_an_estimator_acts_on_its_estimate_not_on_the_state_it_is_
     lab = RealismSettings.model_validate("crazyflie_lab")
     start = np.array([0.0, 0.0, 1.0])
     step = AgentStep(MODEL, FilterConfig(level=CommandLevel.ATTITUDE), PathTracker([start, [2.0, 0.0, 1.0]], 0.8),
-                     estimator=lab.estimator(start, np.array([0.0, 0.0, 0.0, 1.0])))  # fmt: skip
+                     sensing=Sensing(lab.estimator(start, np.array([0.0, 0.0, 0.0, 1.0]))))  # fmt: skip
     far = QuadState.hover([50.0, -50.0, 9.0])  # what it is handed: never read
     none = NamedObstacles.none()
     for k in range(20):  # frames at 100 Hz of a drone at rest at its start, 10 ms late
@@ -255,7 +253,8 @@ def test_a_command_that_acts_a_tick_late_is_filtered_for_then():
     assert command_lead_s(late, 100.0) == pytest.approx(0.03)  # 12 + 10 ms: 3 ticks
     start = np.array([0.0, 0.0, 1.0])
     cfg = FilterConfig(level=CommandLevel.ATTITUDE)
-    steps = [AgentStep(MODEL, cfg, PathTracker([start, [2.0, 0.0, 1.0]], 0.8), lead_s=lead) for lead in (0.0, 0.05)]
+    goal = [2.0, 0.0, 1.0]
+    steps = [AgentStep(MODEL, cfg, PathTracker([start, goal], 0.8), sensing=Sensing(lead_s=s)) for s in (0.0, 0.05)]
     state = QuadState(start.copy(), np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))
     none = NamedObstacles.none()
     first = [s(0.0, state, none, none) for s in steps]

@@ -14,12 +14,13 @@ import pytest
 from swarm.config import resolve
 from swarm.errors import ConfigError, DecodeError
 from swarm.net import access
+from swarm.net.ros2 import graph
+from swarm.net.ros2.interfaces import TYPE_HASHES, deserialize, message_definition, serialize
+from swarm.net.ros2.topics import TYPES, Kind, ros2_keys, run_topics
 from swarm.planning import StaticObstacles
-from swarm.ros2 import convert, graph
+from swarm.ros2 import convert
 from swarm.ros2.goals import course, landing_goal
-from swarm.ros2.interfaces import TYPE_HASHES, deserialize, message_definition, serialize
 from swarm.ros2.participant import read_env, write_env, zenoh_override
-from swarm.ros2.topics import TYPES, Kind, ros2_keys, run_topics
 from swarm.rotation import quat_to_R
 
 from .test_access import _may_publish

@@ -153,7 +153,7 @@ def test_a_sensing_radius_that_cannot_see_in_time_is_refused_with_the_field():
     _cfg(sensing_m=0.41)
 
 
-def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
+def test_fly_scenario_counts_bad_ticks_as_the_agents_do():
     from swarm.offline.closed_loop import SwarmLog
     from swarm.safety.filter import FilterStatus as S
 
@@ -162,14 +162,13 @@ def test_simulate_swarm_counts_bad_ticks_as_the_agents_do():
     assert log.infeasible_ticks == 3  # escape rows (COLLISION) count: the guarantee did not hold there either
 
 
-def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
-    from swarm.model import QuadModel
-    from swarm.offline.closed_loop import outcome, scenario_swarm, simulate_swarm
+def test_fly_scenario_reports_the_exact_barrier_of_its_log():
+    from swarm.config import WorldSettings
+    from swarm.offline.closed_loop import fly_scenario, outcome
     from swarm.offline.scenario import SwapSettings, circle_swap
 
     cfg = resolve(circle_swap(2, 1.0, SwapSettings(duration_s=3.0)))
-    agents, obs = scenario_swarm(cfg)
-    log = simulate_swarm(QuadModel(), agents, obs, cfg.duration_s, control_hz=100.0, physics_hz=300.0)
+    log = fly_scenario(cfg.model_copy(update={"world": WorldSettings()}))
     o = outcome(cfg, log)
     r = 2 * 0.07 + cfg.agents[0].filter.margin_m
     p = log.x_b_w[:, 1] - log.x_b_w[:, 0]
@@ -179,7 +178,7 @@ def test_simulate_swarm_reports_the_exact_barrier_of_its_log():
     assert o.margin_violations == int(bool((np.linalg.norm(p, axis=1) < r).any()))
 
 
-def test_simulate_swarm_s_deadlock_is_judged_at_the_centre_of_mass_as_its_arrival():
+def test_fly_scenario_s_deadlock_is_judged_at_the_centre_of_mass_as_its_arrival():
     """An agent that hovers 0.14 m from its goal (tolerance 0.15) with its body centre 0.16 m
     away arrived: it is neither late nor deadlocked (the runtime's metrics use the centre of
     mass too); nor is one whose arrival ended the run before a tick logged it."""

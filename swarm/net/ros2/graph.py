@@ -26,7 +26,7 @@ from enum import StrEnum
 import xxhash
 
 from swarm.errors import DecodeError
-from swarm.ros2.interfaces import TYPE_HASHES, dds_type_name
+from swarm.net.ros2.interfaces import TYPE_HASHES, dds_type_name
 
 ADMIN_SPACE = "@ros2_lv"
 GID_BYTES = 16  # RMW_GID_STORAGE_SIZE since Jazzy

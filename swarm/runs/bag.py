@@ -4,7 +4,7 @@
 
     swarm ros2-bag RUN_DIR [--out DIR]      (or ros2.bag: true in the config)
 
-The topics are the bridge's (:mod:`swarm.ros2.topics`), but every tick: each drone's pose and
+The topics are the bridge's (:mod:`swarm.net.ros2.topics`), but every tick: each drone's pose and
 velocity at each of its measurements, ``/tf`` and ``/clock`` at each clock, its filter status
 at each command and the obstacles at each clock, stamped (and logged) at sim time. rosbags
 writes the folder; the messages are :mod:`swarm.ros2.convert`'s, as the bridge sends them.
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from swarm.net.ros2.interfaces import serialize, store
+from swarm.net.ros2.topics import TYPES, Kind, Topic, run_topics
 from swarm.ros2 import convert
-from swarm.ros2.interfaces import serialize, store
-from swarm.ros2.topics import TYPES, Kind, Topic, run_topics
 from swarm.runs.runfiles import RecordingStream, read_config
 
 BAG_DIR = "ros2_bag"

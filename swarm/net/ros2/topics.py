@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from swarm.ros2 import interfaces as ri
-from swarm.ros2.graph import fqn, qos_key, topic_key
+from swarm.net.ros2 import interfaces as ri
+from swarm.net.ros2.graph import fqn, qos_key, topic_key
 
 
 class Kind(StrEnum):

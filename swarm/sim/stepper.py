@@ -14,7 +14,7 @@ With ``world.realism`` (``swarm.realism``) the simulated drones are built as the
 airframes (their mass factors), their rotors make the plant's thrusts (lag, thrust factors)
 and the plant's downwash, drag, ground effect and wind act on them each substep; motion
 capture sees them at its frame rate (noise, latency, drops: :meth:`Stepper.frames`); a
-command reaches its drone after its seeded delay, or never (:meth:`Stepper.send`)."""
+command reaches its drone after its seeded delay, in the order sent, or never (:meth:`Stepper.send`)."""
 
 from __future__ import annotations
 
@@ -27,10 +27,10 @@ from swarm.config import ScenarioConfig, TimeMode
 from swarm.control import AttitudeController, AttitudeSetpoint, OnboardController, OnboardGains, onboard_rotor_thrusts
 from swarm.crazyflie_fw import WDT_SHUTDOWN_S, WDT_STABILIZE_S
 from swarm.model import CommandLevel, QuadModel, QuadState
-from swarm.realism.comms import DelayLine, MessageKind
+from swarm.realism.comms import LOST, DelayLine, MessageKind
 from swarm.realism.plant import Plant
 from swarm.realism.sensing import MocapFrame, MocapSensor
-from swarm.world.physics import DroneStates, PhysicsWorld
+from swarm.sim.physics import DroneStates, PhysicsWorld
 
 GROUND_IMPACT_MPS = 0.5
 """A drone touching the ground slower than this [m/s] stands, takes off or lands on it:
@@ -102,6 +102,7 @@ class Stepper:
             None if realism.comms.params().perfect else realism.comms_model(cfg.seed, 1.0 / cfg.time.control_hz)
         )
         self.in_flight: DelayLine[tuple[str, np.ndarray, float]] = DelayLine()  # commands on their way
+        self.due_k: dict[str, int] = {}  # per drone: the tick its newest command on its way arrives at
         self.commands_lost = 0
         self.seen: list[list[MocapFrame]] = [[] for _ in flown_cfg]  # per flown drone: frames not yet sent
         for a in cfg.agents:
@@ -145,17 +146,27 @@ class Stepper:
     def send(self, name: str, command: np.ndarray, t_s: float, k: int) -> None:
         """Agent ``name``'s command answering tick ``k`` at sim time ``t_s``: flown now, or with
         ``world.realism.comms.command`` from the tick its seeded fate delivers it at (:meth:`deliver`),
-        or never (counted in ``commands_lost``)."""
+        or never (counted in ``commands_lost``). The link keeps the order the commands were sent
+        in, as the Crazyradio's does: cflib's radio driver sends one packet at a time from its
+        queue and resends it until it is acknowledged (``cflib/crtp/radiodriver.py``), and the
+        firmware's commander flies whichever setpoint arrived last (``commanderSetSetpoint``,
+        ``src/modules/src/commander.c``); so a command that comes late holds back the ones sent
+        after it, and none overtakes an older one."""
         if self.comms is None:
             self.hold(name, command, t_s)
-        elif not self.in_flight.put(k, self.comms.fate(name, "world", MessageKind.COMMAND, k), (name, command, t_s)):
+            return
+        fate = self.comms.fate(name, "world", MessageKind.COMMAND, k)
+        if fate != LOST:
+            fate = max(fate, self.due_k.get(name, 0) - k)  # (behind the commands still on their way)
+            self.due_k[name] = k + fate
+        if not self.in_flight.put(k, fate, (name, command, t_s)):
             self.commands_lost += 1
 
     def deliver(self, k: int) -> None:
-        """The commands on their way that reach their drones by tick ``k`` (``world.realism.comms``)."""
+        """The commands on their way that reach their drones by tick ``k`` (``world.realism.comms``),
+        in the order they were sent: the last one is held."""
         for name, command, t_s in self.in_flight.due(k):
-            if t_s >= self.drones[name].command_t_s:
-                self.hold(name, command, t_s)
+            self.hold(name, command, t_s)
 
     def capture(self, t_s: float, fs: DroneStates) -> None:
         """Motion capture at sim time ``t_s`` [s] of the simulated drones (states ``fs``,

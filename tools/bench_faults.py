@@ -18,7 +18,7 @@ world_stop (1 s), recorder_stop (3 s, while the run ends: the recording against 
 process says it sent), forged_command (another agent's credentials, the victim's next tick),
 outsider (no credentials), bad_config (the slowest refusal over the malformed configs of
 the tests), and a run's own agent gone wrong in place of cf3, hovering between cf1 and cf2
-(``tests/integration/rogue.py``, from t = 1 s): rogue_flood (a thousand states per tick),
+(``tools/rogue.py``, from t = 1 s): rogue_flood (a thousand states per tick),
 rogue_nan, rogue_far (a kilometre away), rogue_fast (300 m/s), rogue_reorder (each tick
 again, and one 50 ticks old), rogue_mute (never a command). Keys of those rows also:
 ``dropped`` (its messages the receivers dropped), ``offenders`` (whom the metrics name).
@@ -175,16 +175,10 @@ ROGUE_AGENTS = [
 
 
 def _rogue(out: Path, mode: str, fault: str) -> dict[str, Any]:
-    """cf3's process replaced by a rogue of the run (``tests/integration/rogue.py``)."""
-
-    class RogueRun(RunHandle):
-        def _spawn(self, name: str, args: list[str], cpu: int | None = None) -> None:
-            if name == "agent-cf3":
-                args = ["-m", "tests.integration.rogue", *args[args.index("agent") + 1 :], "--mode", fault]
-            super()._spawn(name, args, cpu)
+    """cf3's process replaced by a rogue of the run (``tools/rogue.py``)."""
 
     cfg = _config(mode, agents=ROGUE_AGENTS, time={"mode": mode, "late_command": "brake", "lockstep_timeout_s": 1.0})
-    h = RogueRun.start(cfg, out)
+    h = RunHandle.start(cfg, out, stand_ins={"cf3": ("tools.rogue", ["--mode", fault])})
     h.wait()
     m = h.result
     o = m.get("offenders", {}).get("cf3", {})

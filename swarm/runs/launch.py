@@ -177,10 +177,14 @@ class RunHandle:
         cancelled: Callable[[], bool] = lambda: False,
         secrets: Path | None = None,
         live_port: int | None = None,
+        stand_ins: dict[str, tuple[str, list[str]]] | None = None,
     ) -> RunHandle:
         """Start the recorder, the world and the first agent, wait for that agent's
         liveliness (see :meth:`_wait_alive`; ``cancelled`` ends the wait early), then start
         the other agents. An exception while starting stops what was started.
+        ``stand_ins``: agent id -> (a module, its extra arguments) run in that agent's place with
+        the agent's own arguments and credentials (an attack's rogue member of the run:
+        ``tools.rogue``).
 
         With ``network.access_control`` (the default) the run's credentials are in
         ``secrets`` (default ``out/secrets``; made there unless it already holds them,
@@ -237,7 +241,11 @@ class RunHandle:
             for i, a in enumerate(cfg.agents):
                 if cancelled():  # stopped while the first agent came up: start no more
                     break
-                h._spawn(f"agent-{a.id}", ["-m", "swarm.cli", "agent", *common, "--id", a.id], cpus.get(i))
+                module, extra = ("swarm.cli", ["agent"]), []
+                if stand_ins and a.id in stand_ins:
+                    module, extra = (stand_ins[a.id][0], []), stand_ins[a.id][1]
+                args = ["-m", module[0], *module[1], *common, "--id", a.id, *extra]
+                h._spawn(f"agent-{a.id}", args, cpus.get(i))
                 if i == 0:
                     h._wait_alive(a.id, cancelled)
         except BaseException:

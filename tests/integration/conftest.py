@@ -30,8 +30,8 @@ def scenario(file: str, **over: object) -> ScenarioConfig:
 def start_run(tmp_path: Path) -> Iterator:
     handles: list[RunHandle] = []
 
-    def start(cfg: ScenarioConfig, name: str = "run") -> RunHandle:
-        h = RunHandle.start(cfg, tmp_path / name)
+    def start(cfg: ScenarioConfig, name: str = "run", **kw: Any) -> RunHandle:
+        h = RunHandle.start(cfg, tmp_path / name, **kw)
         handles.append(h)
         return h
 

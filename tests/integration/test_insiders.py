@@ -1,5 +1,5 @@
 """A run's own agent that misbehaves, injected by a real process with that agent's
-credentials in place of its agent (``tests/integration/rogue.py``, issue 55): it floods,
+credentials in place of its agent (``tools/rogue.py``, issue 55): it floods,
 sends NaN, a position a kilometre away, an impossible speed, repeated and reordered ticks,
 or never a command. Its drone hovers where it started, on the others' way. The receivers
 drop and count what it sends, the metrics name it, and the others fly home without contact.
@@ -16,9 +16,9 @@ import pytest
 
 from swarm.net import statewire
 from swarm.runs.launch import RunHandle
+from tools.rogue import FLOOD
 
 from .conftest import scenario
-from .rogue import FLOOD
 
 ROGUE = "cf3"
 AGENTS = [
@@ -36,21 +36,7 @@ REASONS = {
 }
 
 
-def _with_rogue(monkeypatch, mode: str) -> None:
-    """RunHandle starts the rogue in place of agent ROGUE's process (same arguments)."""
-    spawn = RunHandle._spawn
-
-    def _spawn(self, name, args, cpu=None):
-        if name == f"agent-{ROGUE}":
-            i = args.index("agent")
-            args = ["-m", "tests.integration.rogue", *args[i + 1 :], "--mode", mode]
-        spawn(self, name, args, cpu)
-
-    monkeypatch.setattr(RunHandle, "_spawn", _spawn)
-
-
-def _run(start_run, monkeypatch, mode: str, topology: str) -> tuple[dict, RunHandle]:
-    _with_rogue(monkeypatch, mode)
+def _run(start_run, mode: str, topology: str) -> tuple[dict, RunHandle]:
     cfg = scenario(
         "swap_2.yaml",
         name=f"rogue_{mode}",
@@ -61,7 +47,7 @@ def _run(start_run, monkeypatch, mode: str, topology: str) -> tuple[dict, RunHan
         neighbours={"interest": "all"} if topology == "mesh" else {},
         time={"lockstep_timeout_s": 1.0},  # (an agent that never answers costs the world one timeout)
     )
-    h = start_run(cfg, f"{mode}-{topology}")
+    h = start_run(cfg, f"{mode}-{topology}", stand_ins={ROGUE: ("tools.rogue", ["--mode", mode])})
     assert h.wait() == "completed", (h.out / "logs" / f"agent-{ROGUE}.log").read_text()[-2000:]
     return json.loads((h.out / "metrics.json").read_text()), h
 
@@ -85,8 +71,8 @@ def _safe_and_home(m: dict) -> None:
         ("far", "mesh"),
     ],
 )
-def test_a_rogue_agents_bad_states_are_dropped_counted_and_named(start_run, monkeypatch, mode, topology):
-    m, h = _run(start_run, monkeypatch, mode, topology)
+def test_a_rogue_agents_bad_states_are_dropped_counted_and_named(start_run, mode, topology):
+    m, h = _run(start_run, mode, topology)
     _safe_and_home(m)
     assert list(m["offenders"]) == [ROGUE], m["offenders"]
     o = m["offenders"][ROGUE]
@@ -102,8 +88,8 @@ def test_a_rogue_agents_bad_states_are_dropped_counted_and_named(start_run, monk
     assert sum(w["wait_s"] >= 0.99 * timeout_s for w in m["stall_events"] if ROGUE not in w["agents"]) <= 1, m
 
 
-def test_an_agent_that_never_commands_costs_one_timeout_and_is_named(start_run, monkeypatch):
-    m, h = _run(start_run, monkeypatch, "mute", "star")
+def test_an_agent_that_never_commands_costs_one_timeout_and_is_named(start_run):
+    m, h = _run(start_run, "mute", "star")
     _safe_and_home(m)
     o = m["offenders"][ROGUE]
     assert o["dropped"] == 0 and o["longest_silence_s"] > 0.9 * m["duration_s"], o  # live all along, never a command

@@ -1,6 +1,6 @@
 """A run's own agent gone wrong, as a real process with that agent's credentials (issue 55).
 
-    python -m tests.integration.rogue CONFIG --run RUN --secrets DIR --id ID --mode MODE
+    python -m tools.rogue CONFIG --run RUN --secrets DIR --id ID --mode MODE
 
 It takes the place of agent ID's process: it declares ID's liveliness, hears the world's
 clock, and holds its drone in a hover where it started (an attitude command of level thrust

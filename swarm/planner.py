@@ -15,7 +15,8 @@ anything flies (exit 2 naming ``agents.N.planner.kind``). Asked again in flight 
 a path is replaced by the built-in ``grid`` planner's (:func:`planned_path` returns None).
 
 The built-ins are registered the same way: ``grid`` (:class:`GridPlanner`) and ``none``
-(:class:`Straight`), whose ``builtin`` attribute tells ``swarm.route.path_for`` to plan itself.
+(:class:`Straight`), whose ``builtin`` attribute tells ``swarm.build.path_of`` to plan with
+``swarm.route.path_for``.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class GridPlanner:
 
     builtin: ClassVar[bool] = True
 
-    def plan(self, inp: PlannerInput) -> PlannerOutput:  # (path_for plans a built-in itself)
+    def plan(self, inp: PlannerInput) -> PlannerOutput:  # (swarm.route.path_for plans a built-in itself)
         return PlannerOutput(inp.targets_w)
 
 

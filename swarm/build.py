@@ -36,6 +36,7 @@ from swarm.tuning import (
     NOISE_SIGMAS,
     HorizonSpec,
     agreed_accel_mps2,
+    agreed_speed_mps,
     command_lead_s,
     delay_speed_mps,
     design_std,
@@ -177,11 +178,11 @@ def filter_of(
 ) -> FilterConfig:
     """``agent``'s filter settings at command ``level`` among ``still`` on ``route``, in the world
     ``realism`` ticking at ``control_hz`` (``swarm.tuning.filter_config_for``, with its agreed
-    acceleration, :func:`agent_accel_mps2`)."""
+    acceleration, :func:`agent_accel_mps2`, and speed, ``swarm.tuning.agreed_speed_mps``)."""
     base = agent.filter.filter_config(level)
-    return filter_config_for(
-        base, obstacle_horizon_of(agent, still), route, agent_accel_mps2(agent, realism, control_hz)
-    )
+    a = agent_accel_mps2(agent, realism, control_hz)
+    v = agreed_speed_mps(a, realism, control_hz)
+    return filter_config_for(base, obstacle_horizon_of(agent, still), route, a, v)
 
 
 def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float | None:

@@ -16,22 +16,27 @@ from dataclasses import replace
 
 import numpy as np
 
-from swarm.config import AgentConfig, FailureSettings, MonitorSettings, ScenarioConfig
+from swarm.config import AgentConfig, FailureSettings, MonitorSettings, ScenarioConfig, TimeMode
 from swarm.control import PathTracker
-from swarm.model import CommandLevel, QuadModel, QuadParams
+from swarm.model import CommandLevel, QuadModel, QuadParams, rotor_input_set, thrust_vector_input_set
 from swarm.net.neighbours import NeighbourTable
 from swarm.net.statewire import Plausible
+from swarm.planner import planned_path
 from swarm.planning import StaticObstacles
+from swarm.plugins import CONTROLLERS, filter_class, filter_options, plugin_class, plugin_options
 from swarm.realism.sensing import EstimatorParams
 from swarm.realism.settings import RealismSettings
+from swarm.reference import ContainedController, ControllerSpec, is_builtin
 from swarm.rotation import FloatArray
 from swarm.route import PathSpec, Route, corner_cut_m, path_for, plans_round_walls
+from swarm.safety.external import ContainedFilter, FilterSpec, barrier_of, budget_s
 from swarm.safety.filter import FilterConfig
 from swarm.step import AgentStep, Sensing
 from swarm.tuning import (
     NOISE_SIGMAS,
     HorizonSpec,
     agreed_accel_mps2,
+    agreed_speed_mps,
     command_lead_s,
     delay_speed_mps,
     design_std,
@@ -56,6 +61,7 @@ def agent_step(cfg: ScenarioConfig, agent_id: str, still: StaticObstacles | None
         control_hz=cfg.time.control_hz,
         monitor=cfg.monitor,
         failure=cfg.failure,
+        realtime=cfg.time.mode is TimeMode.REALTIME,
     )
 
 
@@ -68,6 +74,7 @@ def step_of(
     control_hz: float | None = None,
     monitor: MonitorSettings | None = None,
     failure: FailureSettings | None = None,
+    realtime: bool = False,
 ) -> AgentStep:
     """The step of a configured agent among the static obstacles ``still``: its airframe, its
     path planned round the walls (:func:`path_of`), its filter tuned for that path
@@ -79,7 +86,9 @@ def step_of(
     world, and where the swarm's delay contract binds there (``swarm.tuning.agreed_accel_mps2``) its
     command within the agreed acceleration, its cruise speed within what its neighbours may not
     yet know of (:func:`cruise_speed_mps`) and its published state the one predicted for when its
-    command acts; with ``monitor`` (and the scenario's ``failure`` settings) its safety monitor."""
+    command acts; with ``monitor`` (and the scenario's ``failure`` settings) its safety monitor; its
+    safety filter and reference controller plugins contained (:func:`contained_plugin`,
+    :func:`contained_controller`; ``realtime``: the run is on the wall clock)."""
     level = agent.command_level if level is None else level
     lead_s = 0.0 if control_hz is None else command_lead_s(realism, control_hz)
     path_w, route = path_of(agent, still)
@@ -114,6 +123,8 @@ def step_of(
         landing=agent.backend == "crazyflie",
         sensing=Sensing(estimator, lead_s, observer, fixed_sd, offset_sd, publish_ahead=ahead > 0.0),
         monitor=mon,
+        plugin=contained_plugin(agent, fc, control_hz, realtime),
+        controller=contained_controller(agent, control_hz, realtime, cruise_speed_mps(agent, realism, control_hz)),
     )
 
 
@@ -140,7 +151,11 @@ def path_spec(agent: AgentConfig) -> PathSpec:
 
 def path_of(agent: AgentConfig, still: StaticObstacles) -> tuple[FloatArray, Route | None]:
     """The waypoints (k, 3) [m, world] ``agent`` flies from its start among ``still``, and its
-    route (``swarm.route.path_for``)."""
+    route (``swarm.route.path_for``); a plugin planner's path (``swarm.planner``), flown as it
+    is, without a route."""
+    custom = planned_path(agent.plan_request(), still)
+    if custom is not None:
+        return custom, None
     return path_for(path_spec(agent), still)
 
 
@@ -163,11 +178,11 @@ def filter_of(
 ) -> FilterConfig:
     """``agent``'s filter settings at command ``level`` among ``still`` on ``route``, in the world
     ``realism`` ticking at ``control_hz`` (``swarm.tuning.filter_config_for``, with its agreed
-    acceleration, :func:`agent_accel_mps2`)."""
+    acceleration, :func:`agent_accel_mps2`, and speed, ``swarm.tuning.agreed_speed_mps``)."""
     base = agent.filter.filter_config(level)
-    return filter_config_for(
-        base, obstacle_horizon_of(agent, still), route, agent_accel_mps2(agent, realism, control_hz)
-    )
+    a = agent_accel_mps2(agent, realism, control_hz)
+    v = agreed_speed_mps(a, realism, control_hz)
+    return filter_config_for(base, obstacle_horizon_of(agent, still), route, a, v)
 
 
 def agent_accel_mps2(agent: AgentConfig, realism: RealismSettings | None, control_hz: float | None) -> float | None:
@@ -229,3 +244,51 @@ def neighbour_table(
     f = failure
     timeout = f.neighbour_timeout_s + expected_ages(realism, control_hz).neighbour_s
     return NeighbourTable(timeout, f.neighbour_growth_mps, f.neighbour_hard_limit_s, f.on_lost, accel, vel_err, sigmas)
+
+
+def contained_plugin(
+    agent: AgentConfig, config: FilterConfig, control_hz: float | None, realtime: bool = False
+) -> ContainedFilter | None:
+    """The agent's safety filter plugin (``filter.kind``, ``swarm.plugins``) built and contained,
+    or None when its filter is a built-in barrier (its own QP) or it flies unfiltered. ``config``:
+    its tuned C3BF-QP settings (the fallback's), whose level, margin, sensing radius and input set
+    the plugin is given; ``control_hz`` (None: 100 Hz) sets its tick. Its budget is
+    ``filter.budget_ms``, or without it one tick where the run is on the wall clock (``realtime``, or
+    a real drone) and none otherwise (``swarm.safety.external.budget_s``)."""
+    cls = filter_class(agent.filter.kind)
+    if barrier_of(cls) is not None or not agent.filter.enabled:
+        return None
+    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
+    params = agent.quad_params()
+    limits = (
+        rotor_input_set(params)
+        if config.level is CommandLevel.ROTORS
+        else thrust_vector_input_set(params, accel_limit_mps2=config.accel_limit_mps2)
+    )
+    spec = FilterSpec(
+        agent.id, params, config.level, limits, config.margin_m,
+        config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),
+    )  # fmt: skip
+    wall = realtime or agent.backend == "crazyflie"
+    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s, wall))
+
+
+def contained_controller(
+    agent: AgentConfig, control_hz: float | None, realtime: bool = False, speed_mps: float | None = None
+) -> ContainedController | None:
+    """The agent's reference controller plugin (``controller.kind``, ``swarm.plugins``) built and
+    contained, or None for the built-in path tracker. ``control_hz`` (None: 100 Hz) sets its tick;
+    its budget is ``controller.budget_ms``, or as a filter plugin's (:func:`contained_plugin`);
+    ``speed_mps``: the cruise speed its tracker flies (None: the agent's ``speed_mps``)."""
+    cls = plugin_class(CONTROLLERS, agent.controller.kind)
+    if is_builtin(cls):
+        return None
+    period_s = 1.0 / (100.0 if control_hz is None else control_hz)
+    params = agent.quad_params()
+    spec = ControllerSpec(
+        agent.id, params, thrust_vector_input_set(params),
+        agent.speed_mps if speed_mps is None else speed_mps, period_s,
+        plugin_options(cls, dict(agent.controller.options)),
+    )  # fmt: skip
+    wall = realtime or agent.backend == "crazyflie"
+    return ContainedController(cls(spec), spec, budget_s(agent.controller.budget_ms, period_s, wall))

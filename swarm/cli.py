@@ -75,6 +75,8 @@ def _status_info(st: dict[str, Any]) -> str:
     info = f"rtf {st['rtf']:.2f}  min sep {sep}  infeasible {st['infeasible']}  coll {st['collisions']}"
     if st.get("stalls"):
         info += f"  [yellow]stalls {st['stalls']}[/]"
+    if st.get("fallback_ids"):
+        info += f"  [yellow]plugin fallbacks {int(sum(st['fallback_ticks']))}[/]"
     if st.get("acting"):
         info += f"  [yellow]monitor: {st['acting']} acting[/]"
     if st.get("dead"):
@@ -468,7 +470,11 @@ def report(run_dir: Path) -> None:
 
 @cli.command()
 @click.argument("config")
-@click.option("--filters", default="c3bf,hocbf", help="comma-separated: c3bf, hocbf, none (unfiltered)")
+@click.option(
+    "--filters",
+    default="c3bf,hocbf",
+    help="comma-separated: c3bf, hocbf, an installed plugin's name (docs/plugins.md), none (unfiltered)",
+)
 @click.option("--mode", type=click.Choice(["lockstep", "realtime"]))
 @click.option(
     "--realism",
@@ -484,15 +490,18 @@ def report(run_dir: Path) -> None:
 @click.option("--out", type=click.Path(path_type=Path), help="output folder (default runs/compare-<name>-<time>)")
 def compare(config: str, filters: str, mode: str | None, realism: str | None, seeds: int, out: Path | None) -> None:
     """Run one scenario under each filter (in each world) and print the comparison table."""
+    from swarm.plugins import UNFILTERED
+    from swarm.plugins import names as filter_names
     from swarm.realism.settings import PRESETS
-    from swarm.runs.compare import cells, in_world
+    from swarm.runs.compare import cells, in_world, with_filter
     from swarm.runs.compare import compare as run_compare
     from swarm.runs.readable import print_table
 
     names = [f.strip() for f in filters.split(",") if f.strip()]
-    bad = [f for f in names if f not in ("c3bf", "hocbf", "none")]
-    if bad:
-        click.echo(f"--filters: unknown filter(s) {bad}; choose from c3bf, hocbf, none", err=True)
+    known = [*filter_names(), UNFILTERED]
+    bad = [f for f in names if f not in known]
+    if bad or not names:
+        click.echo(f"--filters: unknown filter(s) {bad}; choose from {', '.join(known)}", err=True)
         sys.exit(2)
     worlds = None if realism is None else [w.strip() for w in realism.split(",") if w.strip()]
     if worlds is not None and (not worlds or any(w not in PRESETS for w in worlds)):
@@ -502,6 +511,12 @@ def compare(config: str, filters: str, mode: str | None, realism: str | None, se
     for w in worlds or ():
         try:
             in_world(cfg, w)
+        except ConfigError as exc:
+            click.echo(f"config error: {exc}", err=True)
+            sys.exit(2)
+    for name in names:  # a plugin that cannot be imported, refuses its options or the agents' level
+        try:
+            with_filter(cfg, name)
         except ConfigError as exc:
             click.echo(f"config error: {exc}", err=True)
             sys.exit(2)
@@ -572,7 +587,8 @@ class _SweepProgress:
     "axes",
     multiple=True,
     metavar="NAME=v1,v2,...",
-    help="a knob and its values (repeatable): filter (c3bf, hocbf, none, orca), gamma, gamma_ho, rho, "
+    help="a knob and its values (repeatable): filter (c3bf, hocbf, an installed plugin's name, none, orca), "
+    "gamma, gamma_ho, rho, "
     "sensing_radius_m, horizon_s, buffer_mps, contact_s, tiebreak, seed, obstacle_speed, approach_angle_deg; "
     "for generated scenarios also agents, radius, perturb_m, density",
 )
@@ -791,6 +807,39 @@ def cf_reboot(uri: str) -> None:
 
     _cf_call(lambda: reboot(uri))
     click.echo(f"{uri}: rebooted")
+
+
+@cli.command()
+def plugins() -> None:
+    """List the safety filters (filter.kind), reference controllers (controller.kind) and planners
+    (planner.kind) a config can name (entry-point groups c3swarm.filters, c3swarm.controllers,
+    c3swarm.planners), each checked as a config would check it: imported, its levels and its
+    options (docs/plugins.md)."""
+    from swarm.plugins import CONTROLLERS, FILTERS, PLANNERS, PluginError, plugin_class, registered
+    from swarm.safety.external import levels_of, options_of
+
+    bad = 0
+    for group, title in ((FILTERS, "safety filters"), (CONTROLLERS, "reference controllers"), (PLANNERS, "planners")):
+        try:
+            eps = registered(group)
+        except PluginError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        click.echo(f"{title} ({group}):")
+        for name in sorted(eps):
+            ep = eps[name]
+            dist = getattr(ep.dist, "name", None) or "c3swarm"
+            try:
+                cls = plugin_class(group, name)
+            except PluginError as exc:
+                click.echo(f"  {name}  ({dist}: {ep.value})\n    error: {exc}")
+                bad += 1
+                continue
+            opts = options_of(cls)
+            fields = ", ".join(f"{k}={f.default!r}" for k, f in opts.model_fields.items()) if opts else "none"
+            levels = f"\n    levels: {', '.join(lv.value for lv in levels_of(cls))}" if group == FILTERS else ""
+            click.echo(f"  {name}  ({dist}: {ep.value}){levels}\n    options: {fields}")
+    sys.exit(1 if bad else 0)
 
 
 def main() -> None:

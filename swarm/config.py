@@ -12,7 +12,7 @@ import os
 from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 import yaml
@@ -28,6 +28,9 @@ from swarm.safety.barriers import BarrierKind
 from swarm.safety.filter import FilterConfig
 from swarm.strict import Strict as _Strict
 from swarm.strict import merge as _merge
+
+if TYPE_CHECKING:
+    from swarm.planner import PlanRequest
 
 SCHEMA_VERSION = 1
 
@@ -50,7 +53,14 @@ def _finite(v: Any) -> Any:
 
 
 class FilterSettings(_Strict):
-    kind: BarrierKind = BarrierKind.C3BF
+    # the safety filter: a name registered in the entry-point group c3swarm.filters (swarm.plugins):
+    # the built-in c3bf and hocbf, or an installed plugin's (docs/plugins.md)
+    kind: str = BarrierKind.C3BF.value
+    # a plugin's own options, validated by its Options model (the built-ins' settings are the fields below)
+    options: dict[str, Any] = {}
+    # ms of wall time a plugin's call may take before its command is replaced by the built-in C3BF's
+    # (swarm.safety.external); null: one control period in a realtime run or on a real drone, none in lockstep
+    budget_ms: float | None = Field(None, gt=0, allow_inf_nan=False)
     gamma: float = Field(1.0, gt=0)  # 1/s, class-K gain
     gamma_ho: float = Field(1.0, gt=0)  # m/s, HO-CBF gain
     rho: float = Field(1.0, gt=0, le=1)  # responsibility share of neighbour rows
@@ -82,10 +92,39 @@ class FilterSettings(_Strict):
     # that gives it (swarm.tuning.agreed_accel_mps2); null: the airframe's whole acceleration (the row grows by it)
     delay_growth_m: float | None = Field(0.15, gt=0, le=10, allow_inf_nan=False)
 
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import PluginError, filter_class
+
+        try:
+            filter_class(v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> FilterSettings:
+        from swarm.plugins import PluginError, filter_class, filter_options
+
+        try:
+            filter_options(filter_class(self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+    @property
+    def barrier(self) -> BarrierKind:
+        """The built-in barrier the agent's own QP runs: the filter's, or for a plugin C3BF (its fallback)."""
+        from swarm.plugins import filter_class
+        from swarm.safety.external import barrier_of
+
+        return barrier_of(filter_class(self.kind)) or BarrierKind.C3BF
+
     def filter_config(self, level: CommandLevel) -> FilterConfig:
         return FilterConfig(
             level=level,
-            kind=self.kind,
+            kind=self.barrier,
             gamma=self.gamma,
             gamma_ho=self.gamma_ho,
             rho=self.rho,
@@ -101,6 +140,38 @@ class FilterSettings(_Strict):
             free_braking=self.free_braking,
             ellipsoid=self.ellipsoid,
         )
+
+
+class ControllerSettings(_Strict):
+    """The reference controller: a name registered in the entry-point group c3swarm.controllers
+    (``swarm.plugins``): the built-in path_tracker or an installed plugin's (docs/plugins.md)."""
+
+    kind: str = "path_tracker"
+    options: dict[str, Any] = {}  # a plugin's own options, validated by its Options model
+    # ms of wall time a plugin's call may take before the built-in's reference replaces it
+    # (swarm.reference); null: one control period in a realtime run or on a real drone, none in lockstep
+    budget_ms: float | None = Field(None, gt=0, allow_inf_nan=False)
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import CONTROLLERS, PluginError, plugin_class
+
+        try:
+            plugin_class(CONTROLLERS, v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> ControllerSettings:
+        from swarm.plugins import CONTROLLERS, PluginError, plugin_class, plugin_options
+
+        try:
+            plugin_options(plugin_class(CONTROLLERS, self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
 
 
 class AirframeSettings(_Strict):
@@ -229,7 +300,10 @@ class PlannerConfig(_Strict):
     docs/design.md, "Reference paths"). It shapes the reference only: the filter keeps
     the agent safe whatever the path."""
 
-    kind: Literal["grid", "none"] = "grid"  # grid: planned where the straight path is blocked; none: straight
+    # a name registered in the entry-point group c3swarm.planners (swarm.plugins): the built-in grid (planned
+    # where the straight path is blocked) or none (straight), or an installed plugin's (swarm.planner)
+    kind: str = "grid"
+    options: dict[str, Any] = {}  # a plugin's own options, validated by its Options model
     resolution_m: float = Field(0.1, gt=0, le=1)  # m: the grid's cell
     clearance_m: float = Field(0.1, ge=0, le=2)  # m: kept from obstacles beyond the safety radius
     stall_s: float = Field(4.0, gt=0)  # s: replan from where the agent is after this long without progress
@@ -240,6 +314,27 @@ class PlannerConfig(_Strict):
     # than about this far in time with the horizon allowance (filter.obstacle_horizon_s), stretched by
     # speed_mps / (0.4 m x filter.gamma) where that exceeds 1 (swarm.tuning.obstacle_horizon_s); None: never
     obstacle_horizon_s: float | None = Field(3.0, gt=0, allow_inf_nan=False)
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, v: str) -> str:
+        from swarm.plugins import PLANNERS, PluginError, plugin_class
+
+        try:
+            plugin_class(PLANNERS, v)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return v
+
+    @model_validator(mode="after")
+    def _options(self) -> PlannerConfig:
+        from swarm.plugins import PLANNERS, PluginError, plugin_class, plugin_options
+
+        try:
+            plugin_options(plugin_class(PLANNERS, self.kind), self.options)
+        except PluginError as exc:
+            raise ValueError(str(exc)) from None
+        return self
 
     def settings(self) -> PlannerSettings:
         return PlannerSettings(resolution_m=self.resolution_m, clearance_m=self.clearance_m, lanes=self.lanes)
@@ -257,6 +352,7 @@ class AgentConfig(_Strict):
     yaw_rad: float = 0.0
     command_level: CommandLevel = CommandLevel.ATTITUDE
     filter: FilterSettings = FilterSettings()
+    controller: ControllerSettings = ControllerSettings()  # the reference controller (swarm.reference)
     tiebreak: TiebreakSettings = TiebreakSettings()
     planner: PlannerConfig = PlannerConfig()
     airframe: AirframeSettings = AirframeSettings()
@@ -280,6 +376,30 @@ class AgentConfig(_Strict):
                 if np.any(np.asarray(pt) < lo) or np.any(np.asarray(pt) > hi):
                     raise ValueError(f"{name} {pt} is outside the geofence {list(lo)} .. {list(hi)}")
         return self
+
+    @model_validator(mode="after")
+    def _filter_level(self) -> AgentConfig:
+        from swarm.plugins import filter_class
+        from swarm.safety.external import levels_of
+
+        levels = levels_of(filter_class(self.filter.kind))
+        if self.filter.enabled and self.command_level not in levels:
+            raise ValueError(
+                f"filter.kind: {self.filter.kind} filters the {', '.join(lv.value for lv in levels)} level, "
+                f"not this agent's command_level {self.command_level.value}"
+            )
+        return self
+
+    def plan_request(self) -> PlanRequest:
+        """What its planner is asked (``swarm.planner.PlanRequest``): its configured path from its
+        start, and its planner's kind, options and clearance, its safety radius."""
+        from swarm.planner import PlanRequest
+
+        params = self.airframe.params()
+        return PlanRequest(
+            self.id, self.planner.kind, dict(self.planner.options), params,
+            params.body_radius_m + self.filter.margin_m, self.planner.clearance_m, np.asarray(self.path(), dtype=float),
+        )  # fmt: skip
 
     def quad_params(self) -> QuadParams:
         """The airframe the filter and the world use. A real Crazyflie's thrust-to-weight
@@ -703,6 +823,25 @@ class ScenarioConfig(_Strict):
                             f"agents.{i}.{what}: {a.id} at {p} and {b.id} at {q} are closer than "
                             f"their safety radii ({keep:.3f} m)"
                         )
+        return self
+
+    @model_validator(mode="after")
+    def _plugin_plans(self) -> ScenarioConfig:
+        """Each agent's plugin planner (``swarm.planner``) plans its path now, so that one that
+        raises or gives a path that cannot be flown stops the run before anything flies."""
+        from swarm.planner import PlanError, is_builtin, plugin_path
+        from swarm.planning import StaticObstacles
+        from swarm.plugins import PLANNERS, plugin_class
+
+        still = None
+        for i, a in enumerate(self.agents):
+            if is_builtin(plugin_class(PLANNERS, a.planner.kind)):
+                continue
+            still = still or StaticObstacles.of(list(self.obstacles))
+            try:
+                plugin_path(a.plan_request(), still)
+            except PlanError as exc:
+                raise ValueError(f"agents.{i}.planner.kind: {exc}") from None
         return self
 
     @model_validator(mode="after")

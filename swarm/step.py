@@ -34,8 +34,10 @@ from swarm.control import (
 )
 from swarm.model import CommandLevel, QuadModel, QuadState, body_centre
 from swarm.realism.sensing import ATTITUDE_COAST_S, Estimator, EstimatorParams, MocapFrame
+from swarm.reference import ContainedController, ControllerInput
 from swarm.rotation import E3, FloatArray, norm, quat_to_R
 from swarm.route import Route, follows
+from swarm.safety.external import ContainedFilter, FilterInput, Rows
 from swarm.safety.filter import FilterConfig, FilterResult, FilterStatus, SafetyFilter
 from swarm.safety.monitor import CLEAR, Action, MonitorParams, Readings, SafetyMonitor, Verdict
 from swarm.safety.obstacles import NamedObstacles, ObstacleArrays
@@ -76,6 +78,13 @@ class Sensing(NamedTuple):
 
 EXACT = Sensing()
 """An agent that acts on the exact state it is given, at once."""
+
+
+def _frozen(a: FloatArray) -> FloatArray:
+    """A read-only copy of ``a`` (what a plugin is handed)."""
+    out = np.array(a, dtype=float)
+    out.flags.writeable = False
+    return out
 
 
 class _Sensed(NamedTuple):
@@ -119,6 +128,10 @@ class StepResult:
     # s: the state to publish (x_b_w, v_b_w, sd) is the one predicted for this long after the tick, when the
     # command acts (a delay-aware agent's, ``publish_ahead``); 0: the state at the tick
     ahead_s: float = 0.0
+    fallback: str = ""  # a plugin filter's command replaced at this step, why (swarm.safety.external.Fallback); ""
+    fallbacks: int = 0  # steps so far whose plugin filter's command was replaced by the built-in safe command
+    controller_fallback: str = ""  # a reference controller plugin's replaced at this step, why; ""
+    controller_fallbacks: int = 0  # steps so far whose controller plugin's reference was replaced by the tracker's
 
     @property
     def intervention(self) -> float:
@@ -156,6 +169,8 @@ class AgentStep:
         landing: bool = False,
         sensing: Sensing = EXACT,
         monitor: MonitorParams | None = None,
+        plugin: ContainedFilter | None = None,
+        controller: ContainedController | None = None,
     ) -> None:
         """``goal_w`` (3,) [m, world] (default: the tracker's last waypoint); ``route`` replans
         and gives way on the tracker's path; ``tiebreak`` (trigger [m], speed [m/s]) or None;
@@ -165,8 +180,12 @@ class AgentStep:
         observer, deviations and whether it publishes its state ahead); with an estimator or a
         deviation every row grows by the live noise margin (``swarm.tuning.live_margin_m``) of the
         agent's deviation now and the one the row's state carries. ``monitor``: the safety
-        monitor's parameters (None: no monitor)."""
+        monitor's parameters (None: no monitor). ``plugin``: a safety filter plugin
+        (``swarm.safety.external``) flown in place of the C3BF-QP of ``config``, which is its
+        fallback; ``controller``: a reference controller plugin (``swarm.reference``) whose
+        reference replaces the path tracker's on a mission's ticks."""
         self.model, self.config, self.level = model, config, config.level
+        self.plugin, self.controller = plugin, controller
         self.tracker, self.route, self.tiebreak = tracker, route, tiebreak
         self.filtered, self.yaw_rad, self.goal_tolerance_m = filtered, yaw_rad, goal_tolerance_m
         self.goal_w = np.asarray(tracker.goal_w if goal_w is None else goal_w, dtype=float)
@@ -273,13 +292,32 @@ class AgentStep:
         else:
             others_v = nb.c_dot_w if self._follows else None  # a lane's queue is followed
             F_ref = reference_thrust(model, tracker, state.x_w, state.v_w, x_b, nb.c_w, self.tiebreak, others_v)
+            if self.controller is not None and tracker is self.tracker and airborne and not landing:
+                F_ref = self.controller.run(
+                    ControllerInput(
+                        t_s, state.copy(), x_b.copy(), v_b.copy(), _frozen(tracker.W), self.goal_w.copy(),
+                        Rows.of(obs, obstacles), Rows.of(nb, neighbours), F_ref,
+                    )
+                )  # fmt: skip
         u_ref = self.att.from_thrust_vector(state, F_ref, self.yaw_rad) if level is CommandLevel.ROTORS else F_ref
         res: FilterResult | None = None
         row_ids: list[str] = []
+        if self.plugin is not None:
+            self.plugin.last = ""
         if self.filtered:
             rows = ObstacleArrays.concat([obs, nb]) if len(obs) else nb
             filt = self.filt_land if landing and self.filt_land is not None else self.filt
-            res = filt.filter(state, u_ref, rows)
+            if self.plugin is None:
+                res = filt.filter(state, u_ref, rows)
+            else:
+                res = self.plugin.run(
+                    FilterInput(
+                        t_s, state.copy(), x_b.copy(), v_b.copy(), sensed.sd_m, u_ref.copy(),
+                        Rows.of(obs, obstacles), Rows.of(nb, neighbours), self.goal_w.copy(),
+                    ),
+                    lambda: filt.filter(state, u_ref, rows),
+                    lambda: self._brake(state),
+                )  # fmt: skip
             names = obstacles.ids + neighbours.ids
             row_ids = [names[i] for i in res.row_index.tolist()]
             u, status = res.u, res.status
@@ -322,6 +360,10 @@ class AgentStep:
             verdict=verdict,
             live_margin_m=live_m,
             ahead_s=self.lead_s if self.publish_ahead else 0.0,
+            fallback="" if self.plugin is None or res is None else self.plugin.last,
+            fallbacks=0 if self.plugin is None else self.plugin.fallbacks,
+            controller_fallback="" if self.controller is None else self.controller.last,
+            controller_fallbacks=0 if self.controller is None else self.controller.fallbacks,
         )
 
     def _sense(self, t_s: float, state: QuadState, frames: list[MocapFrame] | None, airborne: bool) -> _Sensed:
@@ -495,6 +537,17 @@ class AgentStep:
         """Forget the running tallies (after a warm-up call)."""
         self.min_h, self.infeasible, self.arrived = math.inf, 0, False
         self.solo = not self.filtered
+        if self.plugin is not None:
+            self.plugin.reset()
+        if self.controller is not None:
+            self.controller.reset()
+
+    def _brake(self, state: QuadState) -> FloatArray:
+        """A command of the level that brakes to a hover where the drone is (a plugin's last resort)."""
+        F = self.tracker.thrust_vector(self.model, state.x_w, state.v_w, np.zeros(3))
+        u = self.att.from_thrust_vector(state, F, self.yaw_rad) if self.level is CommandLevel.ROTORS else F
+        ins = self.filt.input_set
+        return np.clip(u, ins.lb, ins.ub)
 
     def warm_up(self, start_w: FloatArray) -> None:
         """Load every compiled path of the step now: one step at rest at ``start_w`` [m, world],

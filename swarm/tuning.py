@@ -123,10 +123,21 @@ def delay_speed_mps(
     ``a`` over its row's expected age ``A`` (:func:`expected_ages`): no faster than what its
     neighbours may not yet know of, so a neighbour's velocity error is no larger than the agent's
     own speed (``2 delay_growth_m / A``; docs/design.md, "Delay")."""
+    limit = agreed_speed_mps(accel_mps2, realism, control_hz)
+    return speed_mps if limit is None else min(speed_mps, limit)
+
+
+def agreed_speed_mps(
+    accel_mps2: float | None, realism: RealismSettings | None, control_hz: float | None
+) -> float | None:
+    """The speed [m/s] every agent keeps within where the swarm's delay contract binds (its
+    agreed acceleration ``accel_mps2``; None: it does not, and no limit): ``a A``, what a
+    neighbour can gain at the agreed acceleration over its row's expected age ``A``
+    (:func:`expected_ages`), kept by the filter's speed row (``FilterConfig.speed_limit_mps``)
+    and by the cruise speed (:func:`delay_speed_mps`)."""
     if accel_mps2 is None:
-        return speed_mps
-    age = expected_ages(realism, control_hz).neighbour_s
-    return min(speed_mps, accel_mps2 * age)
+        return None
+    return accel_mps2 * expected_ages(realism, control_hz).neighbour_s
 
 
 class ExpectedAges(NamedTuple):
@@ -262,6 +273,7 @@ def filter_config_for(
     obstacle_horizon: float | None,
     route: Route | None = None,
     accel_limit_mps2: float | None = None,
+    speed_limit_mps: float | None = None,
 ) -> FilterConfig:
     """The agent's filter settings: its configured ones ``base`` (at its command level), with its
     obstacle horizon ``obstacle_horizon`` [s] (:func:`obstacle_horizon_s`); with ``route`` (from
@@ -272,10 +284,11 @@ def filter_config_for(
     (docs/design.md, "Reference paths"). The estimates' noise is not in the margin: each row grows
     by it live (:func:`live_margin_m`, ``swarm.step``). At the attitude level its command keeps
     within ``accel_limit_mps2`` [m/s^2], the swarm's agreed acceleration in a world with delays
-    (:func:`agreed_accel_mps2`, ``filter.delay_growth_m``; None: the airframe's)."""
+    (:func:`agreed_accel_mps2`, ``filter.delay_growth_m``; None: the airframe's) and its speed
+    within ``speed_limit_mps`` [m/s] (:func:`agreed_speed_mps`; None: no limit)."""
     cfg = replace(base, obstacle_horizon_s=obstacle_horizon)
     if cfg.level is CommandLevel.ATTITUDE:
-        cfg = replace(cfg, accel_limit_mps2=accel_limit_mps2)
+        cfg = replace(cfg, accel_limit_mps2=accel_limit_mps2, speed_limit_mps=speed_limit_mps)
     if route is not None and route.lanes:
         cfg = replace(cfg, contact_s=max(cfg.contact_s, LANE_CONTACT_S), buffer_mps=0.0)
     return cfg

@@ -65,10 +65,14 @@ def main() -> int:
         infeasible=0,
         goal_reached=True,
         dropped=0,
-        est=np.zeros(0),  # (the world reads the monitor's action for its status; a command carries all of v10)
+        est=np.zeros(0),  # (the world reads the monitor's action for its status; a command carries all of v11)
         monitor=0,
         breaches=0,
         live_margin=0.0,
+        fallback="",
+        fallbacks=0,
+        ctrl_fallback="",
+        ctrl_fallbacks=0,
     )
     # its commands numbered as an agent numbers them (2, 4, ...: a state before each), its
     # states apart: what the recording holds of it stays whole however it floods

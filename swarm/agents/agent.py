@@ -73,6 +73,10 @@ def command_body(result: StepResult) -> CommandBody:
         int(result.verdict.action),
         int(result.verdict.breaches),
         result.live_margin_m,
+        result.fallback,
+        result.fallbacks,
+        result.controller_fallback,
+        result.controller_fallbacks,
     )
 
 

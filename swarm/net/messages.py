@@ -25,7 +25,7 @@ from swarm.model import all_finite
 from swarm.net import statewire
 from swarm.realism.sensing import MocapFrame
 
-VERSION = 10
+VERSION = 11
 """The schema version every message carries; a message of another is dropped and counted
 (what each version added: docs/design.md, "Processes and messages")."""
 
@@ -61,6 +61,14 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "monitor": "i",
         "breaches": "i",
         "live_margin": "f",
+        # a safety filter plugin (swarm.safety.external): why its command was replaced by the built-in
+        # safe command at this tick ("" none: raised, non_finite, out_of_limits, overrun, failed), and
+        # the ticks so far it was
+        "fallback": "s",
+        "fallbacks": "i",
+        # the same of a reference controller plugin (swarm.reference), replaced by the path tracker's reference
+        "ctrl_fallback": "s",
+        "ctrl_fallbacks": "i",
     },
     # world -> one simulated agent with neighbours by cells (key world/<id>/tick): its
     # measurement, the obstacles, the live agents within its near radius (the states tick k
@@ -93,6 +101,9 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "stalls": "i",
         "dead": "ls",
         "acting": "i",
+        # the agents whose safety filter plugin has had its command replaced, and how many ticks each
+        "fallback_ids": "ls",
+        "fallback_ticks": "vf",
     },
     # a contact that began at this tick; dead: one of the two is a dead agent's drone (landing,
     # or left to the firmware), counted apart from collisions among live agents
@@ -184,6 +195,10 @@ class CommandBody:
     monitor: int = 0  # the safety monitor's action (swarm.safety.monitor.Action)
     breaches: int = 0  # the checks that breached (swarm.safety.monitor.Breach bits)
     live_margin: float = 0.0  # m: the largest live noise margin of a row
+    fallback: str = ""  # a plugin filter's command replaced at this tick, why (swarm.safety.external.Fallback)
+    fallbacks: int = 0  # ticks so far its command was replaced
+    ctrl_fallback: str = ""  # a reference controller plugin's reference replaced at this tick, why
+    ctrl_fallbacks: int = 0  # ticks so far its reference was replaced
 
     @staticmethod
     def zero(level: str = "attitude") -> CommandBody:
@@ -206,6 +221,10 @@ class CommandBody:
             "monitor": self.monitor,
             "breaches": self.breaches,
             "live_margin": self.live_margin,
+            "fallback": self.fallback,
+            "fallbacks": self.fallbacks,
+            "ctrl_fallback": self.ctrl_fallback,
+            "ctrl_fallbacks": self.ctrl_fallbacks,
         }
 
 
@@ -551,6 +570,14 @@ FIELD_DOCS: dict[str, str] = {
     "256 tick_overrun",
     "live_margin": "the largest extra radius a filter row kept for the estimates' noise this tick [m]",
     "sd": "the standard deviations of the state's position [m] and velocity [m/s] (its estimate's, largest axis)",
+    "fallback": "why the safety filter plugin's command was replaced by the built-in safe command this tick: "
+    "raised, non_finite, out_of_limits, overrun, failed (empty: not replaced; swarm.safety.external)",
+    "fallbacks": "ticks so far the safety filter plugin's command was replaced by the built-in safe command",
+    "ctrl_fallback": "why the reference controller plugin's reference was replaced by the path tracker's this "
+    "tick: raised, non_finite, out_of_limits, overrun (empty: not replaced; swarm.reference)",
+    "ctrl_fallbacks": "ticks so far the reference controller plugin's reference was replaced by the path tracker's",
+    "fallback_ids": "agents whose safety filter or reference controller plugin has been replaced by the built-in",
+    "fallback_ticks": "per agent of fallback_ids, the ticks so far its plugins' commands were replaced (both counted)",
 }
 _ITEM_SCHEMA = {
     "type": "object",

@@ -39,7 +39,7 @@ from swarm.errors import DecodeError
 if TYPE_CHECKING:
     from swarm.config import ScenarioConfig
 
-VERSION = 10  # the message schema version (swarm.net.messages.VERSION) these records belong to
+VERSION = 11  # the message schema version (swarm.net.messages.VERSION) these records belong to
 STATE_MAGIC = b"C3S"
 BUNDLE_MAGIC = b"C3B"
 ID_BYTES = 32  # agent ids are at most 32 ASCII characters (swarm.config)

@@ -143,6 +143,8 @@ class SwarmLog:
     own_sd_m: FloatArray | None = None  # (T, N) m: each estimate's largest axis position deviation
     live_margin_m: FloatArray | None = None  # (T, N) m: the largest live noise margin of a row
     unguarded_ticks: int = 0  # agent ticks an estimate's error exceeded its live bound with the monitor not acting
+    fallbacks: list[int] = field(default_factory=list)  # per agent: ticks its filter plugin's command was replaced
+    controller_fallbacks: list[int] = field(default_factory=list)  # per agent: its controller plugin's, replaced
     replans: list[int] = field(default_factory=list)  # per agent: the new paths its route planned (0 without one)
 
     def action_ticks(self, action: Action) -> int:
@@ -296,6 +298,8 @@ def fly_scenario(cfg: ScenarioConfig, occlusions: Sequence[tuple[int, float, flo
         live_margin_m=np.array(log_live),
         unguarded_ticks=unguarded,
         replans=[0 if s.route is None else s.route.replans for s in steps],
+        fallbacks=[0 if s.plugin is None else s.plugin.fallbacks for s in steps],
+        controller_fallbacks=[0 if s.controller is None else s.controller.fallbacks for s in steps],
     )
 
 

@@ -26,6 +26,11 @@ Safety figures, all from the measured (ground-truth) states:
   smallest scaled distance ``|S (x_j - x_i)| / r_xy`` of any pair (below 1 inside;
   :func:`swarm.safety.barriers.scaled_distance`), whatever the filter keeps;
 * ``infeasible_ticks``: ticks whose filter call was not a clean solve (every status but OK);
+* per agent ``plugin_fallbacks``: the ticks a safety filter plugin's command was replaced by the
+  built-in safe command, by reason (``swarm.safety.external.Fallback``) and in all (``total``), and
+  ``controller_fallbacks`` the same of a reference controller plugin (``swarm.reference``);
+  run-level ``plugin_fallbacks``: both totals of every agent summed, and ``fallback_agents``: the
+  agents with any;
 * ``deadlock_at_s`` (:func:`deadlock_at`): an agent that never reached its goal and
   stalled short of it; the same definition for every method.
 
@@ -64,6 +69,7 @@ from swarm.net.messages import measurement_agent
 from swarm.planning import StaticObstacles
 from swarm.realism.comms import LOST, MessageKind
 from swarm.safety.barriers import cone_h, horizon_allowance, keep_out_frame, scaled_distance
+from swarm.safety.external import FALLBACK_NAMES
 from swarm.safety.monitor import BREACH_NAMES, Action
 from swarm.safety.obstacles import ObstacleArrays
 
@@ -389,6 +395,8 @@ def compute(
     solve_us: dict[str, array] = defaultdict(lambda: array("d"))
     estimates: dict[str, array] = defaultdict(lambda: array("d"))  # per agent: k, x (3) [m] (world.realism.sensing)
     monitors: dict[str, MonitorFigures] = defaultdict(MonitorFigures)  # per agent: its safety monitor's figures
+    fallbacks: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(FALLBACK_NAMES, 0))  # per agent, reason
+    ctrl_fallbacks: dict[str, dict[str, int]] = defaultdict(lambda: dict.fromkeys(FALLBACK_NAMES, 0))
     final: dict[str, Any] = {}  # the last status
     live_ever: set[str] = set()
     collisions: list[dict[str, Any]] = []  # among live agents' drones and obstacles
@@ -422,6 +430,11 @@ def compute(
             min_row_h[r["src"]] = min(min_row_h[r["src"]], r["min_h"])
             solve_us[r["src"]].append(r["solve_us"])
             monitors[r["src"]].see(r)
+            for key, counts in (("fallback", fallbacks), ("ctrl_fallback", ctrl_fallbacks)):
+                why = r.get(key)
+                if why:
+                    fb = counts[r["src"]]
+                    fb[why] = fb.get(why, 0) + 1
             if len(r.get("est", ())) in (6, 9):  # x, v (and since v10 the deviations and age)
                 estimates[r["src"]].extend((int(r["k"]), *(float(e) for e in r["est"][:3])))
         elif kind == "status":
@@ -463,6 +476,14 @@ def compute(
             **bar.agent(index[a.id]),
             "min_row_h": _finite_or_none(min_row_h[a.id]),
             "infeasible_ticks": int(st.get("infeasible", 0)),
+            "plugin_fallbacks": {
+                **fallbacks.get(a.id, dict.fromkeys(FALLBACK_NAMES, 0)),
+                "total": max(int(st.get("fallbacks", 0)), sum(fallbacks.get(a.id, {}).values())),
+            },
+            "controller_fallbacks": {
+                **ctrl_fallbacks.get(a.id, dict.fromkeys(FALLBACK_NAMES, 0)),
+                "total": max(int(st.get("ctrl_fallbacks", 0)), sum(ctrl_fallbacks.get(a.id, {}).values())),
+            },
             "dropped_messages": int(st.get("dropped", 0)),
             "last_tick": int(ks[-1]) if len(ks) else None,
             "deadlock_at_s": stuck,
@@ -519,6 +540,12 @@ def compute(
         ),
         "monitor": _monitor_totals(agents),
         "orders": orders.rows,
+        "plugin_fallbacks": sum(
+            v["plugin_fallbacks"]["total"] + v["controller_fallbacks"]["total"] for v in agents.values()
+        ),
+        "fallback_agents": sorted(
+            k for k, v in agents.items() if v["plugin_fallbacks"]["total"] or v["controller_fallbacks"]["total"]
+        ),
         "agents": agents,
     }
 

@@ -2,7 +2,8 @@
 under several safety filters, in one world or side by side in several.
 
 Each filter runs the whole scenario as real processes (every agent switched to that
-barrier; ``none`` flies the reference controller unfiltered), in each world asked
+filter: a built-in barrier or an installed plugin, ``swarm.plugins``; ``none`` flies the
+reference controller unfiltered), in each world asked
 (``world.realism``'s presets; none asked: the config's own). The table, printed and saved
 as ``compare.md`` and ``compare.json`` in the output folder, has per filter (and world): collisions,
 closest approach of a body centre to an obstacle surface, closest approach between
@@ -17,10 +18,10 @@ from pathlib import Path
 from typing import Any
 
 from swarm.config import ScenarioConfig, resolve
+from swarm.plugins import BUILTIN, FILTERS, UNFILTERED
 from swarm.runs.launch import RunHandle
 from swarm.runs.point import summarise
 from swarm.runs.readable import fig, markdown_table, notes
-from swarm.safety.barriers import BarrierKind
 from swarm.strict import merge
 
 COLUMNS = (
@@ -35,20 +36,26 @@ COLUMNS = (
     ("max_time_to_goal_s", "latest time to goal [s]"),
     ("max_path_deviation_m", "largest path deviation [m]"),
     ("infeasible_ticks", "infeasible ticks"),
+    ("plugin_fallbacks", "plugin fallbacks"),
     ("all_reached_goal", "all reached goal"),
 )
 
 
 def with_filter(cfg: ScenarioConfig, name: str) -> ScenarioConfig:
-    """The scenario with every agent on barrier ``name`` (``none``: unfiltered)."""
-    agents = []
-    for a in cfg.agents:
-        update: dict[str, Any] = {"enabled": name != "none"}
-        if name != "none":
-            update["kind"] = BarrierKind(name)
-        f = a.filter.model_copy(update=update)
-        agents.append(a.model_copy(update={"filter": f}))
-    return cfg.model_copy(update={"agents": agents})
+    """The scenario with every agent on filter ``name`` (a name registered in
+    ``c3swarm.filters``; ``none``: unfiltered), validated again: an unknown name, a plugin that
+    cannot be imported or one that does not filter an agent's command level raise
+    :class:`ConfigError`. An agent keeps its ``filter.options`` where it already flies ``name``."""
+    if name == "none":
+        agents = [a.model_copy(update={"filter": a.filter.model_copy(update={"enabled": False})}) for a in cfg.agents]
+        return cfg.model_copy(update={"agents": agents})
+    raw = cfg.model_dump(mode="json")
+    for a in raw["agents"]:
+        f = a["filter"]
+        if f["kind"] != name:
+            f["options"] = {}
+        f.update(kind=name, enabled=True)
+    return resolve(raw, f"{cfg.name} with filter {name}")
 
 
 def in_world(cfg: ScenarioConfig, realism: str) -> ScenarioConfig:
@@ -115,9 +122,15 @@ def _fmt(v: Any, key: str = "") -> str:
 
 
 def columns(rows: list[dict[str, Any]]) -> tuple[tuple[str, str], ...]:
-    """The table's columns: the world's only where a row names one, the seeds' where rows
+    """The table's columns: the world's only where a row names one, the plugin fallbacks' only
+    where a row flies a plugin (not c3swarm's own filters) or counts one, the seeds' where rows
     hold several."""
-    cols = tuple(c for c in COLUMNS if c[0] != "world" or any(r.get("world") for r in rows))
+    own = {*BUILTIN[FILTERS], UNFILTERED, "orca"}
+    show = {
+        "world": any(r.get("world") for r in rows),
+        "plugin_fallbacks": any(r.get("filter") not in own or r.get("plugin_fallbacks") for r in rows),
+    }
+    cols = tuple(c for c in COLUMNS if show.get(c[0], True))
     if any(r.get("seeds") for r in rows):
         at = 2 if cols[0][0] == "world" else 1  # after the world and the filter
         cols = (*cols[:at], ("seeds", "seeds"), *cols[at:])

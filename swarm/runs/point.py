@@ -41,6 +41,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         "infeasible_ticks": None
         if any(a["infeasible_ticks"] is None for a in agents)
         else sum(a["infeasible_ticks"] for a in agents),  # None: not a measure of the method (ORCA)
+        "plugin_fallbacks": metrics.get("plugin_fallbacks"),  # a plugin filter's ticks on the built-in fallback
         "deadlock": int(bool(metrics.get("deadlocked_agents"))),
         "deadlocked_agents": len(metrics.get("deadlocked_agents", [])),
         "solve_us_mean": float(np.mean(solve)) if solve else None,

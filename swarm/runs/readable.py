@@ -38,6 +38,8 @@ MEANINGS: dict[str, str] = {
     "max_path_deviation_m": "largest distance of any drone from its reference path [m]",
     "infeasible_ticks": "agent ticks whose filter QP had no clean solution (the fallback command flew)",
     "all_reached_goal": "every agent came within goal_tolerance_m of its goal",
+    "plugin_fallbacks": "agent ticks a plugin's command (filter's or controller's) was replaced by the built-in's "
+    "(it raised, was not finite, left the limits or overran its budget: docs/plugins.md)",
     "duration_s": "sim time the run lasted [s]",
     "real_time_factor": "sim time over wall time (above 1: faster than real time)",
     "late_ticks": "agent ticks whose command came after the world's deadline (it kept the last one)",

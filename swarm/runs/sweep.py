@@ -9,8 +9,9 @@ first numeric axis with one line per combination of the other axes (seeds averag
 
 Knobs (the config's names; units in brackets):
 
-* ``filter``: every agent's safety filter: ``c3bf``, ``hocbf`` or ``none`` (unfiltered),
-  or ``orca``: the ORCA baseline (``swarm/offline/orca.py``) instead of the swarm.
+* ``filter``: every agent's safety filter: ``c3bf``, ``hocbf``, an installed plugin's name
+  (``swarm.plugins``, docs/plugins.md) or ``none`` (unfiltered), or ``orca``: the ORCA baseline
+  (``swarm/offline/orca.py``) instead of the swarm.
 * ``gamma`` [1/s], ``gamma_ho`` [m/s] (the HO-CBF gain), ``rho`` (responsibility share),
   ``sensing_radius_m`` [m] (neighbours farther away get no row), ``horizon_s`` [s] (the live
   rows' horizon allowance, ``swarm.safety.barriers``; ``none``: the cone alone), ``buffer_mps``
@@ -76,15 +77,23 @@ def _each_filter(field: str, convert: Callable[[str, str], Any]) -> Knob:
 
 
 def _filter_kind(raw: Raw, value: str) -> Raw:
-    if value not in ("c3bf", "hocbf", "none", "orca"):
-        raise ConfigError(f"--axis filter: {value!r} is not one of c3bf, hocbf, none, orca")
+    from swarm.plugins import UNFILTERED, names
+
+    known = [*names(), UNFILTERED, "orca"]
+    if value not in known:
+        raise ConfigError(f"--axis filter: {value!r} is not one of {', '.join(known)}")
     if value == "orca":
         raw["_method"] = "orca"
         return raw
+    layers = [raw.get("defaults") or {}, *(raw.get("agent_types") or {}).values(), *raw["agents"]]
+    kinds = {(layer.get("filter") or {}).get("kind") for layer in layers} - {None}
+    if value != UNFILTERED and kinds - {value}:  # another filter's options are not this one's
+        for layer in layers:
+            (layer.get("filter") or {}).pop("options", None)
     for a in raw["agents"]:
         f = a.setdefault("filter", {})
-        f["enabled"] = value != "none"
-        if value != "none":
+        f["enabled"] = value != UNFILTERED
+        if value != UNFILTERED:
             f["kind"] = value
     return raw
 

@@ -232,6 +232,10 @@ def _prepare(check, x, v, q, Om, u_ref, obs, settings, inputs):
     )
 
 
+SPEED_GAIN_PER_S = 2.0
+"""Class-K gain [1/s] of the speed row (``FilterConfig.speed_limit_mps``)."""
+
+
 def _is_vector(a: object) -> bool:
     """A 1-D float64 numpy array (what the compiled checks take as they are)."""
     return type(a) is np.ndarray and a.dtype == np.float64 and a.ndim == 1
@@ -326,6 +330,11 @@ class FilterConfig:
     ask (``|a_xy|`` and ``|a_z|`` each at most this over sqrt 2, so ``|a|`` at most this): the
     bound a swarm's agents agree on, over which each extrapolates the others' states across the
     loop's delay (``swarm.tuning.agreed_accel_mps2``); None: the airframe's input set alone."""
+    speed_limit_mps: float | None = None
+    """Attitude level: the speed [m/s] the agent keeps within, one more input row, the CBF
+    ``h_v = V^2 - |v|^2`` with ``h_v' + SPEED_GAIN_PER_S h_v >= 0`` (``h_v' = -2 <v, F / m - g
+    e3>``), its right-hand side never below braking at half ``accel_limit_mps2`` (so the set is
+    never empty): a swarm's delay contract (``swarm.tuning.agreed_speed_mps``). None: no row."""
     ellipsoid: bool = True
     """Rows of other drones keep the keep-out ellipsoid of the airframe
     (``QuadParams.keep_out_xy_m``, ``keep_out_z_m``: Crazyswarm's 0.12 m across and 0.30 m up and
@@ -408,6 +417,15 @@ class SafetyFilter:
             self.input_set = thrust_vector_input_set(model.params, accel_limit_mps2=cfg.accel_limit_mps2)
         self.m = self.input_set.lb.shape[0]
         self.r_own_m = model.params.body_radius_m + cfg.margin_m
+        self._speed_row: int | None = None
+        if cfg.speed_limit_mps is not None and cfg.level is CommandLevel.ATTITUDE:  # one more row, refilled every call
+            if not (math.isfinite(cfg.speed_limit_mps) and cfg.speed_limit_mps > 0.0):
+                raise InputError(f"FilterConfig.speed_limit_mps: must be finite and > 0, got {cfg.speed_limit_mps!r}")
+            ins = self.input_set
+            self._speed_row = ins.d.shape[0]
+            self.input_set = LinearInputSet(
+                ins.lb, ins.ub, np.vstack([ins.C, np.zeros((1, self.m))]), np.append(ins.d, np.inf)
+            )
         ins = self.input_set
         if cfg.floor_z_m is not None:  # the floor: one more input row, refilled every call
             self._floor_set = LinearInputSet(
@@ -497,6 +515,8 @@ class SafetyFilter:
             state = state.validated()  # not float64 vectors: checked and converted, or the field named
             u_ref = check_finite("u_ref", u_ref, (m,))
         ins = self.input_set if cfg.floor_z_m is None else self._floor_set
+        if self._speed_row is not None:
+            self._fill_speed_row(ins, state.v_w)
         prep = _prepare(
             validate,
             state.x_w,
@@ -555,6 +575,22 @@ class SafetyFilter:
             return self._result(call, u, u_ref, st, slack)
         u = np.clip(u_ref, ins.lb, ins.ub)
         return self._result(call, u, u_ref, FilterStatus.FAILED, np.maximum(G @ u - b, 0.0))
+
+    def _fill_speed_row(self, ins: LinearInputSet, v_w: FloatArray) -> None:
+        """The speed row of ``ins`` (``FilterConfig.speed_limit_mps``) for the velocity ``v_w``
+        [m/s, world], in place: ``<v, F> <= m g v_z + m k (V^2 - |v|^2) / 2`` (``k`` =
+        :data:`SPEED_GAIN_PER_S`), and never below ``m g v_z - m a |v| / 4`` with ``a`` the
+        acceleration limit (braking along ``-v`` at half of what each axis may give)."""
+        p, cfg = self.model.params, self.config
+        j = self._speed_row
+        assert j is not None and cfg.speed_limit_mps is not None
+        v = np.asarray(v_w, dtype=float)
+        speed2 = float(v @ v)
+        mg_vz = p.mass_kg * p.g_mps2 * float(v[2])
+        rhs = mg_vz + 0.5 * p.mass_kg * SPEED_GAIN_PER_S * (cfg.speed_limit_mps**2 - speed2)
+        a = cfg.accel_limit_mps2 if cfg.accel_limit_mps2 is not None else p.g_mps2
+        ins.C[j] = v
+        ins.d[j] = max(rhs, mg_vz - 0.25 * p.mass_kg * a * math.sqrt(speed2))
 
     def _solve(self, problem: QPProblem) -> QPSolution:
         """The QP by the configured backend, retried once by daqp if it failed numerically."""

@@ -72,6 +72,7 @@ class AgentSlot:
     infeasible: int = 0  # commands the agent's filter marked infeasible (or failed)
     solo: bool = False  # not doing its share of a pair's avoidance (unfiltered, or its last command not "ok")
     monitor: int = 0  # its safety monitor's action in its newest command (swarm.safety.monitor.Action)
+    fallbacks: int = 0  # ticks its plugins' (filter's, controller's) commands were replaced, as its newest says
     behind: bool = False  # lockstep: let a tick time out; not waited for until it answers again
 
 
@@ -83,7 +84,7 @@ def monitor_acting(slots: Iterable[AgentSlot]) -> int:
 
 STATUS_HZ = 10.0  # rate of the world's status messages [Hz]
 # what the world reads of a command (the report is the recorder's): its monitor's action for the status
-COMMAND_FIELDS = ("level", "u", "status", "monitor")
+COMMAND_FIELDS = ("level", "u", "status", "monitor", "fallbacks", "ctrl_fallbacks")
 
 
 @dataclass
@@ -215,6 +216,7 @@ class World:
         slot.solo = m["status"] != "ok"
         if m.k >= slot.command_k:
             slot.monitor = m["monitor"]
+            slot.fallbacks = m["fallbacks"] + m["ctrl_fallbacks"]
         if m.src in self.real:  # a real drone's command went to it by radio: recorded, not flown
             slot.command_k = max(slot.command_k, m.k)
             return
@@ -373,6 +375,8 @@ class World:
                 stalls=c.stalls,
                 dead=[a for a in names if slots[a].dead],
                 acting=monitor_acting(slots.values()),
+                fallback_ids=[a for a in names if slots[a].fallbacks],
+                fallback_ticks=[float(slots[a].fallbacks) for a in names if slots[a].fallbacks],
             )
         solo = [a for a in names if slots[a].solo or slots[a].dead or a in self.unfiltered]
         self._put(

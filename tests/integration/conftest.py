@@ -15,6 +15,10 @@ from swarm.config import ScenarioConfig, load
 from swarm.runs.launch import RunHandle
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+PLUGIN_SOURCES = (
+    Path(__file__).resolve().parents[2] / "examples" / "vo_filter",  # c3swarm_vo.vo
+    Path(__file__).resolve().parents[1] / "data" / "plugins" / "c3swarm_faulty",  # faulty.*
+)
 
 
 def scenario(file: str, **over: object) -> ScenarioConfig:
@@ -102,3 +106,47 @@ def cf2() -> Path:
     if os.environ.get("C3SWARM_CI"):
         pytest.fail(f"{why} (.ci/run should have built it)")
     pytest.skip(why)
+
+
+def install_plugins(target: Path) -> None:
+    """Install the example plugin and the faulty ones into ``target`` as a user installs a
+    package (pip, no dependencies), from copies (the build leaves nothing in the checkout). With
+    setuptools and ``wheel`` in the environment (the dev extra) the build is offline, with them;
+    without, pip builds in isolation from the configured index."""
+    import importlib.util
+    import shutil
+    import subprocess
+    import sys
+
+    srcs = []
+    for src in PLUGIN_SOURCES:
+        copy = target.parent / f"src-{src.name}"
+        shutil.copytree(src, copy, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+        srcs.append(str(copy))
+    have = all(importlib.util.find_spec(m) is not None for m in ("setuptools", "wheel"))
+    offline = ["--no-build-isolation"] if have else []
+    cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", *offline, "--target", str(target), *srcs]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, f"installing the plugins failed:\n{res.stdout}\n{res.stderr}"
+
+
+@pytest.fixture(scope="session")
+def plugins(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """The example plugin (``c3swarm_vo.vo``) and the faulty ones (``faulty.*``) installed into a
+    folder on this process's path and on every process it starts (``PYTHONPATH``); the folder."""
+    import os
+    import sys
+
+    target = tmp_path_factory.mktemp("plugins") / "site"
+    install_plugins(target)
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join([*([old] if old else []), str(target)])
+    sys.path.append(str(target))
+    try:
+        yield target
+    finally:
+        sys.path.remove(str(target))
+        if old is None:
+            os.environ.pop("PYTHONPATH", None)
+        else:
+            os.environ["PYTHONPATH"] = old

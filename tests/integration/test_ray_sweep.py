@@ -49,9 +49,9 @@ def _free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def ray_cluster() -> Iterator[str]:
+def ray_cluster(plugins: Path) -> Iterator[str]:
     """A one-node Ray cluster (4 logical CPUs) in a temporary folder, with a token of its own
-    (whatever ``~/.ray`` holds); its address."""
+    (whatever ``~/.ray`` holds), its workers finding the installed plugins (``plugins``); its address."""
     _ray_or_skip()
     auth = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32), "RAY_USAGE_STATS_ENABLED": "0"}
     env = dict(os.environ, **auth)
@@ -111,6 +111,14 @@ def test_a_ray_sweep_gives_the_local_pool_s_table(ray_cluster, tmp_path):
     ray, local = _rows(tmp_path / "ray" / "results.csv"), _rows(tmp_path / "local" / "results.csv")
     differ = [{k: (a[k], b.get(k)) for k in a if a[k] != b.get(k)} for a, b in zip(ray, local, strict=True)]
     assert not any(differ), differ  # (ray's, the pool's) of each column that differs, by row
+
+
+def test_a_ray_sweep_flies_a_plugin_beside_c3bf(ray_cluster, tmp_path):
+    rows = sweep(
+        _base(), parse_axes(["filter=c3bf,c3swarm_vo.vo"]), tmp_path / "ray", engine="ray", address=ray_cluster
+    )
+    assert [r["filter"] for r in rows] == ["c3bf", "c3swarm_vo.vo"] and not any(r["error"] for r in rows), rows
+    assert all(r["collisions"] == 0 and r["plugin_fallbacks"] == 0 for r in rows), rows
 
 
 def _alive(group: int) -> bool:

@@ -80,3 +80,33 @@ def test_a_late_state_is_used_at_its_true_age_and_an_older_one_arriving_after_a_
     assert table.row_age_s == pytest.approx([0.3])
     assert rows.c_w[0] == pytest.approx([0.3, 0.0, 1.0])  # moved by its true age
     assert rows.radius_m[0] == pytest.approx(0.05 + 0.5 * a * 0.3**2)
+
+
+@pytest.mark.parametrize("speed", [0.2, 0.6, 0.9, 1.5])
+def test_the_speed_row_is_the_speed_cbf_by_its_definition(speed: float):
+    """The filtered command keeps ``h_v' + k h_v >= 0`` for ``h_v = V^2 - |v|^2`` (``h_v' = -2 <v, a>``, the
+    acceleration the thrust vector gives), or, where that asks for more braking than half the axes'
+    limit, brakes at least that hard; a reference that speeds up is cut back, one that slows is left."""
+    from swarm.model import CommandLevel, QuadState
+    from swarm.safety.filter import SPEED_GAIN_PER_S, FilterConfig, SafetyFilter
+    from swarm.safety.obstacles import ObstacleArrays
+
+    model = QuadModel()
+    p = model.params
+    V, a_lim = 0.65, 1.4
+    filt = SafetyFilter(model, FilterConfig(level=CommandLevel.ATTITUDE, accel_limit_mps2=a_lim, speed_limit_mps=V))
+    direction = np.array([0.6, 0.8, 0.0])
+    state = QuadState.hover([0.0, 0.0, 1.0])
+    state.v_w = speed * direction
+    g = np.array([0.0, 0.0, p.g_mps2])
+    for push in (1.0, -1.0):  # accelerate along v, or brake
+        u_ref = p.mass_kg * (g + push * 0.9 * direction)
+        res = filt.filter(state, u_ref, ObstacleArrays.build(np.zeros((0, 3)), np.zeros(0)))
+        accel = res.u / p.mass_kg - g
+        h_v = V**2 - speed**2
+        h_dot = -2.0 * float(state.v_w @ accel)
+        brake = -float(state.v_w @ accel) / speed  # m/s^2 along -v
+        assert h_dot + SPEED_GAIN_PER_S * h_v >= -1e-6 or brake >= 0.25 * a_lim - 1e-6
+        if push < 0:
+            assert res.u == pytest.approx(u_ref, abs=1e-6)  # braking is never cut
+        assert np.linalg.norm(accel) <= a_lim + 1e-6

@@ -33,10 +33,15 @@ def test_messages_round_trip():
         monitor=3,
         breaches=2,
         live_margin=0.012,
+        fallback="raised",
+        fallbacks=3,
+        ctrl_fallback="overrun",
+        ctrl_fallbacks=1,
     )
     m = decode(encode("command", "r", "cf1", 8, 1.5, 3, **body), "r", ("command",))
     assert m["goal_reached"] is True and m["infeasible"] == 2 and m["u"].tolist() == [0.1] * 4
     assert (m["monitor"], m["breaches"], m["live_margin"]) == (3, 2, 0.012)
+    assert (m["fallback"], m["fallbacks"], m["ctrl_fallback"], m["ctrl_fallbacks"]) == ("raised", 3, "overrun", 1)
     assert m["row_ids"] == ["ball"] and m["h_rows"].tolist() == [0.5]
 
 

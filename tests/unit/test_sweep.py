@@ -51,7 +51,7 @@ def test_the_obstacle_is_aimed_at_the_meeting_point(speed, angle):
 
 def test_filter_and_gains_reach_every_agent():
     cfg, _ = build(BASE, {"filter": "hocbf", "gamma_ho": "2.5", "rho": "0.5"})
-    assert all(a.filter.kind.value == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
+    assert all(a.filter.kind == "hocbf" and a.filter.gamma_ho == 2.5 and a.filter.rho == 0.5 for a in cfg.agents)
     assert all(not a.filter.enabled for a in build(BASE, {"filter": "none"})[0].agents)
     assert all(a.filter.horizon_s == 2.0 for a in build(BASE, {"horizon_s": "2"})[0].agents)
     assert all(a.filter.horizon_s is None for a in build(BASE, {"horizon_s": "none"})[0].agents)

@@ -107,12 +107,12 @@ def experiment(cs: Crazyswarm) -> None:
     print("landed")
 
 
-def main(run_dir: Path | None, out: Path) -> None:
+def main(run_dir: Path | None, out: Path, mode: str | None = None) -> None:
     handle = None
     if run_dir is None:
         from swarm.runs.launch import RunHandle
 
-        handle = RunHandle.start(load(CONFIG), out)
+        handle = RunHandle.start(load(CONFIG, {"time": {"mode": mode}} if mode else None), out)
         run_dir = out
     cfg = load(run_dir / "config.yaml")
     os.environ.update(read_env(run_dir / "secrets" / ENV_FILE))  # what `source .../ros2.env` does
@@ -130,6 +130,9 @@ def main(run_dir: Path | None, out: Path) -> None:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dir", nargs="?", type=Path, help="the folder of a running swarm (swarm run ... --out DIR)")
+    ap.add_argument(
+        "--mode", choices=["realtime", "lockstep"], help="the run's time.mode (no run_dir; default: the config's)"
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/ros2_services"), help="where to start the run (no run_dir)")
     args = ap.parse_args()
-    main(args.run_dir, args.out)
+    main(args.run_dir, args.out, args.mode)

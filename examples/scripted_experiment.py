@@ -11,6 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
+from swarm.config import load
 from swarm.script import Swarm
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "script_lab.yaml"
@@ -33,12 +34,14 @@ def experiment(swarm: Swarm) -> None:
     swarm.end("the experiment is done")
 
 
-def main(run_dir: Path | None, out: Path) -> dict:
+def main(run_dir: Path | None, out: Path, mode: str | None = None) -> dict:
     if run_dir is not None:
         with Swarm.connect(run_dir) as swarm:
             experiment(swarm)
         return {}
-    with Swarm.launch(CONFIG, out) as swarm:  # leaving the block ends the run and writes its metrics
+    with Swarm.launch(
+        load(CONFIG, {"time": {"mode": mode}} if mode else None), out
+    ) as swarm:  # leaving the block ends the run and writes its metrics
         experiment(swarm)
     metrics = json.loads((out / "metrics.json").read_text())
     print(f"{metrics['stop_reason']}: contacts {metrics['collisions']}, closest {metrics['min_separation_m']:.3f} m")
@@ -50,6 +53,9 @@ def main(run_dir: Path | None, out: Path) -> dict:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("run_dir", nargs="?", type=Path, help="the folder of a running swarm (swarm run ... --out DIR)")
+    ap.add_argument(
+        "--mode", choices=["realtime", "lockstep"], help="the run's time.mode (no run_dir; default: the config's)"
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/scripted"), help="where to start the run (no run_dir)")
     args = ap.parse_args()
-    main(args.run_dir, args.out)
+    main(args.run_dir, args.out, args.mode)

@@ -20,7 +20,8 @@ def test_the_swap_example_flies_a_swap_and_prints_its_metrics(tmp_path):
 
 
 def test_the_scripted_experiment_joins_a_running_swarm_and_flies_it(tmp_path):
-    # as the example's docstring says: `swarm run` in one shell, the script in another
+    # as the example's docstring says: `swarm run` in one shell, the script in another (lockstep: the
+    # swarm keeps its pace on a machine of any load)
     out = tmp_path / "s1"
     run = subprocess.Popen(
         [
@@ -62,7 +63,7 @@ def test_the_ros2_services_example_flies_the_same_experiment(tmp_path):
     pytest.importorskip("zenoh_ros2_sdk")
     out = tmp_path / "r1"
     p = subprocess.run(
-        [sys.executable, str(EXAMPLES / "ros2_services.py"), "--out", str(out)],
+        [sys.executable, str(EXAMPLES / "ros2_services.py"), "--out", str(out), "--mode", "lockstep"],
         capture_output=True,
         text=True,
         timeout=600,

@@ -128,7 +128,7 @@ def test_everything_off_is_the_sensor_and_the_filter_of_before():
         "986834d241b2b6aef97de02bd53a448a849a79fea669602cc3e7dc0afe9cfe9f"
     )
     assert run_digest(MocapSensor(lab.mocap_params(), 4, 11), lab.estimator_params()) == (
-        "9084373b2b7924f0e0ec76cac4cbc86587cdd0c7fe7dd9653c2c5c8f137b4be8"
+        "b99d60438ff9baac2aa98ace694d367e190b82131ad2a820469473903a1886ad"
     )
     assert RealismSettings().sensing.estimator_params().gate_sigmas == 0.0 == lab.estimator_params().gate_sigmas
 

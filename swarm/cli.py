@@ -540,7 +540,7 @@ class _SweepProgress:
             MofNCompleteColumn(),
             TextColumn("{task.fields[failed]} failed, {task.fields[running]} running"),
             TimeElapsedColumn(),
-            console=_console(stderr=True),
+            console=_console(),
         )
         self.task = self.bar.add_task("sweep", total=total, completed=done, failed=0, running=0)
         self.total, self.finished, self.failed, self.running = total, done, 0, 0

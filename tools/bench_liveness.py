@@ -296,7 +296,7 @@ def _summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
         "worst_time_ratio": round(float(np.max(ratios)), 3) if ratios else None,
         "mean_free_time_ratio": round(float(np.mean(free)), 3) if free else None,
         "worst_free_time_ratio": round(float(np.max(free)), 3) if free else None,
-        "estimate_error_p95_m": max((r["estimate_error_p95_m"] or 0.0 for r in runs), default=0.0) or None,
+        "estimate_error_p95_m": max((r.get("estimate_error_p95_m") or 0.0 for r in runs), default=0.0) or None,
         "estimate_error_max_m": max((r.get("estimate_error_max_m") or 0.0 for r in runs), default=0.0) or None,
         "monitor_ticks": {k: sum(r.get("monitor_ticks", {}).get(k, 0) for r in runs) for k in ("slow", "hold", "land")},
         "landed_by_monitor": sum(r.get("landed_by_monitor", 0) for r in runs),

@@ -346,13 +346,15 @@ def plot(lines: list[dict[str, Any]], out: Path) -> None:
         ax.set_ylabel("closest centres [m]")
         ax.set_title(axis)
         ax.grid(alpha=0.3)
-    panels[0].legend(fontsize=7)
+    handles, names = panels[0].get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.suptitle(
-        "One imperfection at a time (red x: contact; dashed: airframes touch;"
-        " ORCA: the ideal world but on latency and jitter)"
+        "One imperfection at a time\n(red x: contact; dashed black: airframes touch;"
+        " ORCA: the ideal world, but as late on latency and jitter)",
+        fontsize=10,
     )
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=110, bbox_inches="tight")
 
 
 def main(axes: list[str], jobs: int, orca: bool = True) -> None:

@@ -35,6 +35,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -611,9 +612,9 @@ def _sep(r: dict | None) -> str:
     return "-" if r is None else f"{r['min_separation_m']:.3f}" + (" x" if r["collisions"] else "")
 
 
-def _imperfection_table(path: Path) -> str:
-    """EXPERIMENTS.md section 5's sweep table: per imperfection, method and scene, the closest
-    centres at each level and the first level with a contact."""
+def _axis_tables(path: Path, axes: list[str], cell: Callable[[dict | None], str], what: str) -> str:
+    """One table per axis of ``axes`` (``tools.bench_imperfections``' points in ``path``): per
+    method and scene, ``cell`` of the point at each level, and the first level with a contact."""
     from tools.bench_imperfections import AXES
 
     lines = _jsonl(path)
@@ -626,7 +627,8 @@ def _imperfection_table(path: Path) -> str:
         "fraction/min": (100.0, "%/min"),
     }
     out = []
-    for axis, (unit, levels) in AXES.items():
+    for axis in axes:
+        unit, levels = AXES[axis]
         k, name = scale[unit]
         head = ["method", "scene", *(f"{lv * k:g} {name}" for lv in levels), "first contact"]
         rows = []
@@ -635,51 +637,42 @@ def _imperfection_table(path: Path) -> str:
                 got = {r["level"]: r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, scene)}
                 if not got:
                     continue
-                seps = [_sep(got.get(lv)) for lv in levels]
                 hits = [lv for lv in levels if lv in got and got[lv]["collisions"]]
                 first = f"{hits[0] * k:g} {name}" if hits else "none" if len(got) == len(levels) else "-"
-                rows.append([method, scene, *seps, first])
+                rows.append([method, scene, *(cell(got.get(lv)) for lv in levels), first])
         if rows:
             note = ""
             if any(r[0] == "orca" for r in rows):
                 late = axis in DELAY_AXES
                 note = "; orca: what it sees and flies as late" if late else "; orca: the ideal world, first level"
-            out.append(f"**{axis}** (closest centres [m]; x: a contact{note})\n\n" + _table(head, rows))
+            out.append(f"**{axis}** ({what}; x: a contact{note})\n\n" + _table(head, rows))
     return "\n\n".join(out)
+
+
+def _imperfection_table(path: Path) -> str:
+    """EXPERIMENTS.md section 5's sweep table: per imperfection, method and scene, the closest
+    centres at each level and the first level with a contact."""
+    from tools.bench_imperfections import AXES
+
+    return _axis_tables(path, list(AXES), _sep, "closest centres [m]")
+
+
+def _sep_and_time(r: dict | None) -> str:
+    """The closest centres (:func:`_sep`) and the mean time to goal over the straight line at the
+    configured speed, or "not home" where some drone did not arrive in the run."""
+    if r is None:
+        return "-"
+    if not r["success"] and not r["collisions"]:
+        return f"{_sep(r)} / not home"
+    return _sep(r) + ("" if r["mean_time_ratio"] is None else f" / {r['mean_time_ratio']:.2f}")
 
 
 def _delay_table(path: Path) -> str:
     """EXPERIMENTS.md's delay table: per delay axis, method and scene, at each level the closest
-    centres [m] (x: a contact) and the mean time to goal over the straight line at the cruise
-    speed configured, or "not home" where some drone did not arrive in the run."""
-    from tools.bench_imperfections import AXES
-
-    lines = _jsonl(path)
-    out = []
-    for axis in DELAY_AXES:
-        levels = AXES[axis][1]
-        head = ["method", "scene", *(f"{lv * 1000:g} ms" for lv in levels), "first contact"]
-        rows = []
-        for method in sorted({r["method"] for r in lines}):
-            for scene in sorted({r["scene"] for r in lines}):
-                got = {r["level"]: r for r in lines if (r["axis"], r["method"], r["scene"]) == (axis, method, scene)}
-                if not got:
-                    continue
-                cells = []
-                for lv in levels:
-                    r = got.get(lv)
-                    home = "-" if r is None else "not home" if not r["success"] and not r["collisions"] else None
-                    ratio = "" if r is None or r["mean_time_ratio"] is None else f"{r['mean_time_ratio']:.2f}"
-                    cells.append(_sep(r) + (f" / {home}" if home and r is not None else f" / {ratio}" if ratio else ""))
-                hits = [lv for lv in levels if lv in got and got[lv]["collisions"]]
-                first = f"{hits[0] * 1000:g} ms" if hits else "none" if len(got) == len(levels) else "-"
-                rows.append([method, scene, *cells, first])
-        if rows:
-            out.append(
-                f"**{axis}** (closest centres [m] / time to goal over the straight line; x: a contact;"
-                " orca: what it sees and flies as late)\n\n" + _table(head, rows)
-            )
-    return "\n\n".join(out)
+    centres [m] (x: a contact) and the mean time to goal over the straight line (:func:`_sep_and_time`)."""
+    return _axis_tables(
+        path, list(DELAY_AXES), _sep_and_time, "closest centres [m] / time to goal over the straight line"
+    )
 
 
 def _filter_table(path: Path) -> str:

@@ -270,7 +270,7 @@ def contained_plugin(
         config.sensing_radius_m, period_s, filter_options(cls, dict(agent.filter.options)),
     )  # fmt: skip
     wall = realtime or agent.backend == "crazyflie"
-    return ContainedFilter(cls(spec), spec, budget_s(agent.filter.budget_ms, period_s, wall))
+    return ContainedFilter(cls(spec), spec, budget_s=budget_s(agent.filter.budget_ms, period_s, wall))
 
 
 def contained_controller(
@@ -291,4 +291,4 @@ def contained_controller(
         plugin_options(cls, dict(agent.controller.options)),
     )  # fmt: skip
     wall = realtime or agent.backend == "crazyflie"
-    return ContainedController(cls(spec), spec, budget_s(agent.controller.budget_ms, period_s, wall))
+    return ContainedController(cls(spec), spec, budget_s=budget_s(agent.controller.budget_ms, period_s, wall))

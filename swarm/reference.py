@@ -24,7 +24,7 @@ attribute tells the step to compute its reference itself, which is every plugin'
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -32,7 +32,7 @@ from pydantic import BaseModel
 
 from swarm.model import LinearInputSet, QuadParams, QuadState, all_finite
 from swarm.rotation import FloatArray
-from swarm.safety.external import FALLBACK_NAMES, LIMIT_TOL, Fallback, Rows
+from swarm.safety.external import LIMIT_TOL, Containment, Fallback, Rows
 
 
 @dataclass(frozen=True)
@@ -88,24 +88,11 @@ def is_builtin(cls: type) -> bool:
 
 
 @dataclass
-class ContainedController:
+class ContainedController(Containment):
     """A reference controller plugin with its containment (see the module docstring)."""
 
     method: Any  # a class with reference(inp) -> ControllerOutput
     spec: ControllerSpec
-    budget_s: float  # s of wall time a call may take
-    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FALLBACK_NAMES, 0))
-    last: str = ""  # the reason of the newest tick's fallback ("" none)
-    last_error: str = ""  # the newest exception's type and message
-
-    @property
-    def fallbacks(self) -> int:
-        """Ticks so far whose reference was the built-in's."""
-        return sum(self.counts.values())
-
-    def reset(self) -> None:
-        self.counts = dict.fromkeys(FALLBACK_NAMES, 0)
-        self.last = self.last_error = ""
 
     def run(self, inp: ControllerInput) -> FloatArray:
         """The plugin's reference thrust vector [N, world] for ``inp``, or on a fault the built-in's
@@ -133,6 +120,5 @@ class ContainedController:
             reason = Fallback.OVERRUN
         if reason is None:
             return F
-        self.counts[reason.value] += 1
-        self.last = reason.value
+        self._fell_back(reason)
         return inp.F_track_w

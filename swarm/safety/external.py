@@ -208,14 +208,11 @@ _EMPTY_F = np.zeros(0)
 _EMPTY_B = np.zeros(0, dtype=bool)
 
 
-@dataclass
-class ContainedFilter:
-    """A plugin filter with its containment (see the module docstring). :meth:`run` is the
-    agent step's filter call: the plugin's command, or the fallback's, as a
-    :class:`FilterResult` (a plugin's has no rows: ``row_index`` empty)."""
+@dataclass(kw_only=True)
+class Containment:
+    """A plugin's tally of fallbacks (a filter's or a reference controller's): each tick a
+    fault ruled its output out, counted by reason."""
 
-    method: Any  # a SafetyMethod
-    spec: FilterSpec
     budget_s: float  # s of wall time a call may take
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FALLBACK_NAMES, 0))
     last: str = ""  # the reason of the newest tick's fallback ("" none)
@@ -223,12 +220,26 @@ class ContainedFilter:
 
     @property
     def fallbacks(self) -> int:
-        """Ticks so far whose command was the fallback's."""
+        """Ticks so far whose output was the fallback's."""
         return sum(self.counts.values())
 
     def reset(self) -> None:
         self.counts = dict.fromkeys(FALLBACK_NAMES, 0)
         self.last = self.last_error = ""
+
+    def _fell_back(self, reason: Fallback) -> None:
+        self.counts[reason.value] += 1
+        self.last = reason.value
+
+
+@dataclass
+class ContainedFilter(Containment):
+    """A plugin filter with its containment (see the module docstring). :meth:`run` is the
+    agent step's filter call: the plugin's command, or the fallback's, as a
+    :class:`FilterResult` (a plugin's has no rows: ``row_index`` empty)."""
+
+    method: Any  # a SafetyMethod
+    spec: FilterSpec
 
     def run(
         self,
@@ -260,8 +271,7 @@ class ContainedFilter:
                 u, inp.u_ref, status, _EMPTY_I, _EMPTY_F, _EMPTY_F, _EMPTY_B, _EMPTY_B, _EMPTY_F, dt,
                 ins.violation(u), _EMPTY_F, False,
             )  # fmt: skip
-        self.counts[reason.value] += 1
-        self.last = reason.value
+        self._fell_back(reason)
         try:
             return fallback()
         except Exception as exc:  # the fallback's own input check: brake and hold

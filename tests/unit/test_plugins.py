@@ -124,7 +124,7 @@ def _scene() -> tuple[QuadState, np.ndarray, ObstacleArrays, SafetyFilter]:
 )
 def test_a_faulty_plugin_s_command_is_replaced_by_the_c3bf_qp_s_and_counted(method, budget_s, reason):
     state, u_ref, sphere, qp = _scene()
-    box = ContainedFilter(method, SPEC, budget_s)
+    box = ContainedFilter(method, SPEC, budget_s=budget_s)
     res = box.run(_input(state, u_ref, sphere), lambda: qp.filter(state, u_ref, sphere), lambda: HOVER)
     want = qp.filter(state, u_ref, sphere)
     assert np.array_equal(res.u, want.u) and res.status is want.status and len(res.row_index) == 1
@@ -136,7 +136,7 @@ def test_a_faulty_plugin_s_command_is_replaced_by_the_c3bf_qp_s_and_counted(meth
 def test_a_sound_plugin_s_command_is_flown_as_it_is():
     state, u_ref, sphere, qp = _scene()
     u = HOVER + np.array([-0.1, 0.0, 0.0])
-    box = ContainedFilter(_Returns(u, FilterStatus.INFEASIBLE), SPEC, 1.0)
+    box = ContainedFilter(_Returns(u, FilterStatus.INFEASIBLE), SPEC, budget_s=1.0)
     res = box.run(_input(state, u_ref, sphere), lambda: qp.filter(state, u_ref, sphere), lambda: HOVER)
     assert np.array_equal(res.u, u) and res.status is FilterStatus.INFEASIBLE and box.fallbacks == 0
     assert math.isclose(res.intervention, 0.3) and len(res.row_index) == 0
@@ -144,7 +144,7 @@ def test_a_sound_plugin_s_command_is_flown_as_it_is():
 
 def test_when_the_fallback_cannot_run_either_the_drone_brakes():
     state, u_ref, sphere, _ = _scene()
-    box = ContainedFilter(_Raises(), SPEC, 1.0)
+    box = ContainedFilter(_Raises(), SPEC, budget_s=1.0)
 
     def broken() -> None:
         raise ValueError("state not finite")
@@ -158,7 +158,7 @@ def test_the_step_flies_the_fallback_and_reports_it():
     agent = resolve(_raw(kind="c3bf")).agents[0]
     step = step_of(agent, StaticObstacles.of([]), 0.1)
     ref = step_of(agent, StaticObstacles.of([]), 0.1)
-    step.plugin = ContainedFilter(_Raises(), replace(SPEC, control_period_s=1 / 100), 1.0)
+    step.plugin = ContainedFilter(_Raises(), replace(SPEC, control_period_s=1 / 100), budget_s=1.0)
     named, none = NamedObstacles(sphere, ["ball"]), NamedObstacles.none()
     for k in range(3):
         got, want = step(0.01 * k, state, named, none), ref(0.01 * k, state, named, none)
@@ -216,14 +216,14 @@ CTRL_SPEC = ControllerSpec("a", PARAMS, LIMITS, 1.0, 1 / 120, None)
 )
 def test_a_faulty_controller_s_reference_is_replaced_by_the_tracker_s_and_counted(F, budget_s, reason):
     track = HOVER + np.array([0.1, 0.0, 0.0])
-    box = ContainedController(_Reference(F), CTRL_SPEC, budget_s)
+    box = ContainedController(_Reference(F), CTRL_SPEC, budget_s=budget_s)
     assert np.array_equal(box.run(_ctrl_input(track)), track)
     assert box.last == reason.value and box.fallbacks == 1
 
 
 def test_a_sound_controller_s_reference_is_flown_and_the_built_in_is_registered():
     mine = HOVER + np.array([0.0, 0.05, 0.0])
-    box = ContainedController(_Reference(mine), CTRL_SPEC, 1.0)
+    box = ContainedController(_Reference(mine), CTRL_SPEC, budget_s=1.0)
     assert np.array_equal(box.run(_ctrl_input(HOVER)), mine) and box.fallbacks == 0
     assert is_builtin(plugin_class(CONTROLLERS, "path_tracker")) and "path_tracker" in names(CONTROLLERS)
     with pytest.raises(ConfigError, match=r"t.yaml: defaults.controller.kind: unknown controller 'mypkg.mpc'"):

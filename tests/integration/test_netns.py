@@ -1,6 +1,6 @@
 """Across machines for real: the world, the recorder and the router in one Linux network
 namespace, each agent in another, linked by veth pairs to a bridge, as three hosts on a
-LAN would be. Every process is started by hand, as the README's multi-machine section
+LAN would be. Every process is started by hand, as docs/running.md's "Across machines"
 says (``swarm secrets``, then ``swarm router``, ``swarm record``, ``swarm world`` and one
 ``swarm agent`` per host, each with ``--secrets``), and the swap is flown through the router
 at 10.123.0.1. The namespaces are made and removed by the test (it needs root and

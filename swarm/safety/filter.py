@@ -333,8 +333,9 @@ class FilterConfig:
     speed_limit_mps: float | None = None
     """Attitude level: the speed [m/s] the agent keeps within, one more input row, the CBF
     ``h_v = V^2 - |v|^2`` with ``h_v' + SPEED_GAIN_PER_S h_v >= 0`` (``h_v' = -2 <v, F / m - g
-    e3>``), its right-hand side never below braking at half ``accel_limit_mps2`` (so the set is
-    never empty): a swarm's delay contract (``swarm.tuning.agreed_speed_mps``). None: no row."""
+    e3>``), its right-hand side never asking for more braking than a quarter of
+    ``accel_limit_mps2`` (which the box gives in any direction, so the set is never empty): a
+    swarm's delay contract (``swarm.tuning.agreed_speed_mps``). None: no row."""
     ellipsoid: bool = True
     """Rows of other drones keep the keep-out ellipsoid of the airframe
     (``QuadParams.keep_out_xy_m``, ``keep_out_z_m``: Crazyswarm's 0.12 m across and 0.30 m up and
@@ -580,7 +581,8 @@ class SafetyFilter:
         """The speed row of ``ins`` (``FilterConfig.speed_limit_mps``) for the velocity ``v_w``
         [m/s, world], in place: ``<v, F> <= m g v_z + m k (V^2 - |v|^2) / 2`` (``k`` =
         :data:`SPEED_GAIN_PER_S`), and never below ``m g v_z - m a |v| / 4`` with ``a`` the
-        acceleration limit (braking along ``-v`` at half of what each axis may give)."""
+        acceleration limit (braking along ``-v`` at a quarter of it, inside the box's ``a / sqrt 2``
+        per axis in any direction)."""
         p, cfg = self.model.params, self.config
         j = self._speed_row
         assert j is not None and cfg.speed_limit_mps is not None

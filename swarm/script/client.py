@@ -341,31 +341,42 @@ class Swarm:
     def stream(self, duration_s: float | None = None) -> Iterator[Snapshot]:
         """Every tick's snapshot as it arrives (a slow reader skips ticks: the newest 256
         are kept), for ``duration_s`` [s, run time] or until the run ends."""
-        self.pump()
-        until = math.inf if duration_s is None else self.now_s + duration_s
-        self._snapshots.clear()
+        until = self._stream_until(duration_s)
         while not self.over and self.now_s <= until:
-            self.pump()
-            while self._snapshots:
-                snap = self._snapshots.pop(0)
-                if snap.t_s > until:
-                    return
-                yield snap
+            snaps, done = self._due(until)
+            yield from snaps
+            if done:
+                return
             time.sleep(POLL_S)
 
     async def astream(self, duration_s: float | None = None) -> AsyncIterator[Snapshot]:
         """:meth:`stream` for asyncio."""
-        self.pump()
-        until = math.inf if duration_s is None else self.now_s + duration_s
-        self._snapshots.clear()
+        until = self._stream_until(duration_s)
         while not self.over and self.now_s <= until:
-            self.pump()
-            while self._snapshots:
-                snap = self._snapshots.pop(0)
-                if snap.t_s > until:
-                    return
+            snaps, done = self._due(until)
+            for snap in snaps:
                 yield snap
+            if done:
+                return
             await asyncio.sleep(POLL_S)
+
+    def _stream_until(self, duration_s: float | None) -> float:
+        """A stream's start: the snapshots heard so far forgotten; its end [s, run time]."""
+        self.pump()
+        self._snapshots.clear()
+        return math.inf if duration_s is None else self.now_s + duration_s
+
+    def _due(self, until: float) -> tuple[list[Snapshot], bool]:
+        """The snapshots heard since the last call up to ``until`` [s, run time], and whether
+        one past it came (the stream's end)."""
+        self.pump()
+        out: list[Snapshot] = []
+        while self._snapshots:
+            snap = self._snapshots.pop(0)
+            if snap.t_s > until:
+                return out, True
+            out.append(snap)
+        return out, False
 
     def sleep(self, duration_s: float) -> None:
         """Wait ``duration_s`` [s] of the run's time (Crazyswarm2's ``timeHelper.sleep``)."""
